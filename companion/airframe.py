@@ -1,0 +1,149 @@
+"""The airframe: one TOML file read into a frozen dataclass, shared by every model.
+
+Frames: body FRD (x forward, y right, z down); world local NED. Rotors are indexed 0..3 in
+code and numbered 1..4 (PX4 quad-X) wherever a person reads them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from companion.toml_fields import ConfigError, Table, load_toml
+
+ROTOR_COUNT = 4
+REFERENCE_AIRFRAME = "m4_reference.toml"
+
+
+@dataclass(frozen=True)
+class Airframe:
+    name: str
+    gravity_m_s2: float
+    body_mass_kg: float
+    body_inertia_diag_kg_m2: tuple[float, float, float]
+    body_box_size_m: tuple[float, float, float]
+    leg_hip_block_mass_kg: float
+    leg_link_mass_kg: float
+    leg_wheel_mass_kg: float
+    leg_length_m: float
+    wheel_radius_m: float
+    hip_min_rad: float
+    hip_max_rad: float
+    same_side_sum_max_rad: float
+    nominal_hip_rad: float
+    hip_accel_max_rad_s2: float
+    hip_rate_max_rad_s: float
+    servo_time_constant_s: float
+    rotor_names: tuple[str, ...]
+    hip_frd_m: tuple[tuple[float, float, float], ...]
+    spin_sign: tuple[int, ...]          # +1: reaction moment +k_m T about body z (ccw), -1: cw
+    moment_coefficient_m: float
+    thrust_min_n: float
+    thrust_max_n: float
+    thrust_max_tight_n: float
+    motor_time_constant_s: float
+    drag_linear_n_s_m: float
+    drag_quadratic_n_s2_m2: float
+    drag_rotational_linear_n_m_s: float
+    drag_yaw_quadratic_n_m_s2: float
+
+    # Derived quantities: computed from the fields above, never stored twice.
+    @property
+    def leg_mass_kg(self) -> float:
+        return self.leg_hip_block_mass_kg + self.leg_link_mass_kg + self.leg_wheel_mass_kg
+
+    @property
+    def total_mass_kg(self) -> float:
+        return self.body_mass_kg + ROTOR_COUNT * self.leg_mass_kg
+
+    @property
+    def hover_thrust_per_rotor_n(self) -> float:
+        return self.total_mass_kg * self.gravity_m_s2 / ROTOR_COUNT
+
+    @property
+    def leg_direction_signs(self) -> np.ndarray:
+        """(4, 2): signs (sx, sy) of each hip's x and y; the leg points along (sx cos q, sy sin q)."""
+        return np.sign(np.array(self.hip_frd_m)[:, :2])
+
+    @property
+    def same_side_pairs(self) -> tuple[tuple[int, int], tuple[int, int]]:
+        """Rotor indices on the right (y > 0) and on the left (y < 0) side of the body."""
+        y = np.array(self.hip_frd_m)[:, 1]
+        right = tuple(int(i) for i in np.flatnonzero(y > 0))
+        left = tuple(int(i) for i in np.flatnonzero(y < 0))
+        return right, left  # type: ignore[return-value]
+
+    def thruster_positions_frd_m(self, hip_rad) -> np.ndarray:
+        """(4, 3) thruster hub positions in the body frame for sagittal angles hip_rad (4,)."""
+        q = np.asarray(hip_rad, dtype=float)
+        s = self.leg_direction_signs
+        hips = np.array(self.hip_frd_m)
+        out = hips.copy()
+        out[:, 0] += self.leg_length_m * s[:, 0] * np.cos(q)
+        out[:, 1] += self.leg_length_m * s[:, 1] * np.sin(q)
+        return out
+
+    def com_offset_frd_m(self, hip_rad) -> np.ndarray:
+        """Centre of mass of the whole robot relative to the hull centre, body frame, with the
+        legs lumped at their thrusters (the reduced-order model's assumption)."""
+        r = self.thruster_positions_frd_m(hip_rad)
+        return self.leg_mass_kg * r.sum(axis=0) / self.total_mass_kg
+
+
+def load_airframe(path: str | Path | None = None) -> Airframe:
+    """Read an airframe file; None reads the bundled reference airframe."""
+    if path is None:
+        with resources.as_file(resources.files("companion.airframes") / REFERENCE_AIRFRAME) as p:
+            return _parse(load_toml(p), p.name)
+    return _parse(load_toml(path), Path(path).name)
+
+
+def _parse(data: dict, filename: str) -> Airframe:
+    top = Table(data, filename)
+    body, leg, rotors, drag = (top.table(k, required=True) for k in ("body", "leg", "rotors", "drag"))
+    deg = math.radians
+    spins = rotors.strings("spin", ROTOR_COUNT, choices=("ccw", "cw"))
+    af = Airframe(
+        name=top.string("name"),
+        gravity_m_s2=top.number("gravity_m_s2", lo=0.0, lo_open=True),
+        body_mass_kg=body.number("mass_kg", lo=0.0, lo_open=True),
+        body_inertia_diag_kg_m2=body.vector("inertia_diag_kg_m2", 3, lo=1e-6),
+        body_box_size_m=body.vector("box_size_m", 3, lo=1e-3),
+        leg_hip_block_mass_kg=leg.number("hip_block_mass_kg", lo=0.0),
+        leg_link_mass_kg=leg.number("link_mass_kg", lo=0.0),
+        leg_wheel_mass_kg=leg.number("wheel_mass_kg", lo=0.0),
+        leg_length_m=leg.number("length_m", lo=0.0, lo_open=True),
+        wheel_radius_m=leg.number("wheel_radius_m", lo=0.0, lo_open=True),
+        hip_min_rad=deg(leg.number("hip_min_deg", lo=-180.0, hi=180.0)),
+        hip_max_rad=deg(leg.number("hip_max_deg", lo=-180.0, hi=180.0)),
+        same_side_sum_max_rad=deg(leg.number("same_side_sum_max_deg", lo=0.0, hi=360.0)),
+        nominal_hip_rad=deg(leg.number("nominal_hip_deg", lo=-180.0, hi=180.0)),
+        hip_accel_max_rad_s2=leg.number("hip_accel_max_rad_s2", lo=0.0, lo_open=True),
+        hip_rate_max_rad_s=leg.number("hip_rate_max_rad_s", lo=0.0, lo_open=True),
+        servo_time_constant_s=leg.number("servo_time_constant_s", lo=0.0),
+        rotor_names=rotors.strings("names", ROTOR_COUNT),
+        hip_frd_m=rotors.matrix("hip_frd_m", ROTOR_COUNT, 3, lo=-2.0, hi=2.0),
+        spin_sign=tuple(1 if s == "ccw" else -1 for s in spins),
+        moment_coefficient_m=rotors.number("moment_coefficient_m", lo=0.0),
+        thrust_min_n=rotors.number("thrust_min_n", lo=0.0),
+        thrust_max_n=rotors.number("thrust_max_n", lo=0.0, lo_open=True),
+        thrust_max_tight_n=rotors.number("thrust_max_tight_n", lo=0.0, lo_open=True),
+        motor_time_constant_s=rotors.number("motor_time_constant_s", lo=0.0),
+        drag_linear_n_s_m=drag.number("linear_n_s_m", lo=0.0),
+        drag_quadratic_n_s2_m2=drag.number("quadratic_n_s2_m2", lo=0.0),
+        drag_rotational_linear_n_m_s=drag.number("rotational_linear_n_m_s", lo=0.0),
+        drag_yaw_quadratic_n_m_s2=drag.number("yaw_quadratic_n_m_s2", lo=0.0),
+    )
+    for t in (top, body, leg, rotors, drag):
+        t.finish()
+    if not af.hip_min_rad < af.nominal_hip_rad < af.hip_max_rad:
+        raise ConfigError(f"{filename}: [leg] nominal_hip_deg must lie between hip_min_deg and hip_max_deg")
+    if af.thrust_min_n >= af.thrust_max_n:
+        raise ConfigError(f"{filename}: [rotors] thrust_min_n must be below thrust_max_n")
+    if np.any(af.leg_direction_signs == 0):
+        raise ConfigError(f"{filename}: [rotors] hip_frd_m must put every hip off both body axes")
+    return af
