@@ -31,6 +31,9 @@ class Airframe:
     leg_wheel_mass_kg: float
     leg_length_m: float
     wheel_radius_m: float
+    wheel_width_m: float                # MuJoCo plant only (lump inertias, contact)
+    hip_block_size_m: float             # MuJoCo plant only
+    link_radius_m: float                # MuJoCo plant only
     hip_min_rad: float
     hip_max_rad: float
     same_side_sum_max_rad: float
@@ -38,6 +41,7 @@ class Airframe:
     hip_accel_max_rad_s2: float
     hip_rate_max_rad_s: float
     servo_time_constant_s: float
+    frontal_servo_time_constant_s: float
     rotor_names: tuple[str, ...]
     hip_frd_m: tuple[tuple[float, float, float], ...]
     spin_sign: tuple[int, ...]          # +1: reaction moment +k_m T about body z (ccw), -1: cw
@@ -50,6 +54,11 @@ class Airframe:
     drag_quadratic_n_s2_m2: float
     drag_rotational_linear_n_m_s: float
     drag_yaw_quadratic_n_m_s2: float
+    position_noise_m: float             # [sensors]: plant only, standard deviations
+    velocity_noise_m_s: float
+    attitude_noise_rad: float
+    rate_noise_rad_s: float
+    hip_noise_rad: float
 
     # Derived quantities: computed from the fields above, never stored twice.
     @property
@@ -104,7 +113,8 @@ def load_airframe(path: str | Path | None = None) -> Airframe:
 
 def _parse(data: dict, filename: str) -> Airframe:
     top = Table(data, filename)
-    body, leg, rotors, drag = (top.table(k, required=True) for k in ("body", "leg", "rotors", "drag"))
+    body, leg, rotors, drag, sensors = (top.table(k, required=True)
+                                        for k in ("body", "leg", "rotors", "drag", "sensors"))
     deg = math.radians
     spins = rotors.strings("spin", ROTOR_COUNT, choices=("ccw", "cw"))
     af = Airframe(
@@ -118,6 +128,9 @@ def _parse(data: dict, filename: str) -> Airframe:
         leg_wheel_mass_kg=leg.number("wheel_mass_kg", lo=0.0),
         leg_length_m=leg.number("length_m", lo=0.0, lo_open=True),
         wheel_radius_m=leg.number("wheel_radius_m", lo=0.0, lo_open=True),
+        wheel_width_m=leg.number("wheel_width_m", lo=0.0, lo_open=True),
+        hip_block_size_m=leg.number("hip_block_size_m", lo=0.0, lo_open=True),
+        link_radius_m=leg.number("link_radius_m", lo=0.0, lo_open=True),
         hip_min_rad=deg(leg.number("hip_min_deg", lo=-180.0, hi=180.0)),
         hip_max_rad=deg(leg.number("hip_max_deg", lo=-180.0, hi=180.0)),
         same_side_sum_max_rad=deg(leg.number("same_side_sum_max_deg", lo=0.0, hi=360.0)),
@@ -125,6 +138,7 @@ def _parse(data: dict, filename: str) -> Airframe:
         hip_accel_max_rad_s2=leg.number("hip_accel_max_rad_s2", lo=0.0, lo_open=True),
         hip_rate_max_rad_s=leg.number("hip_rate_max_rad_s", lo=0.0, lo_open=True),
         servo_time_constant_s=leg.number("servo_time_constant_s", lo=0.0),
+        frontal_servo_time_constant_s=leg.number("frontal_servo_time_constant_s", lo=0.0, lo_open=True),
         rotor_names=rotors.strings("names", ROTOR_COUNT),
         hip_frd_m=rotors.matrix("hip_frd_m", ROTOR_COUNT, 3, lo=-2.0, hi=2.0),
         spin_sign=tuple(1 if s == "ccw" else -1 for s in spins),
@@ -137,8 +151,13 @@ def _parse(data: dict, filename: str) -> Airframe:
         drag_quadratic_n_s2_m2=drag.number("quadratic_n_s2_m2", lo=0.0),
         drag_rotational_linear_n_m_s=drag.number("rotational_linear_n_m_s", lo=0.0),
         drag_yaw_quadratic_n_m_s2=drag.number("yaw_quadratic_n_m_s2", lo=0.0),
+        position_noise_m=sensors.number("position_noise_m", lo=0.0),
+        velocity_noise_m_s=sensors.number("velocity_noise_m_s", lo=0.0),
+        attitude_noise_rad=sensors.number("attitude_noise_rad", lo=0.0),
+        rate_noise_rad_s=sensors.number("rate_noise_rad_s", lo=0.0),
+        hip_noise_rad=sensors.number("hip_noise_rad", lo=0.0),
     )
-    for t in (top, body, leg, rotors, drag):
+    for t in (top, body, leg, rotors, drag, sensors):
         t.finish()
     if not af.hip_min_rad < af.nominal_hip_rad < af.hip_max_rad:
         raise ConfigError(f"{filename}: [leg] nominal_hip_deg must lie between hip_min_deg and hip_max_deg")
