@@ -1,0 +1,65 @@
+"""CasADi functions compiled to C once and cached on disk, keyed by a hash of the code.
+
+The first use of a problem generates C, compiles it with the system C compiler (a few
+seconds) and stores the shared library under the cache directory; every later start loads
+it at once. The key is a hash of the generated source, the compiler command and CasADi's
+version, so a change of model, horizon or step makes a new library and never reuses a stale
+one. Writes are atomic (compile to a temporary name, then rename), so two processes
+starting together cannot load a half-written file.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+import casadi as ca
+
+CACHE_ENV = "M4_CACHE_DIR"
+COMPILER_FLAGS = ("-O2", "-fPIC", "-shared")
+
+
+class CodegenError(RuntimeError):
+    """The C compiler is missing or failed."""
+
+
+def cache_dir() -> Path:
+    """$M4_CACHE_DIR, else $XDG_CACHE_HOME/m4-fault-recovery, else ~/.cache/m4-fault-recovery."""
+    if os.environ.get(CACHE_ENV):
+        return Path(os.environ[CACHE_ENV])
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "m4-fault-recovery"
+
+
+def _compiler() -> str:
+    cc = os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc")
+    if not cc:
+        raise CodegenError("no C compiler found (install gcc, or set NmpcConfig(codegen=False))")
+    return cc
+
+
+def compiled(fn: ca.Function) -> ca.Function:
+    """The same function as `fn`, loaded from a cached compiled library (built if missing)."""
+    cc = _compiler()
+    with tempfile.TemporaryDirectory(prefix="m4-codegen-") as tmp:
+        src_name = f"{fn.name()}.c"
+        gen = ca.CodeGenerator(src_name, {"with_header": False})
+        gen.add(fn)
+        gen.generate(tmp + os.sep)
+        source = Path(tmp, src_name).read_bytes()
+        key = hashlib.sha256(source + " ".join((cc, *COMPILER_FLAGS, ca.__version__)).encode()).hexdigest()[:16]
+        lib = cache_dir() / f"{fn.name()}_{key}.so"
+        if not lib.exists():
+            lib.parent.mkdir(parents=True, exist_ok=True)
+            partial = lib.with_suffix(f".{os.getpid()}.tmp")
+            result = subprocess.run([cc, *COMPILER_FLAGS, "-o", str(partial), str(Path(tmp, src_name)), "-lm"],
+                                    capture_output=True, text=True)
+            if result.returncode != 0:
+                partial.unlink(missing_ok=True)
+                raise CodegenError(f"compiling {fn.name()} failed: {result.stderr.strip()[:2000]}")
+            os.replace(partial, lib)
+    return ca.external(fn.name(), str(lib))

@@ -1,0 +1,165 @@
+"""Single-shooting linearisation of the ROM and its condensing into a dense QP on the inputs.
+
+`linearisation(rom_fns, horizon)` is ONE CasADi function: from (x0, U, d) it rolls the model
+out over the horizon and returns the trajectory with every stage's Jacobians A_k = dx+/dx,
+B_k = dx+/du. `condense` then eliminates the states: with dX = Gamma dU the Gauss-Newton QP
+of the tracking cost has only the N * 8 inputs as variables, and every state constraint is a
+linear row in the inputs. At N = 5 that is 40 variables, small enough for a dense active-set
+solver.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from companion.core import rom
+from companion.core.rom import ND, NU, NX
+
+
+def linearisation(step: ca.Function, horizon: int) -> ca.Function:
+    """(x0 (20), U (8, N), d (6)) -> X (20, N+1), A (20, 20 N), B (20, 8 N)."""
+    x, u, d = ca.SX.sym("x", NX), ca.SX.sym("u", NU), ca.SX.sym("d", ND)
+    x_next = step(x, u, d)
+    stage = ca.Function("m4_nmpc_stage", [x, u, d], [x_next, ca.jacobian(x_next, x), ca.jacobian(x_next, u)])
+    rollout = stage.mapaccum("m4_nmpc_rollout", horizon)
+    x0, us, dm = ca.MX.sym("x0", NX), ca.MX.sym("U", NU, horizon), ca.MX.sym("d", ND)
+    xs, a, b = rollout(x0, us, ca.repmat(dm, 1, horizon))
+    return ca.Function(f"m4_nmpc_lin_n{horizon}", [x0, us, dm], [ca.horzcat(x0, xs), ca.densify(a), ca.densify(b)],
+                       ["x0", "U", "d"], ["X", "A", "B"])
+
+
+class Linearisation:
+    """Evaluates a `linearisation` function on preallocated numpy buffers (no conversion cost).
+
+    Call with (x0 (20,), us (N, 8), d (6,)); returns fresh arrays xs (N+1, 20),
+    a (N, 20, 20) and b (N, 20, 8) with a[k] = A_k, b[k] = B_k.
+    """
+
+    def __init__(self, fn: ca.Function, horizon: int):
+        self.horizon = horizon
+        self._x0, self._us, self._d = np.zeros(NX), np.zeros(horizon * NU), np.zeros(ND)
+        self._xs = np.zeros((horizon + 1) * NX)
+        self._a, self._b = np.zeros(horizon * NX * NX), np.zeros(horizon * NU * NX)
+        self._fn = fn                                  # the buffers below refer to it
+        self._buffer, self._evaluate = fn.buffer()
+        for i, arr in enumerate((self._x0, self._us, self._d)):
+            self._buffer.set_arg(i, memoryview(arr))
+        for i, arr in enumerate((self._xs, self._a, self._b)):
+            self._buffer.set_res(i, memoryview(arr))
+
+    def __call__(self, x0: np.ndarray, us: np.ndarray, d: np.ndarray):
+        n = self.horizon
+        self._x0[:], self._us[:], self._d[:] = x0, us.ravel(), d
+        self._evaluate()
+        if self._buffer.ret() != 0:
+            raise RuntimeError(f"{self._fn.name()} failed with code {self._buffer.ret()}")
+        # Column-major outputs: X (20, N+1) is xs (N+1, 20); A (20, 20N) holds A_k^T blocks.
+        return (self._xs.reshape(n + 1, NX).copy(),
+                self._a.reshape(n, NX, NX).transpose(0, 2, 1).copy(),
+                self._b.reshape(n, NU, NX).transpose(0, 2, 1).copy())
+
+
+def sensitivities(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Gamma (N*20, N*8): row block k is d x_{k+1} / d U, from A_k = a[k], B_k = b[k]."""
+    horizon = a.shape[0]
+    gamma = np.zeros((horizon * NX, horizon * NU))
+    for k in range(horizon):
+        rows = slice(k * NX, (k + 1) * NX)
+        if k:
+            prev = slice((k - 1) * NX, k * NX)
+            gamma[rows, :k * NU] = a[k] @ gamma[prev, :k * NU]
+        gamma[rows, k * NU:(k + 1) * NU] = b[k]
+    return gamma
+
+
+class TrackingCost:
+    """Diagonal quadratic tracking cost; state_w (N+1, 20) per stage, input_w (8,)."""
+
+    def __init__(self, state_w: np.ndarray, input_w: np.ndarray):
+        self.state_w = np.asarray(state_w, dtype=float)
+        self.input_w = np.asarray(input_w, dtype=float)
+        horizon = self.state_w.shape[0] - 1
+        self._qw2 = 2.0 * self.state_w[1:].reshape(-1, 1)               # stages 1..N, as a column
+        self._rw2 = 2.0 * np.tile(self.input_w, horizon)
+        self._r_hess = np.diag(self._rw2)
+
+    def value(self, xs: np.ndarray, us: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray) -> float:
+        """Cost of a trajectory xs (N+1, 20), inputs us (N, 8)."""
+        ex, eu = xs - x_ref, us - u_ref
+        return float(np.vdot(self.state_w * ex, ex) + np.vdot(self.input_w * eu, eu))
+
+    def gauss_newton(self, gamma: np.ndarray, xs: np.ndarray, us: np.ndarray, x_ref: np.ndarray,
+                     u_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Hessian and gradient of the cost in dU, with dX = Gamma dU (x0 is fixed)."""
+        wg = self._qw2 * gamma
+        hess = gamma.T @ wg + self._r_hess
+        grad = wg.T @ (xs[1:] - x_ref[1:]).ravel() + self._rw2 * (us - u_ref).ravel()
+        return hess, grad
+
+
+@dataclass(frozen=True)
+class StateRows:
+    """Linear functions of the predicted states 1..N, each with bounds: c = S x, lo <= c <= hi.
+
+    Every row is a sum of one or two state entries (one for roll, pitch, a hip; two for the
+    sum of the hips on one side), so evaluation is indexing, never a big matrix product.
+    """
+
+    first: np.ndarray       # (m,) flat index into states 1..N of the first entry
+    second: np.ndarray      # (m,) flat index of the second entry, or -1
+    lo: np.ndarray
+    hi: np.ndarray
+
+    @staticmethod
+    def build(horizon: int, entries: list[tuple[tuple[int, ...], float, float]]) -> "StateRows":
+        """entries: (state indices summed, lo, hi), each repeated over the stages 1..N."""
+        first, second, lo, hi = [], [], [], []
+        for k in range(horizon):
+            for idx, low, high in entries:
+                first.append(k * NX + idx[0])
+                second.append(k * NX + idx[1] if len(idx) > 1 else -1)
+                lo.append(low)
+                hi.append(high)
+        return StateRows(np.array(first, dtype=int), np.array(second, dtype=int), np.array(lo), np.array(hi))
+
+    @property
+    def count(self) -> int:
+        return self.first.size
+
+    def _pair(self) -> tuple[np.ndarray, np.ndarray]:
+        two = self.second >= 0
+        return two, self.second[two]
+
+    def values(self, xs: np.ndarray) -> np.ndarray:
+        flat = xs[1:].ravel()
+        c = flat[self.first].copy()
+        two, idx = self._pair()
+        c[two] += flat[idx]
+        return c
+
+    def jacobian(self, gamma: np.ndarray) -> np.ndarray:
+        rows = gamma[self.first]
+        two, idx = self._pair()
+        rows[two] += gamma[idx]
+        return rows
+
+    def violation(self, xs: np.ndarray) -> float:
+        c = self.values(xs)
+        return float(np.sum(np.maximum(c - self.hi, 0.0) + np.maximum(self.lo - c, 0.0)))
+
+
+def state_rows(horizon: int, roll_pitch_max_rad: float, hip_bounds: tuple[float, float] | None,
+               side_pairs: tuple[tuple[int, int], ...], side_sum_max_rad: float) -> StateRows:
+    """Roll and pitch within +-roll_pitch_max_rad; with hip_bounds, each hip in its range and
+    the hips of each side pair (rotor indices) summing to at most side_sum_max_rad."""
+    roll, pitch = rom.EULER.start, rom.EULER.start + 1
+    entries: list[tuple[tuple[int, ...], float, float]] = [
+        ((roll,), -roll_pitch_max_rad, roll_pitch_max_rad),
+        ((pitch,), -roll_pitch_max_rad, roll_pitch_max_rad)]
+    if hip_bounds is not None:
+        entries += [((rom.HIP.start + i,), *hip_bounds) for i in range(NU // 2)]
+        entries += [((rom.HIP.start + a, rom.HIP.start + b), -np.inf, side_sum_max_rad) for a, b in side_pairs]
+    return StateRows.build(horizon, entries)

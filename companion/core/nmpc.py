@@ -1,0 +1,206 @@
+"""The fault-agnostic NMPC: thrust and leg posture planned together over a short horizon.
+
+Route (chosen by measurement, see README "NMPC speed"): a Gauss-Newton SQP in single
+shooting. Each iteration makes ONE call of a compiled CasADi function (rollout + every
+stage's Jacobians), condenses the problem into a dense QP over the N * 8 inputs in numpy
+and solves it with DAQP (a dual active-set solver), warm-started from the previous active
+set. State constraints (roll, pitch, hips, same-side hip sums) are linear rows in the
+inputs after condensing; they are soft in the QP (a huge penalty, exact whenever feasible)
+so that a measured state just outside a bound never makes the QP infeasible.
+
+Fault-agnostic: each rotor's thrust upper bound is an argument of `solve`; a fault lowers a
+bound and nothing else changes. A solve never returns NaN or an input out of its bounds: on
+bad input or solver failure it returns a bounded fallback and says so (`fallback=True`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import daqp
+import numpy as np
+
+from companion.airframe import ROTOR_COUNT, Airframe
+from companion.core import rom
+from companion.core.codegen_cache import compiled
+from companion.core.condensing import Linearisation, TrackingCost, linearisation, sensitivities, state_rows
+from companion.core.nmpc_config import NmpcConfig
+from companion.core.rom import ND, NU, NX
+
+_BIG = 1e30                  # DAQP's "no bound"
+_MERIT_PENALTY = 1e4         # per unit of state-constraint violation, in the line search
+_ARMIJO = 1e-4
+_MAX_HALVINGS = 6
+_DAQP_OK = (1, 2)            # optimal; optimal with soft constraints violated
+
+
+@dataclass(frozen=True)
+class NmpcResult:
+    u: np.ndarray            # (8,) the first input: thrust_n (4), hip_accel_rad_s2 (4)
+    x_pred: np.ndarray       # (N+1, 20) predicted states (x0 first)
+    u_pred: np.ndarray       # (N, 8)
+    solve_ms: float
+    iterations: int
+    status: str              # converged | max_iterations | no_progress | qp_failed | invalid_input
+    ok: bool
+    cost: float
+    fallback: bool
+
+
+class Nmpc:
+    """NMPC over the ROM of `airframe`; `solve` once per control period."""
+
+    def __init__(self, airframe: Airframe, config: NmpcConfig | None = None):
+        self.af = airframe
+        self.config = config = config or NmpcConfig()
+        config.validate()
+        n = config.horizon
+        self.rom = rom.build_rom(airframe, config.dt_s, config.rk4_substeps)
+        lin = linearisation(self.rom.step, n)
+        self._rollout = Linearisation(compiled(lin) if config.codegen else lin, n)
+
+        fixed = config.fixed_hip_rad
+        if fixed is not None and not airframe.hip_min_rad <= fixed <= airframe.hip_max_rad:
+            raise ValueError(f"NmpcConfig.fixed_hip_rad {fixed} is outside the airframe's hip range")
+        self.hip_ref_rad = airframe.nominal_hip_rad if fixed is None else fixed
+        accel = 0.0 if fixed is not None else airframe.hip_accel_max_rad_s2
+        self._accel_lo, self._accel_hi = np.full(4, -accel), np.full(4, accel)
+        self.rows = state_rows(n, config.roll_pitch_max_rad,
+                               None if fixed is not None else (airframe.hip_min_rad, airframe.hip_max_rad),
+                               airframe.same_side_pairs, airframe.same_side_sum_max_rad)
+        w = config.weights
+        state_w = np.tile(w.state_diag(), (n + 1, 1))
+        state_w[-1] *= w.terminal_scale
+        self.cost = TrackingCost(state_w=state_w, input_w=w.input_diag())
+        self.u_ref = np.zeros((n, NU))
+        self.u_ref[:, rom.THRUST] = airframe.hover_thrust_per_rotor_n
+        self._sense = np.concatenate([np.zeros(n * NU, dtype=np.int32), np.full(self.rows.count, 8, dtype=np.int32)])
+        self._guess: np.ndarray | None = None
+        self._duals: np.ndarray | None = None
+
+    # ----------------------------------------------------------------- public API
+    def reset(self) -> None:
+        """Drop the warm start (e.g. after a jump of the reference)."""
+        self._guess = None
+        self._duals = None
+
+    def input_bounds(self, thrust_max_n) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) of one stage's input; a non-finite thrust bound means the airframe's maximum."""
+        af = self.af
+        t_max = np.asarray(thrust_max_n, dtype=float).reshape(-1)
+        if t_max.size != ROTOR_COUNT:
+            raise ValueError(f"thrust_max_n must have {ROTOR_COUNT} entries, got {t_max.size}")
+        t_max = np.clip(np.where(np.isfinite(t_max), t_max, af.thrust_max_n), af.thrust_min_n, af.thrust_max_n)
+        lo = np.concatenate([np.full(ROTOR_COUNT, af.thrust_min_n), self._accel_lo])
+        hi = np.concatenate([t_max, self._accel_hi])
+        return lo, hi
+
+    def reference(self, x_ref) -> np.ndarray:
+        """The reference the cost tracks: x_ref with the hips replaced by the posture the NMPC
+        pulls towards (nominal, or the pinned one)."""
+        ref = np.array(x_ref, dtype=float)
+        ref[:, rom.HIP] = self.hip_ref_rad
+        return ref
+
+    def solve(self, x0, x_ref, thrust_max_n, disturbance=None) -> NmpcResult:
+        """One receding-horizon step from state x0 (20,) along x_ref (N+1, 20)."""
+        t0 = time.perf_counter()
+        n = self.config.horizon
+        lo, hi = self.input_bounds(thrust_max_n)
+        x0 = np.asarray(x0, dtype=float).reshape(-1)
+        x_ref = np.asarray(x_ref, dtype=float)
+        if x0.size != NX or x_ref.shape != (n + 1, NX):
+            raise ValueError(f"x0 must have {NX} entries and x_ref shape ({n + 1}, {NX}); "
+                             f"got {x0.size} and {x_ref.shape}")
+        d = np.zeros(ND) if disturbance is None else np.asarray(disturbance, dtype=float).reshape(ND)
+        d = np.where(np.isfinite(d), d, 0.0)
+        if not (np.all(np.isfinite(x0)) and np.all(np.isfinite(x_ref))):
+            return self._fallback(x0, lo, hi, "invalid_input", 0, t0)
+        return self._sqp(x0, self.reference(x_ref), d, lo, hi, t0)
+
+    # ----------------------------------------------------------------- internals
+    def _merit(self, xs, us, ref):
+        return self.cost.value(xs, us, ref, self.u_ref) + _MERIT_PENALTY * self.rows.violation(xs)
+
+    def _initial_guess(self, lo, hi) -> np.ndarray:
+        n = self.config.horizon
+        if self._guess is None:
+            us = self.u_ref.copy()
+        else:
+            s = self.config.warm_start_shift
+            pos = np.minimum(np.arange(n) + s, n - 1)
+            i0 = np.floor(pos).astype(int)
+            i1 = np.minimum(i0 + 1, n - 1)
+            frac = (pos - i0)[:, None]
+            us = (1 - frac) * self._guess[i0] + frac * self._guess[i1]
+        return np.clip(us, lo, hi)
+
+    def _sqp(self, x0, ref, d, lo, hi, t0) -> NmpcResult:
+        n = self.config.horizon
+        us = self._initial_guess(lo, hi)
+        xs, a, b = self._rollout(x0, us, d)
+        merit = self._merit(xs, us, ref)
+        status, it = "max_iterations", 0
+        lo_all, hi_all = np.tile(lo, n), np.tile(hi, n)
+        for it in range(1, self.config.max_iterations + 1):
+            if not (np.isfinite(merit) and np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+                return self._fallback(x0, lo, hi, "qp_failed", it, t0)
+            gamma = sensitivities(a, b)
+            hess, grad = self.cost.gauss_newton(gamma, xs, us, ref, self.u_ref)
+            c = self.rows.values(xs)
+            upper = np.concatenate([hi_all - us.ravel(), np.minimum(self.rows.hi - c, _BIG)])
+            lower = np.concatenate([lo_all - us.ravel(), np.maximum(self.rows.lo - c, -_BIG)])
+            step, _, flag, info = daqp.solve(hess, grad, self.rows.jacobian(gamma), upper, lower, self._sense,
+                                             dual_start=self._duals)
+            if flag not in _DAQP_OK or not np.all(np.isfinite(step)):
+                return self._fallback(x0, lo, hi, "qp_failed", it, t0)
+            self._duals = np.asarray(info["lam"])
+            step = np.asarray(step).reshape(n, NU)
+            decrease = float(grad @ step.ravel())
+            if -decrease <= self.config.cost_tol_rel * merit:
+                status = "converged"
+                break
+            alpha = 1.0
+            for _ in range(_MAX_HALVINGS):
+                trial_us = np.clip(us + alpha * step, lo, hi)
+                trial = self._rollout(x0, trial_us, d)
+                trial_merit = self._merit(trial[0], trial_us, ref)
+                if trial_merit <= merit + _ARMIJO * alpha * min(decrease, 0.0):
+                    break
+                alpha *= 0.5
+            else:
+                status = "no_progress"
+                break
+            us, (xs, a, b), merit = trial_us, trial, trial_merit
+        if not (np.all(np.isfinite(xs)) and np.isfinite(merit)):
+            return self._fallback(x0, lo, hi, "qp_failed", it, t0)
+        self._guess = us
+        cost = self.cost.value(xs, us, ref, self.u_ref)
+        return NmpcResult(u=us[0].copy(), x_pred=xs, u_pred=us, solve_ms=_ms_since(t0), iterations=it,
+                          status=status, ok=True, cost=cost, fallback=False)
+
+    def _fallback(self, x0, lo, hi, status, iterations, t0) -> NmpcResult:
+        """A bounded command when no plan can be trusted: the previous plan (shifted) or hover
+        thrust, clipped to the bounds, and hip accelerations that stop the legs."""
+        n = self.config.horizon
+        us = self._initial_guess(lo, hi)
+        finite_x0 = np.all(np.isfinite(x0))
+        if finite_x0:
+            brake = -x0[rom.HIP_RATE] / self.config.dt_s
+            us[:, rom.HIP_ACCEL] = np.clip(brake, lo[rom.HIP_ACCEL], hi[rom.HIP_ACCEL])
+        us = np.nan_to_num(np.clip(us, lo, hi), nan=0.0)
+        us = np.clip(us, lo, hi)
+        xs = np.tile(np.nan_to_num(x0), (n + 1, 1))
+        if finite_x0:
+            rolled = self._rollout(x0, us, np.zeros(ND))[0]
+            if np.all(np.isfinite(rolled)):
+                xs = rolled
+        self._guess = None
+        self._duals = None
+        return NmpcResult(u=us[0].copy(), x_pred=xs, u_pred=us, solve_ms=_ms_since(t0), iterations=iterations,
+                          status=status, ok=False, cost=float("inf"), fallback=True)
+
+
+def _ms_since(t0: float) -> float:
+    return (time.perf_counter() - t0) * 1e3

@@ -1,0 +1,102 @@
+"""Settings of the NMPC: horizon, step, weights and bounds, frozen once built.
+
+The cost is the paper's quadratic tracking cost, in squared-residual form:
+
+    sum_{k<N} |x_k - x_ref_k|^2_Q + |u_k - u_hover|^2_R  +  |x_N - x_ref_N|^2_(terminal_scale Q)
+
+Thrust is penalised as its deviation from the per-rotor hover thrust (not as raw thrust): a
+raw-thrust penalty pulls every thrust down and costs altitude while it is transient, the
+deviation does not. Yaw and yaw rate carry no weight (yaw is free: after a rotor loss the
+robot spins). A small weight pulls the hips to the nominal posture (or the pinned one), so
+the legs move only when that helps; the hip entries of a caller's reference are ignored.
+Weights are diagonal and enter the compiled functions as parameters, so changing them never
+recompiles anything.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from companion.core import rom
+
+
+@dataclass(frozen=True)
+class NmpcWeights:
+    """Diagonal weights of the cost, per unit of the state and input (SI, rad)."""
+
+    position: tuple[float, float, float] = (20.0, 20.0, 40.0)
+    roll_pitch: float = 20.0
+    hip: float = 0.2
+    velocity: tuple[float, float, float] = (4.0, 4.0, 6.0)
+    roll_pitch_rate: float = 0.5
+    hip_rate: float = 0.01
+    thrust: float = 0.01
+    hip_accel: float = 2e-5
+    terminal_scale: float = 5.0
+
+    def state_diag(self) -> np.ndarray:
+        q = np.zeros(rom.NX)
+        q[rom.P] = self.position
+        q[rom.EULER] = (self.roll_pitch, self.roll_pitch, 0.0)         # yaw free
+        q[rom.HIP] = self.hip
+        q[rom.V] = self.velocity
+        q[rom.RATES] = (self.roll_pitch_rate, self.roll_pitch_rate, 0.0)  # yaw rate free
+        q[rom.HIP_RATE] = self.hip_rate
+        return q
+
+    def input_diag(self) -> np.ndarray:
+        r = np.zeros(rom.NU)
+        r[rom.THRUST] = self.thrust
+        r[rom.HIP_ACCEL] = self.hip_accel
+        return r
+
+    def validate(self) -> None:
+        values = np.concatenate([self.state_diag(), self.input_diag(), [self.terminal_scale]])
+        if not np.all(np.isfinite(values)) or np.any(values < 0):
+            raise ValueError("NmpcWeights: every weight must be finite and >= 0")
+        if self.thrust <= 0 or self.hip_accel <= 0:
+            raise ValueError("NmpcWeights: thrust and hip_accel weights must be > 0 (they keep the QP convex)")
+
+
+@dataclass(frozen=True)
+class NmpcConfig:
+    """horizon stages of dt_s seconds; fixed_hip_rad pins every hip (the fixed-posture variant).
+
+    control_period_s: how often the controller is re-solved (None: every dt_s); the warm start
+    is the previous plan shifted by control_period_s / dt_s stages.
+    """
+
+    horizon: int = 5
+    dt_s: float = 0.1
+    rk4_substeps: int = 1
+    weights: NmpcWeights = field(default_factory=NmpcWeights)
+    roll_pitch_max_rad: float = math.radians(90.0)
+    fixed_hip_rad: float | None = None
+    control_period_s: float | None = None
+    max_iterations: int = 10
+    cost_tol_rel: float = 1e-6         # converged when the QP step would lower the cost by less than this
+    codegen: bool = True               # compile the linearisation to C (cached); False: CasADi's VM
+
+    def validate(self) -> None:
+        if self.horizon < 1:
+            raise ValueError(f"NmpcConfig.horizon must be >= 1, got {self.horizon}")
+        if not (math.isfinite(self.dt_s) and self.dt_s > 0):
+            raise ValueError(f"NmpcConfig.dt_s must be > 0, got {self.dt_s}")
+        if self.rk4_substeps < 1:
+            raise ValueError(f"NmpcConfig.rk4_substeps must be >= 1, got {self.rk4_substeps}")
+        if not 0 < self.roll_pitch_max_rad <= math.pi / 2:
+            raise ValueError("NmpcConfig.roll_pitch_max_rad must lie in (0, pi/2]")
+        if self.max_iterations < 1:
+            raise ValueError(f"NmpcConfig.max_iterations must be >= 1, got {self.max_iterations}")
+        if self.control_period_s is not None and not self.control_period_s > 0:
+            raise ValueError(f"NmpcConfig.control_period_s must be > 0, got {self.control_period_s}")
+        self.weights.validate()
+
+    @property
+    def warm_start_shift(self) -> float:
+        """Stages the previous plan moves forward between two solves."""
+        period = self.dt_s if self.control_period_s is None else self.control_period_s
+        return period / self.dt_s
