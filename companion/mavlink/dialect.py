@@ -1,0 +1,43 @@
+"""THE one place that picks MAVLink 2 and the project's dialect; import MAVLink from here.
+
+pymavlink decides the wire protocol from the environment when it first loads (MAVLink 1
+unless `MAVLINK20` is set) and keeps one global dialect, so both are settled here, before
+anything else imports pymavlink. The dialect module (generated from `mavlink_defs/m4.xml`
+by `python -m companion.mavlink.generate`) is registered as `pymavlink.dialects.v20.m4`, so
+`mavutil.mavlink_connection(..., dialect="m4")` finds it without regenerating anything into
+site-packages; `new_mav()` gives the bare protocol object for a transport of one's own.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+os.environ["MAVLINK20"] = "1"
+
+import pymavlink.dialects.v20 as _v20  # noqa: E402  (after MAVLINK20 on purpose)
+from pymavlink import mavutil  # noqa: E402
+
+from companion.mavlink import m4_generated as mavlink  # noqa: E402
+
+DIALECT = "m4"
+sys.modules[f"{_v20.__name__}.{DIALECT}"] = mavlink
+setattr(_v20, DIALECT, mavlink)
+mavutil.set_dialect(DIALECT)
+
+FC_SYSTEM_ID = 1
+FC_COMPONENT_ID = 1                                  # MAV_COMP_ID_AUTOPILOT1
+COMPANION_COMPONENT_ID = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER    # 191
+
+
+def new_mav(file, source_system: int, source_component: int) -> mavlink.MAVLink:
+    """A MAVLink 2 protocol object writing packed packets to `file.write(bytes)`.
+
+    Robust parsing: garbage and rejected packets come back as BAD_DATA instead of raising.
+    """
+    mav = mavlink.MAVLink(file, srcSystem=source_system, srcComponent=source_component)
+    mav.robust_parsing = True
+    return mav
+
+
+__all__ = ["COMPANION_COMPONENT_ID", "DIALECT", "FC_COMPONENT_ID", "FC_SYSTEM_ID", "mavlink", "mavutil", "new_mav"]

@@ -1,0 +1,123 @@
+"""A MAVLink 2 link over UDP: the generated protocol object on a socket of our own.
+
+URLs, as pymavlink writes them: `udpin:HOST:PORT` listens there and answers whoever wrote
+last; `udpout:HOST:PORT` sends there from an ephemeral port and reads the replies. Each
+packet sent and each packet received (good or rejected) goes to the tlog when one is given.
+Nothing here blocks: `receive()` drains what has arrived, `wait_readable()` waits.
+"""
+
+from __future__ import annotations
+
+import select
+import socket
+from dataclasses import dataclass
+
+from companion.mavlink.dialect import mavlink, new_mav
+from companion.mavlink.signing import SigningCounters, setup_signing
+from companion.mavlink.tlog import TlogWriter
+
+MODES = ("udpin", "udpout")
+_DATAGRAM_MAX = 65535
+
+
+class LinkError(ValueError):
+    """A link URL is malformed or its socket cannot be opened (e.g. port in use)."""
+
+
+@dataclass(frozen=True)
+class Endpoint:
+    mode: str          # "udpin" or "udpout"
+    host: str
+    port: int
+
+    @property
+    def url(self) -> str:
+        return f"{self.mode}:{self.host}:{self.port}"
+
+
+def parse_url(url: str) -> Endpoint:
+    """`udpin:HOST:PORT` or `udpout:HOST:PORT` (also with `://`)."""
+    mode, sep, rest = url.partition(":")
+    rest = rest.removeprefix("//")
+    host, _, port = rest.rpartition(":")
+    if not sep or mode not in MODES or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise LinkError(f"bad MAVLink URL {url!r}: expected udpin:HOST:PORT or udpout:HOST:PORT")
+    if mode == "udpout" and int(port) == 0:
+        raise LinkError(f"bad MAVLink URL {url!r}: udpout needs a port to send to")
+    return Endpoint(mode, host, int(port))
+
+
+class UdpLink:
+    def __init__(self, url: str, source_system: int, source_component: int, *,
+                 tlog: TlogWriter | None = None, key: bytes | None = None, link_id: int = 0):
+        self.endpoint = parse_url(url)
+        self.tlog = tlog
+        self.mav = new_mav(self, source_system, source_component)
+        if key is not None:
+            setup_signing(self.mav, key, link_id)
+        self.peer: tuple[str, int] | None = None
+        self.bad_packets = 0
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            if self.endpoint.mode == "udpin":
+                self.sock.bind((self.endpoint.host, self.endpoint.port))
+            else:
+                self.peer = (socket.gethostbyname(self.endpoint.host), self.endpoint.port)
+                self.sock.bind(("127.0.0.1" if self.peer[0].startswith("127.") else "0.0.0.0", 0))
+        except OSError as e:
+            self.sock.close()
+            raise LinkError(f"{self.endpoint.url}: cannot open ({e.strerror or e})") from None
+        self.sock.setblocking(False)
+
+    @property
+    def local_port(self) -> int:
+        return self.sock.getsockname()[1]
+
+    def fileno(self) -> int:
+        return self.sock.fileno()
+
+    def write(self, packet: bytes) -> None:
+        """Called by the protocol object with each packed packet."""
+        if self.peer is None:
+            return
+        try:
+            self.sock.sendto(packet, self.peer)
+        except OSError:
+            return           # no listener (yet) or a full buffer: UDP drops, as on a radio
+        if self.tlog is not None:
+            self.tlog.record(packet)
+
+    def send(self, msg: mavlink.MAVLink_message) -> None:
+        self.mav.send(msg)
+
+    def receive(self) -> list[mavlink.MAVLink_message]:
+        """Every message that has arrived; rejected and garbled packets are counted, not returned."""
+        out = []
+        while True:
+            try:
+                data, sender = self.sock.recvfrom(_DATAGRAM_MAX)
+            except (BlockingIOError, InterruptedError):
+                return out
+            except OSError:
+                continue
+            if self.endpoint.mode == "udpin":
+                self.peer = sender
+            for msg in self.mav.parse_buffer(data) or ():
+                if self.tlog is not None:
+                    self.tlog.record(msg.get_msgbuf() if msg.get_type() != "BAD_DATA" else bytes(msg.data))
+                if msg.get_type() == "BAD_DATA":
+                    self.bad_packets += 1
+                else:
+                    out.append(msg)
+
+    def signing_counters(self) -> SigningCounters:
+        return SigningCounters.of(self.mav)
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def wait_readable(links, timeout_s: float) -> bool:
+    """Block until one of `links` has data or `timeout_s` passes; True if data is waiting."""
+    readable, _, _ = select.select(list(links), [], [], max(timeout_s, 0.0))
+    return bool(readable)

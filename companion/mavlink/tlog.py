@@ -1,0 +1,42 @@
+"""Telemetry logs (tlog): every MAVLink packet, in both directions, as pymavlink reads them.
+
+A tlog is a sequence of records: an 8-byte big-endian unsigned Unix time in microseconds,
+then the raw packet. pymavlink reads the low two bits of the time as a link id, so they are
+cleared (one link). `setup_logfile()` of a pymavlink UDP connection logs nothing, hence
+this writer: call `record()` for each packet sent and each packet received.
+"""
+
+from __future__ import annotations
+
+import struct
+import threading
+import time
+from pathlib import Path
+
+_TIME = struct.Struct(">Q")
+
+
+class TlogWriter:
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = self.path.open("wb")
+        self._lock = threading.Lock()
+        self.records = 0
+
+    def record(self, packet: bytes, unix_time_us: int | None = None) -> None:
+        if unix_time_us is None:
+            unix_time_us = time.time_ns() // 1000
+        with self._lock:
+            self._file.write(_TIME.pack(unix_time_us & ~0x3) + bytes(packet))
+            self.records += 1
+
+    def close(self) -> None:
+        with self._lock:
+            self._file.close()
+
+    def __enter__(self) -> TlogWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
