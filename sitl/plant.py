@@ -1,0 +1,168 @@
+"""The high-fidelity plant: the MuJoCo model of the M4 in flight, driven in NED/FRD.
+
+Inputs are per-rotor thrusts (N) and sagittal hip angle targets (rad, with optional rates);
+the plant adds what the reduced-order model leaves out: three lumps per leg, the frontal
+joints and their stiff hold, motor lag, servo rate and acceleration limits, hull drag and
+ground contact. Faults and the scenario's [plant] mismatch are applied here. Frames are
+converted in `sitl.frames` only; everything public is NED/FRD.
+"""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+
+from companion.airframe import ROTOR_COUNT, Airframe
+from companion.scenario import PlantOptions
+from sitl import frames
+from sitl.drag import HullDrag
+from sitl.mjcf import PHYSICS_DT_S, compile_model
+from sitl.sensors import SensorNoise
+from sitl.servo import HipReference
+from sitl.state import PlantState
+
+__all__ = ["Plant", "PlantOptions", "PlantState"]
+
+_STEP_TOLERANCE_S = 1e-9
+
+
+class Plant:
+    physics_dt_s = PHYSICS_DT_S
+
+    def __init__(self, airframe: Airframe, options: PlantOptions = PlantOptions(), *,
+                 start_ned_m=(0.0, 0.0, -2.0), start_yaw_rad: float = 0.0, seed: int = 0):
+        """Starts hovering at rest: nominal hips, every rotor at the hover thrust of this plant."""
+        start = _vector("start_ned_m", start_ned_m, 3)
+        if not (np.all(np.isfinite(start)) and math.isfinite(start_yaw_rad)):
+            raise ValueError(f"start_ned_m and start_yaw_rad must be finite, got {start}, {start_yaw_rad}")
+        self.airframe, self.options = airframe, options
+        self.model = compile_model(airframe)
+        self.data = mujoco.MjData(self.model)
+        self._apply_mismatch()
+
+        m, d = self.model, self.data
+        mujoco.mj_resetDataKeyframe(m, d, m.key("hover").id)
+        self._thrust = slice(m.actuator("thrust1").id, m.actuator("thrust1").id + ROTOR_COUNT)
+        self._hip_ctrl = slice(m.actuator("hip1").id, m.actuator("hip1").id + ROTOR_COUNT)
+        self._rate_ctrl = slice(m.actuator("hiprate1").id, m.actuator("hiprate1").id + ROTOR_COUNT)
+        self._thrust_act = [m.actuator_actadr[i] for i in range(self._thrust.start, self._thrust.stop)]
+        joints = [m.joint(f"sagittal{i + 1}") for i in range(ROTOR_COUNT)]
+        self._hip_qpos = np.array([m.jnt_qposadr[j.id] for j in joints])
+        self._hip_qvel = np.array([m.jnt_dofadr[j.id] for j in joints])
+        self._hull = m.body("hull").id
+        root = m.joint("root")
+        qpos0, qvel0 = m.jnt_qposadr[root.id], m.jnt_dofadr[root.id]
+        self._pos, self._quat = slice(qpos0, qpos0 + 3), slice(qpos0 + 3, qpos0 + 7)
+        self._vel, self._rates = slice(qvel0, qvel0 + 3), slice(qvel0 + 3, qvel0 + 6)
+        self._drag = HullDrag(airframe, d.qvel[qvel0:qvel0 + 6], d.qfrc_applied[qvel0:qvel0 + 6])
+        self._noise = SensorNoise(airframe, seed)
+
+        self._thrust_max_n = options.thrust_max_n or airframe.thrust_max_n
+        m.actuator_ctrlrange[self._thrust, 1] = self._thrust_max_n
+        self._limit_n = np.full(ROTOR_COUNT, self._thrust_max_n)
+        self.hover_thrust_n = m.body_subtreemass[self._hull] * airframe.gravity_m_s2 / ROTOR_COUNT
+        self._thrust_request_n = np.full(ROTOR_COUNT, self.hover_thrust_n)
+        self._apply_thrust()
+        d.act[self._thrust_act] = d.ctrl[self._thrust]
+
+        d.qpos[self._pos] = frames.flip_vector(start)
+        d.qpos[self._quat] = frames.flip_quat_wxyz(frames.quat_wxyz_from_euler((0.0, 0.0, start_yaw_rad)))
+        self._hip_target = np.full(ROTOR_COUNT, airframe.nominal_hip_rad)
+        self._hips = HipReference(self._hip_target, rate_max_rad_s=airframe.hip_rate_max_rad_s,
+                                  accel_max_rad_s2=airframe.hip_accel_max_rad_s2,
+                                  hip_min_rad=airframe.hip_min_rad, hip_max_rad=airframe.hip_max_rad,
+                                  dt_s=self.physics_dt_s)
+        d.ctrl[self._hip_ctrl] = self._hips.pos_rad
+        d.ctrl[self._rate_ctrl] = 0.0
+        mujoco.mj_forward(m, d)
+
+    def _apply_mismatch(self) -> None:
+        """[plant] mass_scale scales every mass; inertia_scale scales every body's own inertia
+        on top of that (the leg lumps stay where they are)."""
+        m, o = self.model, self.options
+        m.body_mass[1:] *= o.mass_scale
+        m.body_inertia[1:] *= o.mass_scale * o.inertia_scale
+        mujoco.mj_setConst(m, self.data)
+
+    def _apply_thrust(self) -> None:
+        cmd = np.clip(self._thrust_request_n, self.airframe.thrust_min_n, self._limit_n)
+        self.data.ctrl[self._thrust] = cmd
+
+    def command(self, thrust_n, hip_rad, hip_rate_rad_s=None) -> None:
+        """Thrusts (N, rotors 1..4) and hip targets (rad) with their rates (rad/s, default 0).
+        Thrusts are clamped to [thrust_min, current limit], hip angles to the joint range and
+        rates to the servo's rate limit; a non-finite entry keeps that entry's previous value
+        (a rate: 0)."""
+        thrust = _vector("thrust_n", thrust_n, ROTOR_COUNT)
+        hip = _vector("hip_rad", hip_rad, ROTOR_COUNT)
+        rate = np.zeros(ROTOR_COUNT) if hip_rate_rad_s is None else _vector("hip_rate_rad_s", hip_rate_rad_s,
+                                                                             ROTOR_COUNT)
+        self._thrust_request_n = np.where(np.isfinite(thrust), thrust, self._thrust_request_n)
+        self._apply_thrust()
+        self._hip_target = np.where(np.isfinite(hip), hip, self._hip_target)
+        self._hips.set_target(self._hip_target.tolist(), np.where(np.isfinite(rate), rate, 0.0).tolist())
+
+    def set_rotor_loss(self, rotor: int, loss: float) -> None:
+        """Loss of effectiveness of rotor 1..4: its max thrust becomes (1 - loss) x the airframe's
+        hover thrust; loss 1.0 stops it, 0.0 restores the full range."""
+        if isinstance(rotor, bool) or not isinstance(rotor, (int, np.integer)) or not 1 <= rotor <= ROTOR_COUNT:
+            raise ValueError(f"rotor must be an integer 1..{ROTOR_COUNT}, got {rotor!r}")
+        if not (isinstance(loss, (int, float)) and 0.0 <= loss <= 1.0):
+            raise ValueError(f"loss must be a number in [0, 1], got {loss!r}")
+        hover_n = self.airframe.hover_thrust_per_rotor_n
+        self._limit_n[rotor - 1] = self._thrust_max_n if loss == 0.0 else min(self._thrust_max_n,
+                                                                              (1.0 - loss) * hover_n)
+        self._apply_thrust()
+
+    def step(self, duration_s: float) -> None:
+        """Advance the physics by duration_s, a whole number of physics steps."""
+        n = round(duration_s / self.physics_dt_s)
+        if n < 0 or abs(n * self.physics_dt_s - duration_s) > _STEP_TOLERANCE_S:
+            raise ValueError(f"duration_s must be a non-negative multiple of {self.physics_dt_s} s, got {duration_s}")
+        m, d, hips, drag, ctrl = self.model, self.data, self._hips, self._drag.apply, self.data.ctrl
+        hip_ctrl, rate_ctrl = self._hip_ctrl, self._rate_ctrl
+        for _ in range(n):
+            if not hips.settled:
+                hips.advance()
+                ctrl[hip_ctrl] = hips.pos_rad
+                ctrl[rate_ctrl] = hips.rate_rad_s
+            drag()
+            mujoco.mj_step(m, d)
+
+    def state(self) -> PlantState:
+        """The truth."""
+        m, d = self.model, self.data
+        mujoco.mj_forward(m, d)
+        quat = frames.flip_quat_wxyz(d.qpos[self._quat])
+        return PlantState(
+            time_s=float(d.time),
+            pos_ned_m=frames.flip_vector(d.qpos[self._pos]),
+            vel_ned_m_s=frames.flip_vector(d.qvel[self._vel]),
+            quat_wxyz=quat,
+            euler_rad=frames.euler_from_quat_wxyz(quat),
+            rates_frd_rad_s=frames.flip_vector(d.qvel[self._rates]),
+            hip_rad=d.qpos[self._hip_qpos].copy(),
+            hip_rate_rad_s=d.qvel[self._hip_qvel].copy(),
+            thrust_cmd_n=d.ctrl[self._thrust].copy(),
+            thrust_n=d.act[self._thrust_act].copy(),
+            thrust_limit_n=self._limit_n.copy(),
+            com_ned_m=frames.flip_vector(d.subtree_com[self._hull]),
+            on_ground=bool(d.ncon > 0),
+        )
+
+    def measured_state(self) -> PlantState:
+        """The truth, plus sensor noise when the options ask for it."""
+        truth = self.state()
+        return self._noise.measure(truth) if self.options.sensor_noise else truth
+
+
+def _vector(name: str, value, length: int) -> np.ndarray:
+    try:
+        v = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be {length} numbers, got {value!r}") from None
+    if v.shape != (length,):
+        raise ValueError(f"{name} must be {length} numbers, got shape {v.shape}")
+    return v

@@ -1,0 +1,34 @@
+"""Sensor noise on the measured state: white, Gaussian, seeded, sized by the airframe's [sensors]."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from companion.airframe import Airframe
+from sitl.frames import quat_wxyz_from_euler
+from sitl.state import PlantState
+
+
+class SensorNoise:
+    def __init__(self, af: Airframe, seed: int):
+        self._af = af
+        self._rng = np.random.default_rng(seed)
+
+    def measure(self, truth: PlantState) -> PlantState:
+        """The truth plus noise on position, velocity, attitude, rates and hip angles and rates.
+        Thrusts, the centre of mass and the ground flag are not measured quantities: kept."""
+        af, rng = self._af, self._rng
+        euler = truth.euler_rad + rng.normal(0.0, af.attitude_noise_rad, 3)
+        euler[2] = (euler[2] + np.pi) % (2 * np.pi) - np.pi
+        return dataclasses.replace(
+            truth,
+            pos_ned_m=truth.pos_ned_m + rng.normal(0.0, af.position_noise_m, 3),
+            vel_ned_m_s=truth.vel_ned_m_s + rng.normal(0.0, af.velocity_noise_m_s, 3),
+            euler_rad=euler,
+            quat_wxyz=quat_wxyz_from_euler(euler),
+            rates_frd_rad_s=truth.rates_frd_rad_s + rng.normal(0.0, af.rate_noise_rad_s, 3),
+            hip_rad=truth.hip_rad + rng.normal(0.0, af.hip_noise_rad, 4),
+            hip_rate_rad_s=truth.hip_rate_rad_s + rng.normal(0.0, af.rate_noise_rad_s, 4),
+        )

@@ -1,0 +1,70 @@
+"""The hip servos' reference: commanded angles and rates shaped by the rate and acceleration limits.
+
+A command gives a target angle and rate per hip; the target moves at that rate from the
+time of the command (a setpoint trajectory, as a servo controller takes one) and stays in
+the joint range. Each physics step the reference (angle, rate) heads for the target as fast
+as the limits allow and brakes in time to stop on it (|rate| <= rate_max,
+|acceleration| <= accel_max). The stiff position servo of the MJCF then follows the
+reference. Pure Python floats: four hips, once per millisecond, must cost microseconds.
+"""
+
+from __future__ import annotations
+
+import math
+
+_SETTLED_RAD = 1e-12
+_SETTLED_RAD_S = 1e-9
+
+
+class HipReference:
+    def __init__(self, hip_rad, *, rate_max_rad_s: float, accel_max_rad_s2: float,
+                 hip_min_rad: float, hip_max_rad: float, dt_s: float):
+        self._rate_max = rate_max_rad_s
+        self._dv = accel_max_rad_s2 * dt_s          # largest change of rate in one step
+        self._brake_gain = 8.0 / (self._dv * dt_s)
+        self._lo, self._hi = hip_min_rad, hip_max_rad
+        self._dt = dt_s
+        self.pos_rad = [self._clamp(float(q)) for q in hip_rad]
+        self.rate_rad_s = [0.0] * len(self.pos_rad)
+        self._goal = list(self.pos_rad)
+        self._goal_rate = [0.0] * len(self.pos_rad)
+        self.settled = True
+
+    def _clamp(self, q: float) -> float:
+        return min(self._hi, max(self._lo, q))
+
+    def set_target(self, hip_rad, hip_rate_rad_s) -> None:
+        """New targets (finite floats): angles clamped to the joint range, rates to the rate limit."""
+        self._goal = [self._clamp(q) for q in hip_rad]
+        self._goal_rate = [min(self._rate_max, max(-self._rate_max, r)) for r in hip_rate_rad_s]
+        self.settled = False
+
+    def advance(self) -> None:
+        """One physics step of the reference."""
+        dt, dv, vmax = self._dt, self._dv, self._rate_max
+        moving = False
+        for i, q in enumerate(self.pos_rad):
+            goal, goal_rate, v = self._goal[i], self._goal_rate[i], self.rate_rad_s[i]
+            err = goal - q
+            if abs(err) < _SETTLED_RAD and abs(v - goal_rate) < _SETTLED_RAD_S and goal_rate == 0.0:
+                self.pos_rad[i], self.rate_rad_s[i] = goal, 0.0
+                continue
+            moving = True
+            # Fastest rate relative to the goal from which k steps of -dv (and one remainder)
+            # stop exactly on it.
+            dist = abs(err)
+            k = math.floor(0.5 * (math.sqrt(1.0 + self._brake_gain * dist) - 1.0))
+            brake = dv * k + (dist - dv * dt * k * (k + 1) / 2) / ((k + 1) * dt)
+            v_des = min(vmax, max(-vmax, goal_rate + math.copysign(brake, err)))
+            v += min(dv, max(-dv, v_des - v))
+            q_free = q + v * dt
+            q = self._clamp(q_free)
+            if abs(q - q_free) > _SETTLED_RAD:      # ran into the joint range: stop there
+                v = 0.0
+            self.pos_rad[i], self.rate_rad_s[i] = q, v
+            goal += goal_rate * dt
+            if not self._lo <= goal <= self._hi:
+                self._goal[i], self._goal_rate[i] = self._clamp(goal), 0.0
+            else:
+                self._goal[i] = goal
+        self.settled = not moving

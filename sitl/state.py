@@ -1,0 +1,24 @@
+"""The plant's state as the rest of the project sees it: NED/FRD, SI units, numpy arrays."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class PlantState:
+    time_s: float
+    pos_ned_m: np.ndarray          # hull centre (where the IMU sits), local NED
+    vel_ned_m_s: np.ndarray
+    quat_wxyz: np.ndarray          # rotation body FRD -> NED, scalar first
+    euler_rad: np.ndarray          # roll, pitch, yaw (ZYX)
+    rates_frd_rad_s: np.ndarray
+    hip_rad: np.ndarray            # (4,) sagittal angles, rotors 1..4
+    hip_rate_rad_s: np.ndarray
+    thrust_cmd_n: np.ndarray       # (4,) last commanded (after clamping to [0, limit])
+    thrust_n: np.ndarray           # (4,) delivered (after motor lag and fault)
+    thrust_limit_n: np.ndarray     # (4,) current max per rotor (fault applied)
+    com_ned_m: np.ndarray          # whole-robot centre of mass (truth, for metrics)
+    on_ground: bool                # any contact with the floor
