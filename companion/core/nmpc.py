@@ -26,6 +26,7 @@ from companion.core import rom
 from companion.core.codegen_cache import compiled
 from companion.core.condensing import Linearisation, TrackingCost, linearisation, sensitivities, state_rows
 from companion.core.nmpc_config import NmpcConfig
+from companion.core.nmpc_targets import hover_targets
 from companion.core.rom import ND, NU, NX
 
 _BIG = 1e30                  # DAQP's "no bound"
@@ -73,8 +74,7 @@ class Nmpc:
         state_w = np.tile(w.state_diag(), (n + 1, 1))
         state_w[-1] *= w.terminal_scale
         self.cost = TrackingCost(state_w=state_w, input_w=w.input_diag())
-        self.u_ref = np.zeros((n, NU))
-        self.u_ref[:, rom.THRUST] = airframe.hover_thrust_per_rotor_n
+        self._hover_u = np.tile(rom.hover_input(airframe), (n, 1))
         self._sense = np.concatenate([np.zeros(n * NU, dtype=np.int32), np.full(self.rows.count, 8, dtype=np.int32)])
         self._guess: np.ndarray | None = None
         self._duals: np.ndarray | None = None
@@ -96,12 +96,11 @@ class Nmpc:
         hi = np.concatenate([t_max, self._accel_hi])
         return lo, hi
 
-    def reference(self, x_ref) -> np.ndarray:
-        """The reference the cost tracks: x_ref with the hips replaced by the posture the NMPC
-        pulls towards (nominal, or the pinned one)."""
-        ref = np.array(x_ref, dtype=float)
-        ref[:, rom.HIP] = self.hip_ref_rad
-        return ref
+    def targets(self, x0, x_ref, disturbance) -> tuple[np.ndarray, np.ndarray]:
+        """(state reference (N+1, 20), input reference (N, 8)) the cost tracks: x_ref with the
+        hips at the posture the NMPC pulls towards and the roll, pitch and thrust of a hover
+        under the disturbance (see nmpc_targets)."""
+        return hover_targets(self.af, x0, x_ref, disturbance, self.config.dt_s, self.hip_ref_rad)
 
     def solve(self, x0, x_ref, thrust_max_n, disturbance=None) -> NmpcResult:
         """One receding-horizon step from state x0 (20,) along x_ref (N+1, 20)."""
@@ -117,16 +116,17 @@ class Nmpc:
         d = np.where(np.isfinite(d), d, 0.0)
         if not (np.all(np.isfinite(x0)) and np.all(np.isfinite(x_ref))):
             return self._fallback(x0, lo, hi, "invalid_input", 0, t0)
-        return self._sqp(x0, self.reference(x_ref), d, lo, hi, t0)
+        ref, u_ref = self.targets(x0, x_ref, d)
+        return self._sqp(x0, ref, u_ref, d, lo, hi, t0)
 
     # ----------------------------------------------------------------- internals
-    def _merit(self, xs, us, ref):
-        return self.cost.value(xs, us, ref, self.u_ref) + _MERIT_PENALTY * self.rows.violation(xs)
+    def _merit(self, xs, us, ref, u_ref):
+        return self.cost.value(xs, us, ref, u_ref) + _MERIT_PENALTY * self.rows.violation(xs)
 
-    def _initial_guess(self, lo, hi) -> np.ndarray:
+    def _initial_guess(self, u_ref, lo, hi) -> np.ndarray:
         n = self.config.horizon
         if self._guess is None:
-            us = self.u_ref.copy()
+            us = u_ref.copy()
         else:
             s = self.config.warm_start_shift
             pos = np.minimum(np.arange(n) + s, n - 1)
@@ -136,18 +136,18 @@ class Nmpc:
             us = (1 - frac) * self._guess[i0] + frac * self._guess[i1]
         return np.clip(us, lo, hi)
 
-    def _sqp(self, x0, ref, d, lo, hi, t0) -> NmpcResult:
+    def _sqp(self, x0, ref, u_ref, d, lo, hi, t0) -> NmpcResult:
         n = self.config.horizon
-        us = self._initial_guess(lo, hi)
+        us = self._initial_guess(u_ref, lo, hi)
         xs, a, b = self._rollout(x0, us, d)
-        merit = self._merit(xs, us, ref)
+        merit = self._merit(xs, us, ref, u_ref)
         status, it = "max_iterations", 0
         lo_all, hi_all = np.tile(lo, n), np.tile(hi, n)
         for it in range(1, self.config.max_iterations + 1):
             if not (np.isfinite(merit) and np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
                 return self._fallback(x0, lo, hi, "qp_failed", it, t0)
             gamma = sensitivities(a, b)
-            hess, grad = self.cost.gauss_newton(gamma, xs, us, ref, self.u_ref)
+            hess, grad = self.cost.gauss_newton(gamma, xs, us, ref, u_ref)
             c = self.rows.values(xs)
             upper = np.concatenate([hi_all - us.ravel(), np.minimum(self.rows.hi - c, _BIG)])
             lower = np.concatenate([lo_all - us.ravel(), np.maximum(self.rows.lo - c, -_BIG)])
@@ -165,7 +165,7 @@ class Nmpc:
             for _ in range(_MAX_HALVINGS):
                 trial_us = np.clip(us + alpha * step, lo, hi)
                 trial = self._rollout(x0, trial_us, d)
-                trial_merit = self._merit(trial[0], trial_us, ref)
+                trial_merit = self._merit(trial[0], trial_us, ref, u_ref)
                 if trial_merit <= merit + _ARMIJO * alpha * min(decrease, 0.0):
                     break
                 alpha *= 0.5
@@ -176,7 +176,7 @@ class Nmpc:
         if not (np.all(np.isfinite(xs)) and np.isfinite(merit)):
             return self._fallback(x0, lo, hi, "qp_failed", it, t0)
         self._guess = us
-        cost = self.cost.value(xs, us, ref, self.u_ref)
+        cost = self.cost.value(xs, us, ref, u_ref)
         return NmpcResult(u=us[0].copy(), x_pred=xs, u_pred=us, solve_ms=_ms_since(t0), iterations=it,
                           status=status, ok=True, cost=cost, fallback=False)
 
@@ -184,7 +184,7 @@ class Nmpc:
         """A bounded command when no plan can be trusted: the previous plan (shifted) or hover
         thrust, clipped to the bounds, and hip accelerations that stop the legs."""
         n = self.config.horizon
-        us = self._initial_guess(lo, hi)
+        us = self._initial_guess(self._hover_u, lo, hi)
         finite_x0 = np.all(np.isfinite(x0))
         if finite_x0:
             brake = -x0[rom.HIP_RATE] / self.config.dt_s

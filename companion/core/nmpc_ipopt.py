@@ -36,7 +36,7 @@ class IpoptReference:
         n, cfg, af = nmpc.config.horizon, nmpc.config, nmpc.af
         xs, us = ca.SX.sym("X", NX, n + 1), ca.SX.sym("U", NU, n)
         x0, ref, d = ca.SX.sym("x0", NX), ca.SX.sym("ref", NX, n + 1), ca.SX.sym("d", ND)
-        u_ref = ca.DM(nmpc.u_ref.T)
+        u_ref = ca.SX.sym("u_ref", NU, n)
         cost = ca.sum1(ca.sum2(ca.DM(nmpc.cost.state_w.T) * (xs - ref) ** 2))
         cost += ca.sum1(ca.sum2(ca.repmat(ca.DM(nmpc.cost.input_w), 1, n) * (us - u_ref) ** 2))
         gaps = [xs[:, 0] - x0] + [nmpc.rom.step(xs[:, k], us[:, k], d) - xs[:, k + 1] for k in range(n)]
@@ -47,7 +47,7 @@ class IpoptReference:
                     g.append(xs[rom.HIP.start + a, k] + xs[rom.HIP.start + b, k])
                     self._g_lo.append(-np.inf)
                     self._g_hi.append(af.same_side_sum_max_rad)
-        nlp = {"x": ca.veccat(xs, us), "p": ca.veccat(x0, ref, d), "f": cost, "g": ca.vertcat(*g)}
+        nlp = {"x": ca.veccat(xs, us), "p": ca.veccat(x0, ref, u_ref, d), "f": cost, "g": ca.vertcat(*g)}
         opts = {"print_time": False, "ipopt": {"print_level": 0, "sb": "yes", "tol": tol, "max_iter": 500}}
         self._solver = ca.nlpsol("m4_nmpc_ipopt", "ipopt", nlp, opts)
         self._x_lo, self._x_hi = np.full((n + 1, NX), -np.inf), np.full((n + 1, NX), np.inf)
@@ -64,15 +64,15 @@ class IpoptReference:
     def solve(self, x0, x_ref, thrust_max_n, disturbance=None) -> IpoptResult:
         n = self.nmpc.config.horizon
         x0 = np.asarray(x0, dtype=float)
-        ref = self.nmpc.reference(x_ref)
         d = np.zeros(ND) if disturbance is None else np.asarray(disturbance, dtype=float)
+        ref, u_ref = self.nmpc.targets(x0, np.asarray(x_ref, dtype=float), d)
         lo, hi = self.nmpc.input_bounds(thrust_max_n)
         if self._guess is None:
-            self._guess = np.concatenate([np.tile(x0, n + 1), self.nmpc.u_ref.ravel()])
+            self._guess = np.concatenate([np.tile(x0, n + 1), u_ref.ravel()])
         lbx = np.concatenate([self._x_lo.ravel(), np.tile(lo, n)])
         ubx = np.concatenate([self._x_hi.ravel(), np.tile(hi, n)])
         t0 = time.perf_counter()
-        sol = self._solver(x0=np.clip(self._guess, lbx, ubx), p=np.concatenate([x0, ref.ravel(), d]),
+        sol = self._solver(x0=np.clip(self._guess, lbx, ubx), p=np.concatenate([x0, ref.ravel(), u_ref.ravel(), d]),
                            lbx=lbx, ubx=ubx, lbg=self._g_lo, ubg=self._g_hi)
         solve_ms = (time.perf_counter() - t0) * 1e3
         stats = self._solver.stats()
@@ -80,5 +80,5 @@ class IpoptReference:
         self._guess = z
         xs = z[:NX * (n + 1)].reshape(n + 1, NX)
         us = z[NX * (n + 1):].reshape(n, NU)
-        return IpoptResult(x_pred=xs, u_pred=us, cost=self.nmpc.cost.value(xs, us, ref, self.nmpc.u_ref),
+        return IpoptResult(x_pred=xs, u_pred=us, cost=self.nmpc.cost.value(xs, us, ref, u_ref),
                            solve_ms=solve_ms, status=stats["return_status"], ok=bool(stats["success"]))

@@ -1,0 +1,60 @@
+"""Offset-free estimation of the disturbance the ROM does not explain.
+
+The NMPC's model has a disturbance input d = [force_ned_n (3), torque_frd_n_m (3)], held
+constant over the horizon. After each control period this estimator compares the state
+the robot reached with the state the model predicts from the previous state, the applied
+input and the current estimate; the velocity and body-rate parts of that innovation are
+mapped back to a force and a torque through the model's sensitivity dx+/dd, and the
+estimate moves a fraction `gain` of the way (an integrator: at steady state the model with
+d reproduces the robot, so the NMPC holds the reference without an offset). Mass, thrust
+and inertia errors and wind all land in d. The estimate is bounded, and a non-finite
+measurement leaves it unchanged.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from companion.airframe import Airframe
+from companion.core import rom
+from companion.core.rom import ND, NU, NX
+
+_MEASURED = np.r_[np.arange(NX)[rom.V], np.arange(NX)[rom.RATES]]   # rows of x the estimate uses
+
+
+class DisturbanceEstimator:
+    """Filtered, bounded disturbance estimate for control period `period_s`."""
+
+    def __init__(self, airframe: Airframe, period_s: float, gain: float = 0.3,
+                 force_max_n: float | None = None, torque_max_n_m: float | None = None):
+        if not 0 < gain <= 1:
+            raise ValueError(f"DisturbanceEstimator gain must lie in (0, 1], got {gain}")
+        if not period_s > 0:
+            raise ValueError(f"DisturbanceEstimator period_s must be > 0, got {period_s}")
+        self.gain = gain
+        # Defaults: half the weight as force; one rotor's full thrust at the leg's reach as torque.
+        f_max = 0.5 * airframe.total_mass_kg * airframe.gravity_m_s2 if force_max_n is None else force_max_n
+        t_max = airframe.thrust_max_n * airframe.leg_length_m if torque_max_n_m is None else torque_max_n_m
+        self.bound = np.r_[np.full(3, f_max), np.full(3, t_max)]
+        step = rom.build_rom(airframe, period_s, substeps=2).step
+        x, u, d = ca.SX.sym("x", NX), ca.SX.sym("u", NU), ca.SX.sym("d", ND)
+        x_next = step(x, u, d)
+        self._predict = ca.Function("m4_disturbance_predict", [x, u, d],
+                                    [x_next[_MEASURED], ca.jacobian(x_next[_MEASURED], d)])
+        self.estimate = np.zeros(ND)
+
+    def reset(self) -> None:
+        self.estimate = np.zeros(ND)
+
+    def update(self, x_prev, u_applied, x_new) -> np.ndarray:
+        """New estimate (6,) after the robot went from x_prev to x_new under u_applied."""
+        x_prev, u_applied, x_new = (np.asarray(v, dtype=float).ravel() for v in (x_prev, u_applied, x_new))
+        if not all(np.all(np.isfinite(v)) for v in (x_prev, u_applied, x_new)):
+            return self.estimate.copy()
+        predicted, sensitivity = self._predict(x_prev, u_applied, self.estimate)
+        innovation = x_new[_MEASURED] - np.asarray(predicted).ravel()
+        correction = np.linalg.lstsq(np.asarray(sensitivity), innovation, rcond=None)[0]
+        if np.all(np.isfinite(correction)):
+            self.estimate = np.clip(self.estimate + self.gain * correction, -self.bound, self.bound)
+        return self.estimate.copy()
