@@ -41,6 +41,7 @@ class Airframe:
     hip_accel_max_rad_s2: float
     hip_rate_max_rad_s: float
     servo_time_constant_s: float
+    frontal_servo_stiffness_n_m_per_rad: float
     frontal_servo_time_constant_s: float
     rotor_names: tuple[str, ...]
     hip_frd_m: tuple[tuple[float, float, float], ...]
@@ -138,6 +139,7 @@ def _parse(data: dict, filename: str) -> Airframe:
         hip_accel_max_rad_s2=leg.number("hip_accel_max_rad_s2", lo=0.0, lo_open=True),
         hip_rate_max_rad_s=leg.number("hip_rate_max_rad_s", lo=0.0, lo_open=True),
         servo_time_constant_s=leg.number("servo_time_constant_s", lo=0.0),
+        frontal_servo_stiffness_n_m_per_rad=leg.number("frontal_servo_stiffness_n_m_per_rad", lo=0.0, lo_open=True),
         frontal_servo_time_constant_s=leg.number("frontal_servo_time_constant_s", lo=0.0, lo_open=True),
         rotor_names=rotors.strings("names", ROTOR_COUNT),
         hip_frd_m=rotors.matrix("hip_frd_m", ROTOR_COUNT, 3, lo=-2.0, hi=2.0),

@@ -145,12 +145,17 @@ def _actuators(root: ET.Element, af: Airframe) -> None:
     for i in range(ROTOR_COUNT):
         _sub(act, "velocity", name=f"hiprate{i + 1}", class_="m4", joint=f"sagittal{i + 1}", kv=_fmt(kv),
              ctrlrange=_fmt(-af.hip_rate_max_rad_s, af.hip_rate_max_rad_s))
+    _frontal_holds(act, af)
+
+
+def _frontal_holds(act: ET.Element, af: Airframe) -> None:
+    """Stiff, overdamped position servos on the frontal joints (target 0: flight configuration).
+    Stiffness kp from the airframe, damping kv = kp x time constant; with MuJoCo's implicit
+    treatment of kv the step stays stable for any kp as long as the time constant exceeds a
+    quarter of the physics step."""
+    kp = af.frontal_servo_stiffness_n_m_per_rad
+    kv = kp * af.frontal_servo_time_constant_s
     for i in range(ROTOR_COUNT):
-        sx, sy = af.leg_direction_signs[i]
-        # Sized at the nominal posture, where the leg's swing about body x is largest.
-        yaw = -sx * sy * af.nominal_hip_rad
-        kp, kv = servo_gains(_inertia_about_axis(leg_lumps(af, sx), (1, 0, 0), yaw),
-                             af.frontal_servo_time_constant_s)
         _sub(act, "position", name=f"frontal{i + 1}", class_="m4", joint=f"frontal{i + 1}", kp=_fmt(kp), kv=_fmt(kv))
 
 
