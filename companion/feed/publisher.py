@@ -1,0 +1,122 @@
+"""The feed the control loop calls: one method per topic, never blocking, never raising.
+
+    feed = open_feed(settings)              # a disabled feed when settings.enabled is false
+    feed.state(t_s, pos_ned_m=..., ...)     # keyword arguments of payloads.state_payload
+    feed.fault(t_s, state="confirmed", rotor=4, thrust_max_estimate_n=..., message=text)
+    feed.close()
+
+Each topic is published at most `max_rate_hz` times a second (wall clock); a call in
+between returns at once without building anything. The fault topic also goes out at once
+whenever its state or rotor changes. A payload that cannot be built or sent is counted
+(`errors`, reported in the link topic as feed_errors) and logged once per kind, never
+raised: the feed must not stop the control loop.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Any, Callable, Protocol
+
+from companion.feed import payloads
+from companion.feed.settings import FeedSettings
+from companion.feed.transport import ZenohSink
+from companion.toml_fields import ConfigError
+
+log = logging.getLogger(__name__)
+
+
+class Sink(Protocol):
+    def put(self, topic: str, payload: dict[str, Any]) -> None: ...
+    def close(self) -> None: ...
+
+
+class Feed:
+    def __init__(self, sink: Sink | None, *, max_rate_hz: float = 0.0,
+                 clock: Callable[[], float] = time.monotonic,
+                 wall_clock: Callable[[], float] = time.time):
+        self._sink = sink
+        self._min_interval_s = 1.0 / max_rate_hz if max_rate_hz > 0 else 0.0
+        self._clock = clock
+        self._wall_clock = wall_clock
+        self._last_sent_s: dict[str, float] = {}
+        self._last_fault: tuple[Any, Any] | None = None
+        self._logged_kinds: set[str] = set()
+        self.published = 0
+        self.errors = 0
+
+    @classmethod
+    def disabled(cls) -> "Feed":
+        """A feed that accepts every call and does nothing."""
+        return cls(None)
+
+    @property
+    def enabled(self) -> bool:
+        return self._sink is not None
+
+    def state(self, t_s: float | None, **fields) -> None:
+        self._publish("state", payloads.state_payload, t_s, fields)
+
+    def setpoint(self, t_s: float | None, **fields) -> None:
+        self._publish("setpoint", payloads.setpoint_payload, t_s, fields)
+
+    def nmpc(self, t_s: float | None, **fields) -> None:
+        self._publish("nmpc", payloads.nmpc_payload, t_s, fields)
+
+    def fault(self, t_s: float | None, **fields) -> None:
+        change = (fields.get("state"), fields.get("rotor"))
+        if self._publish("fault", payloads.fault_payload, t_s, fields, urgent=change != self._last_fault):
+            self._last_fault = change
+
+    def link(self, t_s: float | None, **fields) -> None:
+        self._publish("link", payloads.link_payload, t_s, {**fields, "feed_errors": self.errors})
+
+    def close(self) -> None:
+        if self._sink is not None:
+            sink, self._sink = self._sink, None
+            self._guarded("close", sink.close)
+
+    def __enter__(self) -> "Feed":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _publish(self, topic: str, build: Callable[..., dict], t_s: float | None,
+                 fields: dict[str, Any], urgent: bool = False) -> bool:
+        """True when the payload went out."""
+        if self._sink is None:
+            return False
+        now_s = self._clock()
+        last_s = self._last_sent_s.get(topic)
+        if not urgent and last_s is not None and now_s - last_s < self._min_interval_s:
+            return False
+        sink = self._sink
+        if not self._guarded(topic, lambda: sink.put(topic, build(t_s, self._wall_clock(), **fields))):
+            return False
+        self._last_sent_s[topic] = now_s
+        self.published += 1
+        return True
+
+    def _guarded(self, kind: str, action: Callable[[], None]) -> bool:
+        try:
+            action()
+            return True
+        except Exception as e:  # the feed must never raise into the control loop
+            self.errors += 1
+            if kind not in self._logged_kinds:
+                self._logged_kinds.add(kind)
+                log.warning("feed %s failed (counted, further %s failures not logged): %s: %s",
+                            kind, kind, type(e).__name__, e)
+            return False
+
+
+def open_feed(settings: FeedSettings) -> Feed:
+    """A live feed on Zenoh, or a disabled one; a bad setting raises ConfigError/FeedError now."""
+    if not settings.enabled:
+        return Feed.disabled()
+    try:
+        settings.validate()
+    except ConfigError as e:
+        raise ConfigError(f"feed: {e}") from None
+    return Feed(ZenohSink.open(settings), max_rate_hz=settings.max_rate_hz)
