@@ -1,0 +1,126 @@
+"""`m4-sitl`: the simulator's command line.
+
+    m4-sitl serve [--scenario SCENARIO] [--mavlink URL]... [--realtime] [--viewer] [--tlog PATH]
+                  [--signing-key FILE] [--seed N] [--duration S] [--lockstep-timeout S]
+    m4-sitl list
+
+A subcommand is one `_add_<name>(subparsers)` function that sets `func`, registered in
+`SUBCOMMANDS`. Bad input (unknown scenario, malformed file, bad URL, port in use) prints one
+line on stderr and exits with 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from pathlib import Path
+
+from companion.mavlink.link import LinkError
+from companion.mavlink.signing import load_key
+from companion.scenario import Scenario
+from companion.toml_fields import ConfigError
+from sitl import scenarios
+
+EXIT_BAD_INPUT = 2
+DEFAULT_URL = "udpout:127.0.0.1:14550"
+
+
+class BadInput(Exception):
+    """A command-line argument is wrong, or the server cannot start with it."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):              # one line, not the usage block
+        raise BadInput(f"{self.prog}: {message}")
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not value > 0.0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return value
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return value
+
+
+def _add_serve(sub) -> None:
+    p = sub.add_parser("serve", help="run the simulated flight controller for an external companion or GCS")
+    p.add_argument("--scenario", help="built-in name or scenario file (default: hover at 2 m, no faults)")
+    p.add_argument("--mavlink", action="append", metavar="URL",
+                   help=f"udpout:HOST:PORT (send there) or udpin:HOST:PORT (listen); repeat for more links "
+                        f"(default: {DEFAULT_URL})")
+    p.add_argument("--realtime", action="store_true", help="pace by the wall clock (default: lockstep)")
+    p.add_argument("--viewer", action="store_true", help="show MuJoCo's passive viewer")
+    p.add_argument("--tlog", type=Path, metavar="PATH", help="write every packet, both directions, as a tlog")
+    p.add_argument("--signing-key", type=Path, metavar="FILE", help="MAVLink 2 signing key (64 hex digits or 32 bytes)")
+    p.add_argument("--seed", type=_seed, default=0, help="sensor noise seed (default 0)")
+    p.add_argument("--duration", type=_positive, metavar="S", help="stop after S simulated seconds (default: never)")
+    p.add_argument("--lockstep-timeout", type=_positive, default=5.0, metavar="S",
+                   help="wall-clock wait for a setpoint before going on in failsafe (default 5)")
+    p.set_defaults(func=_serve)
+
+
+def _serve(args) -> int:
+    from sitl.serve import ServeError, ServeOptions, Server      # MuJoCo only where it simulates
+
+    scenario = scenarios.resolve(args.scenario) if args.scenario else Scenario(name="hover", duration_s=3600.0)
+    options = ServeOptions(scenario=scenario, mavlink_urls=tuple(args.mavlink or (DEFAULT_URL,)),
+                           realtime=args.realtime, viewer=args.viewer, tlog_path=args.tlog,
+                           signing_key=load_key(args.signing_key) if args.signing_key else None,
+                           seed=args.seed, duration_s=args.duration, lockstep_timeout_s=args.lockstep_timeout)
+    try:
+        server = Server(options)
+    except ServeError as e:
+        raise BadInput(str(e)) from None
+    signal.signal(signal.SIGTERM, lambda *_: server.stop())
+    try:
+        server.run()
+    except KeyboardInterrupt:
+        pass
+    except ServeError as e:
+        raise BadInput(str(e)) from None
+    finally:
+        server.close()
+    return 0
+
+
+def _add_list(sub) -> None:
+    p = sub.add_parser("list", help="the built-in scenarios, one a line")
+    p.set_defaults(func=_list)
+
+
+def _list(args) -> int:
+    print("\n".join(scenarios.builtin_names()))
+    return 0
+
+
+SUBCOMMANDS = [_add_serve, _add_list]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = _Parser(prog="m4-sitl", description="M4 simulator: MuJoCo plant behind a MAVLink 2 flight controller")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for add in SUBCOMMANDS:
+        add(sub)
+    try:
+        args = parser.parse_args(argv)
+        return args.func(args)
+    except (BadInput, ConfigError, LinkError) as e:
+        print(f"m4-sitl: error: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+
+
+if __name__ == "__main__":
+    sys.exit(main())

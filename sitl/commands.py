@@ -1,0 +1,87 @@
+"""Commands the simulated flight controller understands; every one is acknowledged.
+
+COMMAND_LONG and COMMAND_INT alike (their first four params are the same floats):
+- MAV_CMD_INJECT_FAILURE: unit FAILURE_UNIT_SYSTEM_MOTOR, type FAILURE_TYPE_OFF (rotor off)
+  or FAILURE_TYPE_OK (restored), instance rotor 1..4 or 0 for all. Other units/types:
+  UNSUPPORTED.
+- MAV_CMD_M4_ROTOR_LOSS: rotor 1..4 or 0, loss of effectiveness 0..1 (0 restores).
+- MAV_CMD_SET_MESSAGE_INTERVAL: message id, interval in us (-1 stop, 0 default).
+- MAV_CMD_REQUEST_MESSAGE: message id; the message follows the ACCEPTED ack.
+Anything else: MAV_RESULT_UNSUPPORTED. Bad parameters: MAV_RESULT_DENIED.
+"""
+
+from __future__ import annotations
+
+import math
+
+from companion.airframe import ROTOR_COUNT
+from companion.mavlink import mavlink
+
+m = mavlink
+
+
+def _rotor(value: float) -> int | None:
+    """A rotor number 0..4 from a float param, or None."""
+    if not math.isfinite(value) or value != int(value) or not 0 <= value <= ROTOR_COUNT:
+        return None
+    return int(value)
+
+
+class CommandHandler:
+    def __init__(self, fc):
+        self.fc = fc
+        self._handlers = {
+            m.MAV_CMD_INJECT_FAILURE: self._inject_failure,
+            m.MAV_CMD_M4_ROTOR_LOSS: self._rotor_loss,
+            m.MAV_CMD_SET_MESSAGE_INTERVAL: self._set_message_interval,
+            m.MAV_CMD_REQUEST_MESSAGE: self._request_message,
+        }
+
+    def handle(self, msg, now_ms: int) -> list[m.MAVLink_message]:
+        """COMMAND_ACK (to the sender) first, then anything the command asked for."""
+        params = (msg.param1, msg.param2, msg.param3, msg.param4)
+        handler = self._handlers.get(msg.command)
+        result, extra = (m.MAV_RESULT_UNSUPPORTED, []) if handler is None else handler(params, now_ms)
+        self.fc.counters.commands_acked += 1
+        ack = m.MAVLink_command_ack_message(msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
+        return [ack, *extra]
+
+    def _apply_loss(self, rotor: int, loss: float):
+        self.fc.set_rotor_loss(rotor, loss)
+        which = "all rotors" if rotor == 0 else f"rotor {rotor}"
+        text = f"{which} restored" if loss == 0.0 else f"{which} loss {100.0 * loss:.0f}% injected"
+        self.fc.announce(m.MAV_SEVERITY_INFO, text)
+        return m.MAV_RESULT_ACCEPTED, []
+
+    def _inject_failure(self, params, now_ms):
+        unit, failure_type, instance, _ = params
+        if unit != m.FAILURE_UNIT_SYSTEM_MOTOR or failure_type not in (m.FAILURE_TYPE_OK, m.FAILURE_TYPE_OFF):
+            return m.MAV_RESULT_UNSUPPORTED, []
+        rotor = _rotor(instance)
+        if rotor is None:
+            return m.MAV_RESULT_DENIED, []
+        return self._apply_loss(rotor, 1.0 if failure_type == m.FAILURE_TYPE_OFF else 0.0)
+
+    def _rotor_loss(self, params, now_ms):
+        rotor, loss = _rotor(params[0]), params[1]
+        if rotor is None or not (math.isfinite(loss) and 0.0 <= loss <= 1.0):
+            return m.MAV_RESULT_DENIED, []
+        return self._apply_loss(rotor, float(loss))
+
+    def _message_id(self, value: float) -> int | None:
+        if not math.isfinite(value) or value != int(value) or not self.fc.telemetry_builder.can_build(int(value)):
+            return None
+        return int(value)
+
+    def _set_message_interval(self, params, now_ms):
+        msg_id, interval_us = self._message_id(params[0]), params[1]
+        if msg_id is None or not math.isfinite(interval_us):
+            return m.MAV_RESULT_DENIED, []
+        self.fc.schedule.set_interval_us(msg_id, interval_us, now_ms)
+        return m.MAV_RESULT_ACCEPTED, []
+
+    def _request_message(self, params, now_ms):
+        msg_id = self._message_id(params[0])
+        if msg_id is None:
+            return m.MAV_RESULT_DENIED, []
+        return m.MAV_RESULT_ACCEPTED, [self.fc.telemetry_builder.build(msg_id, self.fc.snapshot(now_ms))]

@@ -1,0 +1,188 @@
+"""The simulated flight controller's MAVLink logic (system 1, component 1), without sockets.
+
+It owns the plant's actuator commands: the companion's M4_SETPOINT while setpoints are fresh,
+its own failsafe (sitl/failsafe.py) otherwise. A setpoint answering instant t with period P
+is fresh until t + max(3 P, 300 ms) on the FC's clock; then the FC holds its position and,
+2 s later, lands. STATUSTEXT announces each mode change. Commands (sitl/commands.py) are
+acknowledged; telemetry streams (sitl/streams.py) are built from the measured plant state.
+
+The caller (sitl/serve.py) steps the plant and calls, at each instant on the 1 ms clock:
+`handle()` for each message received, `tick()` every TICK_MS, `telemetry()` when streams
+are due, and `take_outbox()` to send what the FC has to say on its own.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.airframe import ROTOR_COUNT, Airframe
+from companion.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from sitl.commands import CommandHandler
+from sitl.failsafe import Failsafe, FailsafeMode
+from sitl.streams import FRAME, StreamSchedule
+from sitl.telemetry import Home, Snapshot, Telemetry, statustext
+
+TICK_MS = 4                       # the failsafe controller and the staleness check: 250 Hz
+STALE_PERIODS = 3
+STALE_MIN_MS = 300
+
+
+class FcMode(enum.IntEnum):
+    """HEARTBEAT custom_mode values (MAV_MODE_FLAG_CUSTOM_MODE_ENABLED)."""
+    COMPANION = 0                  # flying the companion's setpoints
+    HOLD = FailsafeMode.HOLD.value
+    LAND = FailsafeMode.LAND.value
+    LANDED = FailsafeMode.LANDED.value
+
+
+_ANNOUNCE = {
+    FcMode.COMPANION: (mavlink.MAV_SEVERITY_INFO, "FC: flying companion setpoints"),
+    FcMode.HOLD: (mavlink.MAV_SEVERITY_WARNING, "FC failsafe HOLD: no fresh setpoints"),
+    FcMode.LAND: (mavlink.MAV_SEVERITY_WARNING, "FC failsafe LAND: setpoints stale for 2 s"),
+    FcMode.LANDED: (mavlink.MAV_SEVERITY_NOTICE, "FC LANDED: thrust cut"),
+}
+
+
+@dataclass(frozen=True)
+class Setpoint:
+    time_ms: int
+    period_ms: int
+    thrust_n: np.ndarray
+    hip_rad: np.ndarray
+    hip_rate_rad_s: np.ndarray
+    thrust_cut: bool
+
+    @property
+    def stale_after_ms(self) -> int:
+        return self.time_ms + max(STALE_PERIODS * self.period_ms, STALE_MIN_MS)
+
+
+@dataclass
+class FcCounters:
+    setpoints_accepted: int = 0
+    setpoints_dropped: int = 0      # out of order, from the future, zero period, not finite
+    commands_acked: int = 0
+
+
+class FlightController:
+    def __init__(self, airframe: Airframe, plant, home: Home = Home()):
+        self.airframe = airframe
+        self.plant = plant
+        self.telemetry_builder = Telemetry(airframe, home)
+        self.schedule = StreamSchedule()
+        self.failsafe = Failsafe(airframe)
+        self.counters = FcCounters()
+        self.setpoint: Setpoint | None = None
+        self.mode: FcMode | None = None
+        self._applied: Setpoint | None = None
+        self._outbox: list[mavlink.MAVLink_message] = []
+        self._measured: tuple[int, object] | None = None
+        self._commands = CommandHandler(self)
+
+    # -- the plant as the FC sees it -------------------------------------------------------
+    def measured_state(self, now_ms: int):
+        if self._measured is None or self._measured[0] != now_ms:
+            self._measured = (now_ms, self.plant.measured_state())
+        return self._measured[1]
+
+    def _command_plant(self, thrust_n, hip_rad, hip_rate_rad_s=None) -> None:
+        self.plant.command(thrust_n, hip_rad, hip_rate_rad_s)
+        self._measured = None
+
+    def set_rotor_loss(self, rotor: int, loss: float) -> None:
+        """Rotor 1..4 (0: all) loses `loss` of its effectiveness relative to hover thrust."""
+        for r in range(1, ROTOR_COUNT + 1) if rotor == 0 else (rotor,):
+            self.plant.set_rotor_loss(r, loss)
+        self._measured = None
+
+    # -- modes -------------------------------------------------------------------------------
+    def _set_mode(self, mode: FcMode) -> None:
+        if mode != self.mode:
+            self.mode = mode
+            self._outbox.append(statustext(*_ANNOUNCE[mode]))
+
+    def _fresh(self, now_ms: int) -> bool:
+        return self.setpoint is not None and now_ms <= self.setpoint.stale_after_ms
+
+    def tick(self, now_ms: int) -> None:
+        """Choose who flies (companion or failsafe) and command the plant accordingly."""
+        if self._fresh(now_ms):
+            self._set_mode(FcMode.COMPANION)
+            sp = self.setpoint
+            if sp is not self._applied:
+                thrust = np.zeros(ROTOR_COUNT) if sp.thrust_cut else sp.thrust_n
+                self._command_plant(thrust, sp.hip_rad, sp.hip_rate_rad_s)
+                self._applied = sp
+            return
+        state = self.measured_state(now_ms)
+        if self.mode in (None, FcMode.COMPANION):
+            self.failsafe.engage(state, now_ms, may_land=self.mode is not None)
+        out = self.failsafe.update(state, now_ms)
+        self._set_mode(FcMode(out.mode.value))
+        self._command_plant(out.thrust_n, out.hip_rad)
+
+    # -- messages in ---------------------------------------------------------------------------
+    @staticmethod
+    def addressed_to_me(msg) -> bool:
+        return msg.target_system in (0, FC_SYSTEM_ID) and msg.target_component in (0, FC_COMPONENT_ID)
+
+    def handle(self, msg, now_ms: int) -> list[mavlink.MAVLink_message]:
+        """React to one received message; returns the immediate replies (acks, requested messages)."""
+        msg_id = msg.get_msgId()
+        if msg_id == mavlink.MAVLINK_MSG_ID_M4_SETPOINT:
+            self._on_setpoint(msg, now_ms)
+            return []
+        if msg_id in (mavlink.MAVLINK_MSG_ID_COMMAND_LONG, mavlink.MAVLINK_MSG_ID_COMMAND_INT):
+            return self._commands.handle(msg, now_ms) if self.addressed_to_me(msg) else []
+        return []
+
+    def _on_setpoint(self, msg, now_ms: int) -> None:
+        if not self.addressed_to_me(msg):
+            return
+        values = np.array([*msg.thrust_n, *msg.hip_angle_rad, *msg.hip_rate_rad_s], dtype=float)
+        newest = self.setpoint.time_ms if self.setpoint is not None else -1
+        if (msg.time_boot_ms > now_ms or msg.time_boot_ms < newest or msg.period_ms == 0
+                or not np.all(np.isfinite(values))):
+            self.counters.setpoints_dropped += 1
+            return
+        af = self.airframe
+        self.setpoint = Setpoint(
+            time_ms=msg.time_boot_ms, period_ms=msg.period_ms,
+            thrust_n=np.clip(values[:4], af.thrust_min_n, af.thrust_max_n),
+            hip_rad=np.clip(values[4:8], af.hip_min_rad, af.hip_max_rad),
+            hip_rate_rad_s=np.clip(values[8:], -af.hip_rate_max_rad_s, af.hip_rate_max_rad_s),
+            thrust_cut=bool(msg.flags & mavlink.M4_SETPOINT_FLAG_THRUST_CUT))
+        self.counters.setpoints_accepted += 1
+        self.tick(now_ms)
+
+    # -- messages out --------------------------------------------------------------------------
+    def snapshot(self, now_ms: int) -> Snapshot:
+        state = self.measured_state(now_ms)
+        landed = self.mode == FcMode.LANDED or bool(state.on_ground)
+        return Snapshot(t_ms=now_ms, state=state, custom_mode=int(self.mode or 0),
+                        armed=self.mode != FcMode.LANDED, landed=landed)
+
+    def telemetry(self, now_ms: int, frame: bool = False) -> list[mavlink.MAVLink_message]:
+        """The streams due at `now_ms` (with `frame`: plus the lockstep frame), in order."""
+        ids = self.schedule.due(now_ms, FRAME if frame else ())
+        if not ids:
+            return []
+        snap = self.snapshot(now_ms)
+        return [self.telemetry_builder.build(i, snap) for i in ids]
+
+    def next_event_ms(self, now_ms: int) -> int:
+        """The next instant at which the FC has something to do."""
+        next_tick = (now_ms // TICK_MS + 1) * TICK_MS
+        due = self.schedule.next_due_ms()
+        return next_tick if due is None else min(next_tick, max(due, now_ms + 1))
+
+    def announce(self, severity: int, text: str) -> None:
+        self._outbox.append(statustext(severity, text))
+
+    def take_outbox(self) -> list[mavlink.MAVLink_message]:
+        out, self._outbox = self._outbox, []
+        return out
+

@@ -1,0 +1,192 @@
+"""`m4-sitl serve`: the simulated vehicle behind MAVLink links, in lockstep or in real time.
+
+Lockstep (default, deterministic): at every control instant the FC sends its frame and the
+simulation waits (wall clock) for the M4_SETPOINT answering that instant; the setpoint's
+period_ms sets the next instant. Before the first setpoint the simulation waits at t = 0,
+sending the frame again every `RESEND_S` so a companion that starts late still gets it. A
+companion silent for `lockstep_timeout_s` is logged and the simulation goes on without
+waiting, in the FC's failsafe, until a setpoint comes again.
+
+Real time (`realtime=True`): the simulated clock follows the wall clock; messages are handled
+as they arrive. Every packet in and out goes to the tlog when one is asked for.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from companion.airframe import Airframe, load_airframe
+from companion.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID
+from companion.mavlink.link import UdpLink, wait_readable
+from companion.mavlink.tlog import TlogWriter
+from companion.scenario import Scenario
+from sitl.vehicle import Vehicle
+
+RESEND_S = 1.0
+IDLE_PERIOD_MS = 20           # control instants in lockstep before any setpoint fixed the period
+REALTIME_CHUNK_MS = 4
+VIEWER_SYNC_S = 1.0 / 60.0
+
+
+@dataclass(frozen=True)
+class ServeOptions:
+    scenario: Scenario
+    mavlink_urls: tuple[str, ...] = ("udpout:127.0.0.1:14550",)
+    realtime: bool = False
+    viewer: bool = False
+    tlog_path: Path | None = None
+    signing_key: bytes | None = None
+    seed: int = 0
+    duration_s: float | None = None            # None: until interrupted
+    lockstep_timeout_s: float = 5.0
+
+
+class ServeError(RuntimeError):
+    """The server cannot start (tlog not writable, no display for the viewer)."""
+
+
+def _log(text: str) -> None:
+    print(f"m4-sitl: {text}", file=sys.stderr, flush=True)
+
+
+class Server:
+    """Opens the links (LinkError on a bad URL or a port in use) and runs the vehicle."""
+
+    def __init__(self, options: ServeOptions, airframe: Airframe | None = None):
+        self.options = options
+        self.vehicle = Vehicle(options.scenario, airframe or load_airframe(), options.seed)
+        self._viewer = None
+        self._viewer_synced = 0.0
+        self._stop = False
+        self.links: list[UdpLink] = []
+        try:
+            self.tlog = TlogWriter(options.tlog_path) if options.tlog_path else None
+        except OSError as e:
+            raise ServeError(f"cannot write the tlog {options.tlog_path}: {e.strerror}") from None
+        try:
+            for i, url in enumerate(options.mavlink_urls):
+                self.links.append(UdpLink(url, FC_SYSTEM_ID, FC_COMPONENT_ID, tlog=self.tlog,
+                                          key=options.signing_key, link_id=i))
+        except Exception:
+            self.close()
+            raise
+
+    # -- plumbing --------------------------------------------------------------------------------
+    def send(self, msgs) -> None:
+        for msg in msgs:
+            for link in self.links:
+                link.send(msg)
+
+    def poll(self) -> None:
+        """Handle everything that has arrived, at the current simulated instant."""
+        for link in self.links:
+            msgs = link.receive()
+            if msgs:
+                self.vehicle.handle(msgs, self.send)
+
+    def stop(self) -> None:
+        """Ask the loop to end (from another thread) at its next instant."""
+        self._stop = True
+
+    def _ended(self) -> bool:
+        end = self.options.duration_s
+        return self._stop or (end is not None and self.vehicle.now_ms >= round(end * 1000))
+
+    def _open_viewer(self) -> None:
+        import mujoco.viewer
+        try:
+            self._viewer = mujoco.viewer.launch_passive(self.vehicle.plant.model, self.vehicle.plant.data)
+        except Exception as e:      # no display, no GL: whatever MuJoCo raises, say it in one line
+            raise ServeError(f"cannot open the MuJoCo viewer: {e}") from None
+
+    def _sync_viewer(self) -> None:
+        if self._viewer is not None and time.monotonic() - self._viewer_synced >= VIEWER_SYNC_S:
+            if not self._viewer.is_running():
+                self._stop = True
+                return
+            self._viewer.sync()
+            self._viewer_synced = time.monotonic()
+
+    # -- the loops -------------------------------------------------------------------------------
+    def run(self) -> None:
+        if self.options.viewer:
+            self._open_viewer()
+        wall0 = time.monotonic()
+        mode = "real time" if self.options.realtime else "lockstep"
+        _log(f"serving {self.options.scenario.name!r} in {mode} on "
+             + ", ".join(link.endpoint.url for link in self.links))
+        try:
+            (self._run_realtime if self.options.realtime else self._run_lockstep)()
+        finally:
+            wall = time.monotonic() - wall0
+            sim = self.vehicle.now_ms / 1000.0
+            c = self.vehicle.fc.counters
+            rejected = sum(link.signing_counters().rejected for link in self.links)
+            _log(f"stopped at t={sim:.3f} s after {wall:.1f} s wall ({sim / max(wall, 1e-9):.1f}x); "
+                 f"setpoints accepted {c.setpoints_accepted}, dropped {c.setpoints_dropped}; "
+                 f"commands {c.commands_acked}; unsigned/bad-signature packets rejected {rejected}")
+
+    def _run_realtime(self) -> None:
+        v = self.vehicle
+        wall0 = time.monotonic()
+        v.start(self.send)
+        while not self._ended():
+            target_ms = v.now_ms + REALTIME_CHUNK_MS
+            while True:
+                self.poll()
+                ahead_s = target_ms / 1000.0 - (time.monotonic() - wall0)
+                if ahead_s <= 0.0:
+                    break
+                wait_readable(self.links, ahead_s)
+            v.advance_to(target_ms, self.send)
+            self._sync_viewer()
+
+    def _run_lockstep(self) -> None:
+        v, fc = self.vehicle, self.vehicle.fc
+        v.start(self.send)
+        waiting = True
+        while not self._ended():
+            if waiting:
+                if not self._await_setpoint(v.now_ms):
+                    if self._stop:
+                        return
+                    _log(f"t={v.now_ms / 1000:.3f} s: no setpoint for {self.options.lockstep_timeout_s:g} s "
+                         "(wall clock); going on without waiting, in the FC's failsafe")
+                    waiting = False
+            else:
+                accepted = fc.counters.setpoints_accepted
+                self.poll()
+                waiting = fc.counters.setpoints_accepted > accepted
+            period_ms = fc.setpoint.period_ms if fc.setpoint is not None else IDLE_PERIOD_MS
+            v.advance_to(v.now_ms + period_ms, self.send, frame=True)
+            self._sync_viewer()
+
+    def _await_setpoint(self, t_ms: int) -> bool:
+        """Wait for the setpoint answering instant `t_ms`; False after the lockstep timeout."""
+        fc = self.vehicle.fc
+        start = time.monotonic()
+        deadline = start + self.options.lockstep_timeout_s
+        resend_at = start + RESEND_S
+        while True:
+            self.poll()
+            if fc.setpoint is not None and fc.setpoint.time_ms == t_ms:
+                return True
+            now = time.monotonic()
+            if now >= deadline or self._stop:
+                return False
+            if now >= resend_at:
+                self.send(self.vehicle.current_frame())
+                resend_at += RESEND_S
+            self._sync_viewer()
+            wait_readable(self.links, min(deadline, resend_at, now + 0.1) - now)
+
+    def close(self) -> None:
+        for link in self.links:
+            link.close()
+        if self.tlog is not None:
+            self.tlog.close()
+        if self._viewer is not None:
+            self._viewer.close()

@@ -1,0 +1,110 @@
+"""A stand-in companion for tests and the lockstep benchmark: it answers every frame.
+
+It listens on a UDP port, keeps every message it receives, and answers each new
+M4_THRUSTER_STATUS (the last message of a lockstep frame) with an M4_SETPOINT for that
+instant: by default the hover thrust per rotor at the nominal posture (open loop).
+
+    python -m sitl.standin [--seconds S] [--period-ms P]
+
+runs `m4-sitl serve` in lockstep against it and prints simulated seconds per wall second.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import threading
+import time
+from typing import Callable
+
+import numpy as np
+
+from companion.airframe import ROTOR_COUNT, load_airframe
+from companion.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from companion.mavlink.link import UdpLink, wait_readable
+
+Answer = Callable[[int], tuple]      # time_boot_ms -> (thrust_n, hip_rad, hip_rate_rad_s, flags)
+
+
+class StandInCompanion:
+    def __init__(self, period_ms: int = 20, key: bytes | None = None, answer: Answer | None = None):
+        af = load_airframe()
+        hover = (np.full(ROTOR_COUNT, af.hover_thrust_per_rotor_n), np.full(ROTOR_COUNT, af.nominal_hip_rad),
+                 np.zeros(ROTOR_COUNT), 0)
+        self.period_ms = period_ms
+        self.answer = answer or (lambda t_ms: hover)
+        self.link = UdpLink("udpin:127.0.0.1:0", FC_SYSTEM_ID, COMPANION_COMPONENT_ID, key=key)
+        self.received: list[mavlink.MAVLink_message] = []
+        self.answering = True
+        self.answered = 0
+        self._last_ms = -1
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    @property
+    def url(self) -> str:
+        """Where the SITL should send: `--mavlink` for `m4-sitl serve`."""
+        return f"udpout:127.0.0.1:{self.link.local_port}"
+
+    def setpoint(self, t_ms: int) -> mavlink.MAVLink_m4_setpoint_message:
+        thrust, hip, rate, flags = self.answer(t_ms)
+        return mavlink.MAVLink_m4_setpoint_message(FC_SYSTEM_ID, FC_COMPONENT_ID, t_ms, self.period_ms,
+                                                   [float(x) for x in thrust], [float(x) for x in hip],
+                                                   [float(x) for x in rate], flags)
+
+    def poll(self, timeout_s: float = 0.05) -> None:
+        if wait_readable([self.link], timeout_s):
+            for msg in self.link.receive():
+                self.received.append(msg)
+                if (self.answering and msg.get_msgId() == mavlink.MAVLINK_MSG_ID_M4_THRUSTER_STATUS
+                        and msg.time_boot_ms > self._last_ms):
+                    self._last_ms = msg.time_boot_ms
+                    self.link.send(self.setpoint(msg.time_boot_ms))
+                    self.answered += 1
+
+    def start(self) -> StandInCompanion:
+        self._thread = threading.Thread(target=self._loop, daemon=True)
+        self._thread.start()
+        return self
+
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            self.poll()
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        self.link.close()
+
+    def of_type(self, name: str) -> list[mavlink.MAVLink_message]:
+        return [m for m in list(self.received) if m.get_type() == name]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m sitl.standin", description="lockstep speed of m4-sitl serve")
+    parser.add_argument("--seconds", type=float, default=10.0, help="simulated seconds (default 10)")
+    parser.add_argument("--period-ms", type=int, default=20, help="control period (default 20)")
+    args = parser.parse_args(argv)
+    companion = StandInCompanion(period_ms=args.period_ms)
+    cmd = [sys.executable, "-m", "sitl.cli", "serve", "--mavlink", companion.url, "--duration", str(args.seconds)]
+    proc = subprocess.Popen(cmd, stderr=subprocess.DEVNULL)
+    try:
+        while companion.answered == 0 and proc.poll() is None:
+            companion.poll()
+        wall0 = time.monotonic()
+        while proc.poll() is None:
+            companion.poll()
+        wall = time.monotonic() - wall0
+    finally:
+        proc.kill()
+        companion.close()
+    print(f"lockstep: {args.seconds:g} s simulated in {wall:.2f} s wall = {args.seconds / wall:.1f} "
+          f"simulated s per wall s ({companion.answered} setpoints at {1000 / args.period_ms:g} Hz, "
+          f"{len(companion.received)} messages received)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,71 @@
+"""The simulated vehicle: the MuJoCo plant, its flight controller and the scenario's faults
+on one simulated clock (integer milliseconds since the scenario's t = 0).
+
+No sockets and no wall clock here: `advance_to()` steps the physics from event to event (FC
+ticks, telemetry streams, scheduled faults) and hands every message the FC emits on the way
+to `send`; `handle()` feeds it received messages at the current instant. sitl/serve.py
+paces it (lockstep or real time) and moves the bytes.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Callable, Iterable
+
+from companion.airframe import Airframe
+from companion.mavlink import mavlink
+from companion.scenario import Scenario
+from sitl.flight_controller import TICK_MS, FlightController
+from sitl.plant import Plant
+from sitl.streams import FRAME
+
+Send = Callable[[Iterable[mavlink.MAVLink_message]], None]
+
+
+def _log(text: str) -> None:
+    print(f"m4-sitl: {text}", file=sys.stderr, flush=True)
+
+
+class Vehicle:
+    def __init__(self, scenario: Scenario, airframe: Airframe, seed: int = 0):
+        self.scenario = scenario
+        self.plant = Plant(airframe, scenario.plant, start_ned_m=scenario.start.ned_m,
+                           start_yaw_rad=scenario.start.yaw_rad, seed=seed)
+        self.fc = FlightController(airframe, self.plant)
+        self.now_ms = 0
+        self._faults = sorted(((round(f.at_s * 1000), f) for f in scenario.faults), key=lambda x: x[0])
+
+    def start(self, send: Send) -> None:
+        """The FC wakes up at t = 0 (failsafe HOLD until setpoints come) and sends its first frame."""
+        self._at_instant(send, frame=True)
+
+    def advance_to(self, t_ms: int, send: Send, frame: bool = False) -> None:
+        """Simulate up to `t_ms`; with `frame`, the lockstep frame goes out at `t_ms`."""
+        while self.now_ms < t_ms:
+            nxt = min(self.fc.next_event_ms(self.now_ms), t_ms)
+            if self._faults:
+                nxt = min(nxt, max(self._faults[0][0], self.now_ms + 1))
+            self.plant.step((nxt - self.now_ms) / 1000.0)
+            self.now_ms = nxt
+            self._at_instant(send, frame=frame and nxt == t_ms)
+
+    def _at_instant(self, send: Send, frame: bool) -> None:
+        while self._faults and self._faults[0][0] <= self.now_ms:
+            _, fault = self._faults.pop(0)
+            self.fc.set_rotor_loss(fault.rotor, fault.loss)
+            _log(f"t={self.now_ms / 1000:.3f} s: scenario fault, rotor {fault.rotor} loss {fault.loss:g}")
+        if self.now_ms % TICK_MS == 0:
+            self.fc.tick(self.now_ms)
+        send(self.fc.take_outbox())
+        send(self.fc.telemetry(self.now_ms, frame=frame))
+
+    def handle(self, msgs: Iterable[mavlink.MAVLink_message], send: Send) -> None:
+        for msg in msgs:
+            send(self.fc.handle(msg, self.now_ms))
+        send(self.fc.take_outbox())
+
+    def current_frame(self) -> list[mavlink.MAVLink_message]:
+        """HEARTBEAT and the frame at the current instant again (lockstep, while waiting)."""
+        snap = self.fc.snapshot(self.now_ms)
+        build = self.fc.telemetry_builder.build
+        return [build(i, snap) for i in (mavlink.MAVLINK_MSG_ID_HEARTBEAT, *FRAME)]
