@@ -1,0 +1,126 @@
+"""What the measured motion says about each rotor's thrust: the fault detector's evidence.
+
+Between two telemetry frames the robot moved under the thrusts we commanded. The reduced-order
+model predicts the second frame from the first with those thrusts (first-order motor lag
+included: a rotor whose command stepped delivers the average of its lagged response), and
+the prediction error of velocity and body rates is the residual r (6,). A thrust deficit
+delta_i on rotor i alone would leave the residual -B_i delta_i, where B_i is the column of
+d(v, rates)/d(thrust_i) of the model step at the measured state: the thrust -> wrench map of
+the rotor at the current posture and attitude, integrated over the interval. Each rotor
+hypothesis is fitted by weighted least squares; the weights are the inverse variances of the
+residual from sensor noise (both frames) and from the model's own force and torque errors.
+
+Working on the one-step prediction instead of differentiated velocities needs no filter and
+keeps the posture's effect on the centre of mass, the moment arms and the inertia exact.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from companion.airframe import Airframe
+from companion.core import rom
+
+CHANNELS = np.r_[np.arange(rom.V.start, rom.V.stop), np.arange(rom.RATES.start, rom.RATES.stop)]
+_PREDICTION_SUBSTEPS = 4
+
+
+@dataclass(frozen=True)
+class ResidualNoise:
+    """Standard deviations behind the residual's weights."""
+
+    velocity_m_s: float          # sensor noise of one measured velocity component
+    rates_rad_s: float           # sensor noise of one measured body rate
+    force_n: float               # force the model gets wrong (drag, mass error), per axis
+    torque_n_m: float            # torque the model gets wrong (inertia, posture motion), per axis
+
+
+@dataclass(frozen=True)
+class IntervalFit:
+    """The residual of one interval fitted by each single-rotor deficit hypothesis.
+
+    Sufficient statistics, so several intervals add up: with a = B_i^T W B_i and
+    b = -B_i^T W r, the deficit is b / a and it explains b^2 / a of chi2 = r^T W r.
+    """
+
+    a: np.ndarray                # (4,)
+    b: np.ndarray                # (4,)
+    chi2: float
+    expected_thrust_n: np.ndarray   # (4,) interval-average thrust the model assumed
+
+    @property
+    def deficit_n(self) -> np.ndarray:
+        return self.b / self.a
+
+
+class ThrustResidualModel:
+    """One-step prediction of the ROM and the per-rotor sensitivity of (v, rates) to thrust."""
+
+    def __init__(self, af: Airframe, noise: ResidualNoise):
+        self._af, self._noise = af, noise
+        f = rom.dynamics(af)
+        x, u, dt = ca.SX.sym("x", rom.NX), ca.SX.sym("u", rom.NU), ca.SX.sym("dt")
+        h, xk, d = dt / _PREDICTION_SUBSTEPS, x, ca.DM.zeros(rom.ND)
+        for _ in range(_PREDICTION_SUBSTEPS):
+            k1 = f(xk, u, d)
+            k2 = f(xk + h / 2 * k1, u, d)
+            k3 = f(xk + h / 2 * k2, u, d)
+            k4 = f(xk + h * k3, u, d)
+            xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        _, inertia = rom.mass_properties(af, x[rom.HIP])
+        self._predict = ca.Function("m4_fault_predict", [x, u, dt],
+                                    [xk, ca.jacobian(xk, u[rom.THRUST]), ca.diag(inertia)])
+
+    def motor_response(self, start_n: np.ndarray, target_n: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """(interval-average thrust, thrust at the end) of the first-order motor lag."""
+        tau = self._af.motor_time_constant_s
+        if tau <= 0:
+            return target_n.copy(), target_n.copy()
+        decay = math.exp(-dt_s / tau)
+        return (target_n + (start_n - target_n) * tau / dt_s * (1 - decay),
+                target_n + (start_n - target_n) * decay)
+
+    def fit(self, x_prev: np.ndarray, x_now: np.ndarray, expected_thrust_n: np.ndarray,
+            dt_s: float, bias_per_s: np.ndarray) -> tuple[IntervalFit, np.ndarray]:
+        """Fit the interval x_prev -> x_now flown with the given interval-average thrusts.
+
+        bias_per_s (6,): a slowly learnt residual rate the model always shows, removed first.
+        Returns the fit and the raw residual (6,) (bias not removed), for learning the bias.
+        """
+        u = np.zeros(rom.NU)
+        u[rom.THRUST] = expected_thrust_n
+        u[rom.HIP_ACCEL] = (x_now[rom.HIP_RATE] - x_prev[rom.HIP_RATE]) / dt_s
+        x_pred, jac, inertia_diag = (np.asarray(v) for v in self._predict(x_prev, u, dt_s))
+        raw = x_now[CHANNELS] - x_pred[:, 0][CHANNELS]
+        r = raw - bias_per_s * dt_s
+        sens = jac[CHANNELS, :]                          # (6, 4)
+        w = 1.0 / self._residual_variance(dt_s, inertia_diag[:, 0])
+        a = np.einsum("ci,c,ci->i", sens, w, sens)
+        b = -np.einsum("ci,c,c->i", sens, w, r)
+        return IntervalFit(a=a, b=b, chi2=float(r @ (w * r)), expected_thrust_n=expected_thrust_n), raw
+
+    def _residual_variance(self, dt_s: float, inertia_diag_kg_m2: np.ndarray) -> np.ndarray:
+        n = self._noise
+        v = 2 * n.velocity_m_s**2 + (n.force_n * dt_s / self._af.total_mass_kg) ** 2
+        w = 2 * n.rates_rad_s**2 + (n.torque_n_m * dt_s / inertia_diag_kg_m2) ** 2
+        return np.r_[np.full(3, v), w]
+
+
+def combine(fits: list[IntervalFit]) -> IntervalFit:
+    """The fit of several intervals under one constant deficit per hypothesis."""
+    a = sum(f.a for f in fits)
+    b = sum(f.b for f in fits)
+    expected = sum(f.a * f.expected_thrust_n for f in fits) / a
+    return IntervalFit(a=a, b=b, chi2=sum(f.chi2 for f in fits), expected_thrust_n=expected)
+
+
+def best_hypothesis(fit: IntervalFit) -> tuple[int, float, float]:
+    """(rotor index, chi2 it explains, chi2 left) of the best deficit (> 0) hypothesis."""
+    explained = np.where(fit.b > 0, fit.b**2 / fit.a, 0.0)
+    i = int(np.argmax(explained))
+    return i, float(explained[i]), fit.chi2 - float(explained[i])
+
