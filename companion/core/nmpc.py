@@ -34,6 +34,8 @@ _MERIT_PENALTY = 1e4         # per unit of state-constraint violation, in the li
 _ARMIJO = 1e-4
 _MAX_HALVINGS = 6
 _DAQP_OK = (1, 2)            # optimal; optimal with soft constraints violated
+_DAQP_ITER_LIMIT = 2000      # bounds the worst-case QP time (a few ms)
+_LEVENBERG = 1e-8            # relative damping: keeps the QP solvable when a rollout nears the Euler singularity
 
 
 @dataclass(frozen=True)
@@ -148,11 +150,12 @@ class Nmpc:
                 return self._fallback(x0, lo, hi, "qp_failed", it, t0)
             gamma = sensitivities(a, b)
             hess, grad = self.cost.gauss_newton(gamma, xs, us, ref, u_ref)
+            hess[np.diag_indices_from(hess)] += _LEVENBERG * np.max(np.diag(hess))
             c = self.rows.values(xs)
             upper = np.concatenate([hi_all - us.ravel(), np.minimum(self.rows.hi - c, _BIG)])
             lower = np.concatenate([lo_all - us.ravel(), np.maximum(self.rows.lo - c, -_BIG)])
             step, _, flag, info = daqp.solve(hess, grad, self.rows.jacobian(gamma), upper, lower, self._sense,
-                                             dual_start=self._duals)
+                                             dual_start=self._duals, iter_limit=_DAQP_ITER_LIMIT)
             if flag not in _DAQP_OK or not np.all(np.isfinite(step)):
                 return self._fallback(x0, lo, hi, "qp_failed", it, t0)
             self._duals = np.asarray(info["lam"])

@@ -54,6 +54,7 @@ class SimConfig:
     control_period_s: float = 0.02
     plant_substeps: int = 4                  # RK4 substeps of the plant per control period
     faults: tuple[RotorFault, ...] = ()
+    thrust_cap_n: float | None = None        # every rotor's limit (plant and controller); None: the airframe's
     known_delay_s: float = 0.0               # the controller learns of a fault this much later
     mismatch: PlantMismatch = field(default_factory=PlantMismatch)
     estimator_gain: float | None = None      # None: no disturbance estimate (d = 0)
@@ -73,6 +74,7 @@ class SimLog:
     thrust_max_known_n: np.ndarray  # (K, 4)
     disturbance: np.ndarray         # (K, 6) estimate given to the NMPC
     solve_ms: np.ndarray            # (K,)
+    cost: np.ndarray                # (K,) NMPC cost of each solve (inf on a fallback)
     iterations: np.ndarray          # (K,)
     fallback: np.ndarray            # (K,) bool
     status: tuple[str, ...]
@@ -84,10 +86,11 @@ def hold_reference(x_hold: np.ndarray, horizon: int) -> Callable[[float], np.nda
     return lambda t: ref
 
 
-def thrust_limits(af: Airframe, faults: tuple[RotorFault, ...], t_s: float, delay_s: float = 0.0) -> np.ndarray:
-    """Per-rotor thrust limit at time t_s for faults that take effect delay_s after at_s."""
-    limit = np.full(ROTOR_COUNT, af.thrust_max_n)
-    for f in faults:
+def thrust_limits(af: Airframe, sim: SimConfig, t_s: float, delay_s: float = 0.0) -> np.ndarray:
+    """Per-rotor thrust limit at time t_s for the faults of sim, taking effect delay_s after at_s."""
+    cap = af.thrust_max_n if sim.thrust_cap_n is None else min(sim.thrust_cap_n, af.thrust_max_n)
+    limit = np.full(ROTOR_COUNT, cap)
+    for f in sim.faults:
         if t_s >= f.at_s + delay_s:
             limit[f.rotor] = min(limit[f.rotor], (1.0 - f.loss) * af.hover_thrust_per_rotor_n)
     return limit
@@ -105,7 +108,8 @@ def simulate(nmpc: Nmpc, x_init: np.ndarray, reference: Callable[[float], np.nda
     n = nmpc.config.horizon
     xs, xm, refs = np.zeros((steps + 1, rom.NX)), np.zeros((steps, rom.NX)), np.zeros((steps, n + 1, rom.NX))
     us, delivered, known = np.zeros((steps, rom.NU)), np.zeros((steps, ROTOR_COUNT)), np.zeros((steps, ROTOR_COUNT))
-    dist, solve_ms, iters, fallback = np.zeros((steps, rom.ND)), np.zeros(steps), np.zeros(steps, int), np.zeros(steps, bool)
+    dist, solve_ms, cost = np.zeros((steps, rom.ND)), np.zeros(steps), np.zeros(steps)
+    iters, fallback = np.zeros(steps, int), np.zeros(steps, bool)
     status = []
     xs[0] = x_init
     d = np.zeros(rom.ND)
@@ -114,21 +118,22 @@ def simulate(nmpc: Nmpc, x_init: np.ndarray, reference: Callable[[float], np.nda
         xm[k] = xs[k] + sim.noise_scale * _NOISE_STD * rng.standard_normal(rom.NX)
         if estimator is not None and k:
             d = estimator.update(xm[k - 1], us[k - 1], xm[k])
-        known[k] = thrust_limits(af, sim.faults, t, sim.known_delay_s)
+        known[k] = thrust_limits(af, sim, t, sim.known_delay_s)
         refs[k] = reference(t)
         res = nmpc.solve(xm[k], refs[k], known[k], d)
-        us[k], dist[k], solve_ms[k], iters[k], fallback[k] = res.u, d, res.solve_ms, res.iterations, res.fallback
+        us[k], dist[k], solve_ms[k], cost[k] = res.u, d, res.solve_ms, res.cost
+        iters[k], fallback[k] = res.iterations, res.fallback
         status.append(res.status)
         u_plant = res.u.copy()
-        delivered[k] = np.clip(res.u[rom.THRUST] * sim.mismatch.thrust_scale, 0.0, thrust_limits(af, sim.faults, t))
+        delivered[k] = np.clip(res.u[rom.THRUST] * sim.mismatch.thrust_scale, 0.0, thrust_limits(af, sim, t))
         u_plant[rom.THRUST] = delivered[k]
         xs[k + 1] = np.asarray(plant(xs[k], u_plant, d_true)).ravel()
         if kick_steps is not None and (k + 1) % kick_steps == 0:
             xs[k + 1, rom.V] += rng.uniform(-0.5, 0.5, 3)
             xs[k + 1, rom.RATES] += rng.uniform(-1.0, 1.0, 3)
-    return SimLog(t_s=np.arange(steps) * period, x=xs, x_measured=xm, x_ref=refs, u=us, thrust_delivered_n=delivered,
-                  thrust_max_known_n=known, disturbance=dist, solve_ms=solve_ms, iterations=iters, fallback=fallback,
-                  status=tuple(status))
+    return SimLog(t_s=np.arange(steps) * period, x=xs, x_measured=xm, x_ref=refs, u=us,
+                  thrust_delivered_n=delivered, thrust_max_known_n=known, disturbance=dist, solve_ms=solve_ms,
+                  cost=cost, iterations=iters, fallback=fallback, status=tuple(status))
 
 
 @dataclass(frozen=True)

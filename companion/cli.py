@@ -1,0 +1,62 @@
+"""`m4-companion`: the companion's command line.
+
+Each subcommand is one `_add_<name>(subparsers)` function that declares its arguments and
+sets `func` (called with the parsed arguments, returns the exit code), registered by one
+line in SUBCOMMANDS.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    return value
+
+
+def _add_bench(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("bench", help="time warm-started NMPC solves beside IPOPT on the same problems")
+    p.add_argument("--horizon", type=_positive_int, default=5, help="NMPC horizon N (default 5)")
+    p.add_argument("--dt", type=_positive_float, default=0.1, help="NMPC step in seconds (default 0.1)")
+    p.add_argument("--solves", type=_positive_int, default=300, help="solves in the sequence (default 300)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the kicks and noise")
+    p.add_argument("--json", action="store_true", help="print one JSON object on one line")
+    p.set_defaults(func=_run_bench)
+
+
+def _run_bench(args: argparse.Namespace) -> int:
+    from companion.bench import run_bench     # CasADi and the solver load only when needed
+
+    report = run_bench(horizon=args.horizon, dt_s=args.dt, solves=args.solves, seed=args.seed)
+    print(json.dumps(report.as_dict()) if args.json else report.table())
+    return 0
+
+
+# One line per subcommand.
+SUBCOMMANDS = (
+    _add_bench,
+)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="m4-companion", description="M4 companion: NMPC fault recovery")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for add in SUBCOMMANDS:
+        add(sub)
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
