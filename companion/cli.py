@@ -43,9 +43,18 @@ def _run_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_watch(sub: argparse._SubParsersAction) -> None:
+    from companion import watch
+
+    p = sub.add_parser("watch", help="show the companion's live Zenoh feed in a terminal")
+    watch.add_arguments(p)
+    p.set_defaults(func=watch.run)
+
+
 # One line per subcommand.
 SUBCOMMANDS = (
     _add_bench,
+    _add_watch,
 )
 
 

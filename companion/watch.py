@@ -161,7 +161,8 @@ def run(args: argparse.Namespace, out: TextIO | None = None) -> int:
             cfg, what = config_from_endpoints("client", connect=endpoints), ", ".join(endpoints)
         session = open_session(cfg, what)
     except (ValueError, FeedError) as e:
-        print(f"m4-companion watch: {e}", file=sys.stderr)
+        hint = "" if args.zenoh_config else " (is a Zenoh router, or the companion, listening there?)"
+        print(f"m4-companion watch: {e}{hint}", file=sys.stderr)
         return 2
     latest = Latest()
     try:
