@@ -43,7 +43,7 @@ def parse_url(url: str) -> Endpoint:
     if not sep or mode not in MODES or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
         raise LinkError(f"bad MAVLink URL {url!r}: expected udpin:HOST:PORT or udpout:HOST:PORT")
     if mode == "udpout" and int(port) == 0:
-        raise LinkError(f"bad MAVLink URL {url!r}: udpout needs a port to send to")
+        raise LinkError(f"bad MAVLink URL {url!r}: udpout needs a port to send to (udpout:HOST:PORT, PORT > 0)")
     return Endpoint(mode, host, int(port))
 
 

@@ -1,0 +1,60 @@
+"""UDP links: URLs, port in use, and tlogs of both directions readable by pymavlink."""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import pytest
+
+from companion.mavlink import mavlink, mavutil
+from companion.mavlink.link import LinkError, UdpLink, parse_url, wait_readable
+from companion.mavlink.tlog import TlogWriter
+
+
+@pytest.mark.parametrize("url", ["", "udp:127.0.0.1:5", "udpin:127.0.0.1", "udpin:127.0.0.1:x",
+                                 "tcp:127.0.0.1:5760", "udpout:127.0.0.1:0", "udpin:127.0.0.1:70000"])
+def test_bad_url_is_rejected_with_the_expected_form(url):
+    with pytest.raises(LinkError, match="HOST:PORT"):
+        parse_url(url)
+
+
+def test_url_forms():
+    assert parse_url("udpin:127.0.0.1:14550").port == 14550
+    assert parse_url("udpout://localhost:5").host == "localhost"
+
+
+def test_port_in_use_is_a_link_error():
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+        with pytest.raises(LinkError, match=f"udpin:127.0.0.1:{port}: cannot open"):
+            UdpLink(f"udpin:127.0.0.1:{port}", 1, 1)
+
+
+def _receive(link, n, timeout_s=2.0):
+    got, deadline = [], time.monotonic() + timeout_s
+    while len(got) < n and time.monotonic() < deadline:
+        wait_readable([link], 0.05)
+        got += link.receive()
+    return got
+
+
+def test_tlog_holds_both_directions_and_pymavlink_reads_it(tmp_path):
+    path = tmp_path / "flight.tlog"
+    with TlogWriter(path) as tlog:
+        fc = UdpLink("udpin:127.0.0.1:0", 1, 1, tlog=tlog)
+        companion = UdpLink(f"udpout:127.0.0.1:{fc.local_port}", 1, 191)
+        companion.send(mavlink.MAVLink_m4_setpoint_message(1, 1, 0, 20, [14.7] * 4, [0.78] * 4, [0.0] * 4, 0))
+        assert [m.get_type() for m in _receive(fc, 1)] == ["M4_SETPOINT"]
+        fc.send(mavlink.MAVLink_attitude_message(20, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0))
+        assert [m.get_type() for m in _receive(companion, 1)] == ["ATTITUDE"]
+        fc.close()
+        companion.close()
+    log = mavutil.mavlink_connection(str(path))
+    msgs = []
+    while (msg := log.recv_match(blocking=False)) is not None:
+        msgs.append(msg)
+    assert [(m.get_type(), m.get_srcComponent()) for m in msgs] == [("M4_SETPOINT", 191), ("ATTITUDE", 1)]
+    assert msgs[0]._timestamp <= msgs[1]._timestamp
+    assert abs(msgs[0]._timestamp - time.time()) < 60.0

@@ -1,0 +1,100 @@
+"""Signing: setpoints and commands must be signed; only HEARTBEAT and RADIO_STATUS pass unsigned."""
+
+from __future__ import annotations
+
+import pytest
+
+from companion.mavlink import mavlink, new_mav
+from companion.mavlink.signing import SigningCounters, load_key, setup_signing
+from companion.toml_fields import ConfigError
+
+KEY = bytes(range(32))
+
+
+class _Sink:
+    def __init__(self):
+        self.packets = []
+
+    def write(self, packet):
+        self.packets.append(bytes(packet))
+
+
+def _setpoint():
+    return mavlink.MAVLink_m4_setpoint_message(1, 1, 0, 20, [1.0] * 4, [0.7] * 4, [0.0] * 4, 0)
+
+
+def _heartbeat():
+    return mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID,
+                                             0, 0, 0, 3)
+
+
+def _packets(key, *msgs):
+    sink = _Sink()
+    mav = new_mav(sink, 1, 191)
+    if key is not None:
+        setup_signing(mav, key)
+    for msg in msgs:
+        mav.send(msg)
+    return sink.packets
+
+
+def _receiver():
+    mav = new_mav(None, 1, 1)
+    setup_signing(mav, KEY)
+    return mav
+
+
+def _types(mav, packets):
+    return [m.get_type() for p in packets for m in mav.parse_buffer(p) or ()]
+
+
+def test_signed_setpoint_is_accepted():
+    rx = _receiver()
+    assert _types(rx, _packets(KEY, _setpoint())) == ["M4_SETPOINT"]
+    assert SigningCounters.of(rx).signed_ok == 1
+
+
+def test_unsigned_setpoint_and_command_are_dropped_and_counted():
+    rx = _receiver()
+    command = mavlink.MAVLink_command_long_message(1, 1, mavlink.MAV_CMD_INJECT_FAILURE, 0, 101, 1, 4, 0, 0, 0, 0)
+    assert _types(rx, _packets(None, _setpoint(), command)) == ["BAD_DATA", "BAD_DATA"]
+    assert SigningCounters.of(rx).rejected == 2
+
+
+def test_setpoint_signed_with_another_key_is_dropped():
+    rx = _receiver()
+    assert _types(rx, _packets(bytes(32), _setpoint())) == ["BAD_DATA"]
+    counters = SigningCounters.of(rx)
+    assert counters.bad_signature == 1 and counters.rejected == 1
+
+
+def test_replayed_signed_setpoint_is_dropped():
+    rx = _receiver()
+    (packet,) = _packets(KEY, _setpoint())
+    assert _types(rx, [packet, packet]) == ["M4_SETPOINT", "BAD_DATA"]
+
+
+def test_unsigned_heartbeat_passes():
+    rx = _receiver()
+    assert _types(rx, _packets(None, _heartbeat())) == ["HEARTBEAT"]
+    assert SigningCounters.of(rx).unsigned_allowed == 1
+
+
+def test_key_file_hex_or_raw(tmp_path):
+    hex_file, raw_file = tmp_path / "key.hex", tmp_path / "key.bin"
+    hex_file.write_text(KEY.hex() + "\n")
+    raw_file.write_bytes(KEY)
+    assert load_key(hex_file) == KEY == load_key(raw_file)
+
+
+@pytest.mark.parametrize("content", [b"abcd", bytes(31), b"zz" * 32])
+def test_bad_key_file_names_the_problem(tmp_path, content):
+    path = tmp_path / "key"
+    path.write_bytes(content)
+    with pytest.raises(ConfigError, match="32 bytes"):
+        load_key(path)
+
+
+def test_missing_key_file_is_a_config_error(tmp_path):
+    with pytest.raises(ConfigError, match="cannot read"):
+        load_key(tmp_path / "nope")
