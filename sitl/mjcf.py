@@ -13,8 +13,10 @@ x, 0 = flight configuration, every thrust axis along body z) and the hip block; 
 `leg{i}` with the sagittal joint (0 = folded along the body, q = 90 deg out sideways) and
 the link at mid-leg; body `wheel{i}` at the leg end with the wheel + thruster lump and the
 site `thrust{i}`. Actuators: `thrust{i}` (force along the hub axis, reaction moment
-spin k_m T, first-order lag), `hip{i}` + `hiprate{i}` (the sagittal servo: position and rate
-references), `frontal{i}` (stiff hold of the flight configuration).
+spin k_m T, first-order lag), `hip{i}` + `hiprate{i}` (the sagittal servo: both take the
+reference rate; `hip{i}` integrates it into the reference angle and pulls the joint to it,
+`hiprate{i}` damps the joint towards the reference rate), `frontal{i}` (stiff hold of the
+flight configuration).
 """
 
 from __future__ import annotations
@@ -140,8 +142,10 @@ def _actuators(root: ET.Element, af: Airframe) -> None:
     # The sagittal inertia about the hip does not depend on the posture: one pair of gains.
     kp, kv = servo_gains(_inertia_about_axis(leg_lumps(af, 1.0)[1:], (0, 0, 1), 0.0), af.servo_time_constant_s)
     for i in range(ROTOR_COUNT):
-        _sub(act, "position", name=f"hip{i + 1}", class_="m4", joint=f"sagittal{i + 1}", kp=_fmt(kp),
-             ctrlrange=_fmt(af.hip_min_rad, af.hip_max_rad))
+        # ctrl: reference rate; act: reference angle (integrated natively, kept in the joint range).
+        _sub(act, "intvelocity", name=f"hip{i + 1}", class_="m4", joint=f"sagittal{i + 1}", kp=_fmt(kp),
+             ctrlrange=_fmt(-af.hip_rate_max_rad_s, af.hip_rate_max_rad_s),
+             actrange=_fmt(af.hip_min_rad, af.hip_max_rad))
     for i in range(ROTOR_COUNT):
         _sub(act, "velocity", name=f"hiprate{i + 1}", class_="m4", joint=f"sagittal{i + 1}", kv=_fmt(kv),
              ctrlrange=_fmt(-af.hip_rate_max_rad_s, af.hip_rate_max_rad_s))
@@ -164,16 +168,17 @@ def _hover_key(root: ET.Element, af: Airframe) -> None:
     qpos = [0.0, 0.0, HOVER_HEIGHT_M, 1.0, 0.0, 0.0, 0.0]
     for _ in range(ROTOR_COUNT):
         qpos += [0.0, af.nominal_hip_rad]
-    ctrl = [hover] * ROTOR_COUNT + [af.nominal_hip_rad] * ROTOR_COUNT + [0.0] * (2 * ROTOR_COUNT)
+    ctrl = [hover] * ROTOR_COUNT + [0.0] * (3 * ROTOR_COUNT)
     _sub(_sub(root, "keyframe"), "key", name="hover", qpos=_fmt(*qpos), ctrl=_fmt(*ctrl),
-         act=_fmt(*[hover] * ROTOR_COUNT))
+         act=_fmt(*[hover] * ROTOR_COUNT, *[af.nominal_hip_rad] * ROTOR_COUNT))
 
 
 def robot_xml(af: Airframe) -> str:
     """The robot file (m4.xml) for an airframe."""
     root = ET.Element("mujoco", model=af.name)
     _sub(root, "compiler", angle="radian", autolimits="true")
-    _sub(root, "option", timestep=_fmt(PHYSICS_DT_S), gravity=_fmt(0, 0, -af.gravity_m_s2), integrator="implicitfast")
+    _sub(root, "option", timestep=_fmt(PHYSICS_DT_S), gravity=_fmt(0, 0, -af.gravity_m_s2),
+         integrator="implicitfast", jacobian="dense")
     _defaults(root, af)
     world = _sub(root, "worldbody")
     hull = _sub(world, "body", name="hull", pos=_fmt(0, 0, HOVER_HEIGHT_M), childclass="m4")

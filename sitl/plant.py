@@ -20,12 +20,17 @@ from sitl import frames
 from sitl.drag import HullDrag
 from sitl.mjcf import PHYSICS_DT_S, compile_model
 from sitl.sensors import SensorNoise
-from sitl.servo import HipReference
+from sitl.servo import REFERENCE_PERIOD_S, HipReference
 from sitl.state import PlantState
 
 __all__ = ["Plant", "PlantOptions", "PlantState"]
 
 _STEP_TOLERANCE_S = 1e-9
+# Collision detection costs about a quarter of a physics step. It is skipped while the hull is
+# so high that no part of the robot can reach the floor before the next check (every servo
+# period: falling 1 m in 5 ms would take 200 m/s).
+_CONTACT_CHECK_MARGIN_M = 1.0
+_CONTACT_BIT = int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
 
 
 class Plant:
@@ -47,7 +52,12 @@ class Plant:
         self._thrust = slice(m.actuator("thrust1").id, m.actuator("thrust1").id + ROTOR_COUNT)
         self._hip_ctrl = slice(m.actuator("hip1").id, m.actuator("hip1").id + ROTOR_COUNT)
         self._rate_ctrl = slice(m.actuator("hiprate1").id, m.actuator("hiprate1").id + ROTOR_COUNT)
-        self._thrust_act = [m.actuator_actadr[i] for i in range(self._thrust.start, self._thrust.stop)]
+        self._thrust_act = _contiguous(m.actuator_actadr[self._thrust], "thrust filter states")
+        self._hip_act = _contiguous(m.actuator_actadr[self._hip_ctrl], "hip reference states")
+        # hip{i} and hiprate{i} both take the reference rate: one write for the eight of them.
+        self._servo_ctrl = slice(self._hip_ctrl.start, self._rate_ctrl.stop)
+        if self._rate_ctrl.start != self._hip_ctrl.stop:
+            raise ValueError("the MJCF must list the hiprate actuators right after the hip ones")
         joints = [m.joint(f"sagittal{i + 1}") for i in range(ROTOR_COUNT)]
         self._hip_qpos = np.array([m.jnt_qposadr[j.id] for j in joints])
         self._hip_qvel = np.array([m.jnt_dofadr[j.id] for j in joints])
@@ -73,9 +83,13 @@ class Plant:
         self._hips = HipReference(self._hip_target, rate_max_rad_s=airframe.hip_rate_max_rad_s,
                                   accel_max_rad_s2=airframe.hip_accel_max_rad_s2,
                                   hip_min_rad=airframe.hip_min_rad, hip_max_rad=airframe.hip_max_rad,
-                                  dt_s=self.physics_dt_s)
-        d.ctrl[self._hip_ctrl] = self._hips.pos_rad
-        d.ctrl[self._rate_ctrl] = 0.0
+                                  dt_s=REFERENCE_PERIOD_S)
+        self._servo_period_steps = round(REFERENCE_PERIOD_S / self.physics_dt_s)
+        self._servo_countdown = 0
+        self._contact_height_m = _reach_m(airframe) + _CONTACT_CHECK_MARGIN_M
+        self._gate_contact()
+        d.act[self._hip_act] = self._hips.pos_rad
+        d.ctrl[self._hip_ctrl] = d.ctrl[self._rate_ctrl] = 0.0
         mujoco.mj_forward(m, d)
 
     def _apply_mismatch(self) -> None:
@@ -103,6 +117,7 @@ class Plant:
         self._apply_thrust()
         self._hip_target = np.where(np.isfinite(hip), hip, self._hip_target)
         self._hips.set_target(self._hip_target.tolist(), np.where(np.isfinite(rate), rate, 0.0).tolist())
+        self._servo_countdown = 0           # the servo controller reacts at the next step
 
     def set_rotor_loss(self, rotor: int, loss: float) -> None:
         """Loss of effectiveness of rotor 1..4: its max thrust becomes (1 - loss) x the airframe's
@@ -121,15 +136,29 @@ class Plant:
         n = round(duration_s / self.physics_dt_s)
         if n < 0 or abs(n * self.physics_dt_s - duration_s) > _STEP_TOLERANCE_S:
             raise ValueError(f"duration_s must be a non-negative multiple of {self.physics_dt_s} s, got {duration_s}")
-        m, d, hips, drag, ctrl = self.model, self.data, self._hips, self._drag.apply, self.data.ctrl
-        hip_ctrl, rate_ctrl = self._hip_ctrl, self._rate_ctrl
+        m, d, hips, drag = self.model, self.data, self._hips, self._drag.apply
         for _ in range(n):
-            if not hips.settled:
-                hips.advance()
-                ctrl[hip_ctrl] = hips.pos_rad
-                ctrl[rate_ctrl] = hips.rate_rad_s
+            if self._servo_countdown == 0:
+                self._servo_countdown = self._servo_period_steps
+                self._gate_contact()
+                if not hips.settled:
+                    self._update_servo_reference()
+            self._servo_countdown -= 1
             drag()
             mujoco.mj_step(m, d)
+
+    def _gate_contact(self) -> None:
+        opt = self.model.opt
+        if self.data.qpos[self._pos.stop - 1] > self._contact_height_m:
+            opt.disableflags |= _CONTACT_BIT
+        else:
+            opt.disableflags &= ~_CONTACT_BIT
+
+    def _update_servo_reference(self) -> None:
+        d, hips = self.data, self._hips
+        d.act[self._hip_act] = hips.pos_rad        # the reference angle where this period starts
+        hips.advance()
+        d.ctrl[self._servo_ctrl] = hips.rate_rad_s * 2
 
     def state(self) -> PlantState:
         """The truth."""
@@ -156,6 +185,19 @@ class Plant:
         """The truth, plus sensor noise when the options ask for it."""
         truth = self.state()
         return self._noise.measure(truth) if self.options.sensor_noise else truth
+
+
+def _reach_m(af: Airframe) -> float:
+    """Largest distance from the hull centre of any point that can touch the floor, any posture."""
+    hull = 0.5 * float(np.linalg.norm(af.body_box_size_m))
+    hips = np.linalg.norm(np.array(af.hip_frd_m), axis=1).max()
+    return max(hull, float(hips) + af.leg_length_m + math.hypot(af.wheel_radius_m, af.wheel_width_m / 2))
+
+
+def _contiguous(addresses: np.ndarray, what: str) -> slice:
+    if not np.array_equal(addresses, np.arange(addresses[0], addresses[0] + len(addresses))):
+        raise ValueError(f"the MJCF must keep the {what} contiguous, got addresses {addresses}")
+    return slice(int(addresses[0]), int(addresses[0]) + len(addresses))
 
 
 def _vector(name: str, value, length: int) -> np.ndarray:

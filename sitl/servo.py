@@ -2,16 +2,19 @@
 
 A command gives a target angle and rate per hip; the target moves at that rate from the
 time of the command (a setpoint trajectory, as a servo controller takes one) and stays in
-the joint range. Each physics step the reference (angle, rate) heads for the target as fast
-as the limits allow and brakes in time to stop on it (|rate| <= rate_max,
-|acceleration| <= accel_max). The stiff position servo of the MJCF then follows the
-reference. Pure Python floats: four hips, once per millisecond, must cost microseconds.
+the joint range. Every REFERENCE_PERIOD_S the reference rate is updated so that the
+reference heads for the target as fast as the limits allow and brakes in time to stop
+exactly on it (|rate| <= rate_max, |acceleration| <= accel_max, discrete braking); between
+updates the rate is constant and the reference angle grows linearly. The MJCF's `hip{i}`
+actuators integrate that rate natively, so the Python side runs at the servo controller's
+rate, not at the physics rate.
 """
 
 from __future__ import annotations
 
 import math
 
+REFERENCE_PERIOD_S = 0.005     # the servo controller's reference update (200 Hz)
 _SETTLED_RAD = 1e-12
 _SETTLED_RAD_S = 1e-9
 
@@ -40,7 +43,7 @@ class HipReference:
         self.settled = False
 
     def advance(self) -> None:
-        """One physics step of the reference."""
+        """One period of the reference: new rate, and the angle at the end of the period."""
         dt, dv, vmax = self._dt, self._dv, self._rate_max
         moving = False
         for i, q in enumerate(self.pos_rad):
