@@ -52,6 +52,7 @@ class FaultStatus:
     thrust_max_estimate_n: np.ndarray  # (4,) bounds for the NMPC: the limits, the estimate on the lost rotor
     detected_at_s: float | None        # time of confirmation
     message: str                       # "thrust loss rotor 4" once confirmed
+    deficit_n: np.ndarray              # (4,) latest deficit estimate per rotor hypothesis (diagnostics)
 
 
 @dataclass(frozen=True)
@@ -107,6 +108,7 @@ class FaultDetector:
         self._state = FaultState.HEALTHY
         self._suspect_since_s = 0.0
         self._detected_at_s: float | None = None
+        self._deficit_n = np.zeros(ROTOR_COUNT)
 
     @property
     def status(self) -> FaultStatus:
@@ -116,7 +118,7 @@ class FaultDetector:
         rotor = None if self._rotor is None else self._rotor + 1
         message = f"thrust loss rotor {rotor}" if self._state is FaultState.CONFIRMED else ""
         return FaultStatus(state=self._state, rotor=rotor, thrust_max_estimate_n=bounds,
-                           detected_at_s=self._detected_at_s, message=message)
+                           detected_at_s=self._detected_at_s, message=message, deficit_n=self._deficit_n.copy())
 
     def update(self, time_s: float, state_measured, thrust_cmd_n, thrust_limit_n=None,
                thrust_delivered_n=None) -> FaultStatus:
@@ -140,6 +142,7 @@ class FaultDetector:
         average_n, end_n = self._model.motor_response(self._lag_n, target, dt)
         if delivered is not None and np.all(np.isfinite(delivered)):
             evidence = self._direct_evidence(end_n, delivered)
+            self._deficit_n = end_n - delivered
             self._lag_n = delivered
         else:
             evidence = self._model_evidence(time_s, prev[1], x, average_n, dt)
@@ -162,6 +165,7 @@ class FaultDetector:
         while self._window[0][0] <= time_s - c.window_s + 1e-9:
             self._window.popleft()
         pooled = combine([f for _, f in self._window])
+        self._deficit_n = pooled.deficit_n
         i, explained, left = best_hypothesis(pooled)
         votes = (pooled.deficit_n[i] >= c.deficit_min_n and explained >= c.chi2_min
                  and left <= c.unexplained_max * explained + 3.0 * 6 * len(self._window))

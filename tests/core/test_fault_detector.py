@@ -1,0 +1,115 @@
+import math
+
+import numpy as np
+import pytest
+
+from companion.airframe import ROTOR_COUNT, load_airframe
+from companion.core import rom
+from companion.core.fault_detector import FaultDetector, FaultDetectorConfig, FaultState
+from companion.core.thrust_loss_baseline import ThrustLossCheck
+
+AF = load_airframe()
+HOVER_N = AF.hover_thrust_per_rotor_n
+DT = 0.1
+STEP = rom.build_rom(AF, DT, 4).step
+
+
+def hover_frames(n, thrust_n=None):
+    """n frames of a robot hovering on exact thrusts (stays put), with the thrusts commanded."""
+    x = rom.hover_state(AF)
+    u = rom.hover_input(AF)
+    for k in range(n):
+        yield k * DT, x, u[rom.THRUST]
+        x = np.array(STEP(x, u, np.zeros(rom.ND))).ravel()
+
+
+def test_exact_hover_stays_healthy_with_the_limits_as_bounds():
+    det = FaultDetector(AF)
+    for t, x, cmd in hover_frames(30):
+        status = det.update(t, x, cmd)
+    assert status.state is FaultState.HEALTHY and status.rotor is None and status.message == ""
+    assert np.allclose(status.thrust_max_estimate_n, AF.thrust_max_n)
+    assert np.abs(status.deficit_n).max() < 0.05
+
+
+def test_delivered_thrust_telemetry_confirms_the_rotor_and_its_ceiling_directly():
+    det = FaultDetector(AF)
+    cmd = np.full(ROTOR_COUNT, HOVER_N)
+    x = rom.hover_state(AF)
+    statuses = []
+    for k in range(10):
+        delivered = cmd.copy()
+        if k >= 3:
+            delivered[1] = 6.0      # rotor 2 gives 6 N whatever it is asked
+        statuses.append(det.update(k * DT, x, cmd, thrust_delivered_n=delivered))
+    assert [s.state for s in statuses[2:6]] == [FaultState.HEALTHY, FaultState.SUSPECT,
+                                                FaultState.CONFIRMED, FaultState.CONFIRMED]
+    final = statuses[-1]
+    assert final.rotor == 2 and final.message == "thrust loss rotor 2"
+    assert final.detected_at_s == pytest.approx(4 * DT)
+    assert final.thrust_max_estimate_n[1] == pytest.approx(6.0)
+    assert np.allclose(np.delete(final.thrust_max_estimate_n, 1), AF.thrust_max_n)
+
+
+def test_deficits_on_two_rotors_are_not_a_single_rotor_fault():
+    det = FaultDetector(AF)
+    cmd = np.full(ROTOR_COUNT, HOVER_N)
+    delivered = cmd - np.array([5.0, 0.0, 5.0, 0.0])
+    for k in range(10):
+        status = det.update(k * DT, rom.hover_state(AF), cmd, thrust_delivered_n=delivered)
+    assert status.state is FaultState.HEALTHY
+
+
+def test_unknown_delivered_thrust_falls_back_on_the_model_residual():
+    det = FaultDetector(AF)
+    x = rom.hover_state(AF)
+    u = rom.hover_input(AF)
+    lost = u.copy()
+    lost[3] = 0.0                          # rotor 4 off; we keep commanding hover thrust
+    nan = np.full(ROTOR_COUNT, math.nan)
+    for k in range(6):
+        status = det.update(k * DT, x, u[rom.THRUST], thrust_delivered_n=nan)
+        x = np.array(STEP(x, lost if k >= 2 else u, np.zeros(rom.ND))).ravel()
+    assert status.state is FaultState.CONFIRMED and status.rotor == 4
+    # the ROM has no motor lag but the detector's model does: the first interval reads low
+    assert status.thrust_max_estimate_n[3] < 0.1 * HOVER_N
+
+
+def test_a_gap_in_telemetry_restarts_the_evidence_instead_of_reading_it_as_a_fault():
+    det = FaultDetector(AF)
+    x0 = rom.hover_state(AF)
+    det.update(0.0, x0, np.full(ROTOR_COUNT, HOVER_N))
+    far = x0.copy()
+    far[rom.RATES] = (3.0, -3.0, 0.0)       # what 2 s of an unobserved tumble could look like
+    for k in range(2):
+        status = det.update(2.0 + k * 1.0, far, np.full(ROTOR_COUNT, HOVER_N))
+    assert status.state is FaultState.HEALTHY
+
+
+@pytest.mark.parametrize("field, value", [("window_s", 0.0), ("deficit_min_n", -1.0), ("estimate_gain", 1.5),
+                                          ("rates_noise_rad_s", math.nan)])
+def test_bad_detector_settings_are_rejected_by_name(field, value):
+    with pytest.raises(ValueError, match=field):
+        FaultDetector(AF, FaultDetectorConfig(**{field: value}))
+
+
+def test_baseline_fires_after_a_second_of_saturated_level_descent_without_naming_a_rotor():
+    check = ThrustLossCheck(AF)
+    x = rom.hover_state(AF)
+    x[rom.V] = (0.0, 0.0, 0.4)              # sinking
+    cmd = np.array([28.0, 20.0, 20.0, 0.0])  # one rotor at the top of its range
+    statuses = [check.update(k * DT, x, cmd) for k in range(12)]
+    assert statuses[9].state is FaultState.SUSPECT
+    assert statuses[10].state is FaultState.CONFIRMED and statuses[10].detected_at_s == pytest.approx(1.0)
+    assert statuses[10].rotor is None
+    assert np.allclose(statuses[10].thrust_max_estimate_n, AF.thrust_max_n)
+
+
+def test_baseline_restarts_its_timer_whenever_the_robot_stops_sinking():
+    check = ThrustLossCheck(AF)
+    x = rom.hover_state(AF)
+    cmd = np.array([28.0, 20.0, 20.0, 0.0])
+    for k in range(30):
+        x[rom.V] = (0.0, 0.0, 0.4 if k % 8 else -0.1)
+        status = check.update(k * DT, x, cmd)
+    assert status.state is not FaultState.CONFIRMED
