@@ -12,10 +12,12 @@ runs `m4-sitl serve` in lockstep against it and prints simulated seconds per wal
 from __future__ import annotations
 
 import argparse
+import contextlib
 import subprocess
 import sys
 import threading
 import time
+from dataclasses import replace
 from typing import Callable
 
 import numpy as np
@@ -23,12 +25,14 @@ import numpy as np
 from companion.airframe import ROTOR_COUNT, load_airframe
 from companion.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from companion.mavlink.link import UdpLink, wait_readable
+from sitl.serve import Server
 
 Answer = Callable[[int], tuple]      # time_boot_ms -> (thrust_n, hip_rad, hip_rate_rad_s, flags)
 
 
 class StandInCompanion:
-    def __init__(self, period_ms: int = 20, key: bytes | None = None, answer: Answer | None = None):
+    def __init__(self, period_ms: int = 20, key: bytes | None = None, answer: Answer | None = None,
+                 until_ms: int | None = None):
         af = load_airframe()
         hover = (np.full(ROTOR_COUNT, af.hover_thrust_per_rotor_n), np.full(ROTOR_COUNT, af.nominal_hip_rad),
                  np.zeros(ROTOR_COUNT), 0)
@@ -36,11 +40,12 @@ class StandInCompanion:
         self.answer = answer or (lambda t_ms: hover)
         self.link = UdpLink("udpin:127.0.0.1:0", FC_SYSTEM_ID, COMPANION_COMPONENT_ID, key=key)
         self.received: list[mavlink.MAVLink_message] = []
-        self.answering = True
+        self.until_ms = until_ms          # stop answering frames from this instant on (None: never)
         self.answered = 0
         self._last_ms = -1
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._send_lock = threading.Lock()
 
     @property
     def url(self) -> str:
@@ -53,14 +58,19 @@ class StandInCompanion:
                                                    [float(x) for x in thrust], [float(x) for x in hip],
                                                    [float(x) for x in rate], flags)
 
+    def send(self, msg: mavlink.MAVLink_message) -> None:
+        """Thread-safe: the answering thread and a test may both send."""
+        with self._send_lock:
+            self.link.send(msg)
+
     def poll(self, timeout_s: float = 0.05) -> None:
         if wait_readable([self.link], timeout_s):
             for msg in self.link.receive():
                 self.received.append(msg)
-                if (self.answering and msg.get_msgId() == mavlink.MAVLINK_MSG_ID_M4_THRUSTER_STATUS
-                        and msg.time_boot_ms > self._last_ms):
+                if (msg.get_msgId() == mavlink.MAVLINK_MSG_ID_M4_THRUSTER_STATUS and msg.time_boot_ms > self._last_ms
+                        and (self.until_ms is None or msg.time_boot_ms < self.until_ms)):
                     self._last_ms = msg.time_boot_ms
-                    self.link.send(self.setpoint(msg.time_boot_ms))
+                    self.send(self.setpoint(msg.time_boot_ms))
                     self.answered += 1
 
     def start(self) -> StandInCompanion:
@@ -80,6 +90,32 @@ class StandInCompanion:
 
     def of_type(self, name: str) -> list[mavlink.MAVLink_message]:
         return [m for m in list(self.received) if m.get_type() == name]
+
+    def wait_for(self, name: str, match=lambda msg: True, timeout_s: float = 10.0):
+        """The first received message of type `name` that `match`es (waiting up to timeout_s), or None."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            found = next((m for m in self.of_type(name) if match(m)), None)
+            if found is not None or time.monotonic() > deadline:
+                return found
+            time.sleep(0.01)
+
+
+@contextlib.contextmanager
+def served(companion: StandInCompanion, options):
+    """`sitl.serve.Server` with `options` (its links: the companion's URL) in a thread of this
+    process, the companion answering in another; both stopped on exit."""
+    server = Server(replace(options, mavlink_urls=(companion.url,)))
+    thread = threading.Thread(target=server.run, daemon=True)
+    companion.start()
+    thread.start()
+    try:
+        yield server
+    finally:
+        server.stop()
+        thread.join()
+        server.close()
+        companion.close()
 
 
 def main(argv: list[str] | None = None) -> int:

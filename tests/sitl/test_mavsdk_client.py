@@ -1,0 +1,74 @@
+"""A real third-party client, MAVSDK-Python, sees `m4-sitl serve --realtime` as an autopilot:
+attitude, position around home, and a motor failure injected with the standard command."""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+import subprocess
+import sys
+
+import pytest
+from mavsdk.asyncio import Configuration, Mavsdk
+from mavsdk.asyncio.plugins.failure import FailureAsync
+from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
+from mavsdk.component_type import ComponentType
+from mavsdk.plugins.failure import FailureType, FailureUnit
+
+from companion.mavlink import mavutil
+from sitl.telemetry import Home
+
+pytestmark = pytest.mark.flight
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+async def _first(subscription, timeout_s=10.0):
+    async def first():
+        async for value in subscription:
+            return value
+    return await asyncio.wait_for(first(), timeout_s)
+
+
+async def _fly_with_mavsdk(port: int):
+    async with Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION)) as mavsdk:
+        await mavsdk.add_any_connection(f"udpin://127.0.0.1:{port}")
+        system = await mavsdk.first_autopilot(timeout_s=15.0)
+        assert system is not None, "MAVSDK saw no autopilot"
+        telemetry = TelemetryAsync(system)
+        attitude = await _first(telemetry.subscribe_attitude_euler())
+        position = await _first(telemetry.subscribe_position())
+        failure = FailureAsync(system)
+        await failure.inject(FailureUnit.SYSTEM_MOTOR, FailureType.OFF, 4)     # raises unless ACCEPTED
+        return attitude, position
+
+
+def test_mavsdk_sees_an_autopilot_and_injects_a_motor_failure(tmp_path):
+    port = _free_udp_port()
+    tlog = tmp_path / "mavsdk.tlog"
+    server = subprocess.Popen([sys.executable, "-m", "sitl.cli", "serve", "--realtime", "--duration", "30",
+                               "--mavlink", f"udpout:127.0.0.1:{port}", "--tlog", str(tlog)],
+                              stderr=subprocess.PIPE, text=True)
+    try:
+        attitude, position = asyncio.run(_fly_with_mavsdk(port))
+    finally:
+        server.terminate()
+        _, stderr = server.communicate(timeout=10)
+    assert server.returncode == 0, stderr
+    home = Home()
+    assert abs(attitude.roll_deg) < 5.0 and abs(attitude.pitch_deg) < 5.0
+    assert position.latitude_deg == pytest.approx(home.lat_deg, abs=1e-5)
+    assert position.longitude_deg == pytest.approx(home.lon_deg, abs=1e-5)
+    assert position.relative_altitude_m == pytest.approx(2.0, abs=0.3)
+    log = mavutil.mavlink_connection(str(tlog))
+    acks, motor_off = [], None
+    while (msg := log.recv_match(blocking=False)) is not None:
+        if msg.get_type() == "COMMAND_ACK" and msg.command == 420:
+            acks.append(msg.result)
+        if msg.get_type() == "M4_THRUSTER_STATUS" and acks:
+            motor_off = motor_off or msg.thrust_limit_n[3] == 0.0
+    assert acks and set(acks) == {0} and motor_off, "the failure was acknowledged but rotor 4 still has thrust"
