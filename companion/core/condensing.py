@@ -163,3 +163,40 @@ def state_rows(horizon: int, roll_pitch_max_rad: float, hip_bounds: tuple[float,
         entries += [((rom.HIP.start + i,), *hip_bounds) for i in range(NU // 2)]
         entries += [((rom.HIP.start + a, rom.HIP.start + b), -np.inf, side_sum_max_rad) for a, b in side_pairs]
     return StateRows.build(horizon, entries)
+
+
+@dataclass(frozen=True)
+class FirstPeriodHipRows:
+    """Hips and same-side sums `tau` seconds into stage 0 (tau: the control period, when the
+    NMPC is re-solved before its first stage ends). The nodes of the horizon alone would let
+    a hip swing past its bound between two nodes, and the robot only ever flies that first
+    stretch; the rows are exact and linear in stage 0's hip accelerations."""
+
+    tau: float
+    select: np.ndarray      # (m, 4): which hips each row sums
+    lo: np.ndarray
+    hi: np.ndarray
+    jac: np.ndarray         # (m, N*8)
+
+    @staticmethod
+    def build(horizon: int, tau: float, hip_bounds: tuple[float, float],
+              side_pairs: tuple[tuple[int, int], ...], side_sum_max_rad: float) -> "FirstPeriodHipRows":
+        hips = NU // 2
+        select = np.vstack([np.eye(hips)] + [np.eye(hips)[a] + np.eye(hips)[b] for a, b in side_pairs])
+        lo = np.r_[np.full(hips, hip_bounds[0]), np.full(len(side_pairs), -np.inf)]
+        hi = np.r_[np.full(hips, hip_bounds[1]), np.full(len(side_pairs), side_sum_max_rad)]
+        jac = np.zeros((select.shape[0], horizon * NU))
+        jac[:, rom.HIP_ACCEL] = 0.5 * tau ** 2 * select
+        return FirstPeriodHipRows(tau, select, lo, hi, jac)
+
+    @property
+    def count(self) -> int:
+        return self.select.shape[0]
+
+    def values(self, x0: np.ndarray, us: np.ndarray) -> np.ndarray:
+        hips = x0[rom.HIP] + self.tau * x0[rom.HIP_RATE] + 0.5 * self.tau ** 2 * us[0, rom.HIP_ACCEL]
+        return self.select @ hips
+
+    def violation(self, x0: np.ndarray, us: np.ndarray) -> float:
+        c = self.values(x0, us)
+        return float(np.sum(np.maximum(c - self.hi, 0.0) + np.maximum(self.lo - c, 0.0)))

@@ -24,7 +24,8 @@ import numpy as np
 from companion.airframe import ROTOR_COUNT, Airframe
 from companion.core import rom
 from companion.core.codegen_cache import compiled
-from companion.core.condensing import Linearisation, TrackingCost, linearisation, sensitivities, state_rows
+from companion.core.condensing import (FirstPeriodHipRows, Linearisation, TrackingCost, linearisation,
+                                        sensitivities, state_rows)
 from companion.core.nmpc_config import NmpcConfig
 from companion.core.nmpc_targets import hover_targets
 from companion.core.rom import ND, NU, NX
@@ -69,15 +70,21 @@ class Nmpc:
         self.hip_ref_rad = airframe.nominal_hip_rad if fixed is None else fixed
         accel = 0.0 if fixed is not None else airframe.hip_accel_max_rad_s2
         self._accel_lo, self._accel_hi = np.full(4, -accel), np.full(4, accel)
-        self.rows = state_rows(n, config.roll_pitch_max_rad,
-                               None if fixed is not None else (airframe.hip_min_rad, airframe.hip_max_rad),
+        hip_bounds = (airframe.hip_min_rad, airframe.hip_max_rad)
+        self.rows = state_rows(n, config.roll_pitch_max_rad, None if fixed is not None else hip_bounds,
                                airframe.same_side_pairs, airframe.same_side_sum_max_rad)
+        tau = config.dt_s * config.warm_start_shift
+        self.first_rows = None
+        if fixed is None and tau < config.dt_s:
+            self.first_rows = FirstPeriodHipRows.build(n, tau, hip_bounds, airframe.same_side_pairs,
+                                                       airframe.same_side_sum_max_rad)
+        row_count = self.rows.count + (0 if self.first_rows is None else self.first_rows.count)
         w = config.weights
         state_w = np.tile(w.state_diag(), (n + 1, 1))
         state_w[-1] *= w.terminal_scale
         self.cost = TrackingCost(state_w=state_w, input_w=w.input_diag())
         self._hover_u = np.tile(rom.hover_input(airframe), (n, 1))
-        self._sense = np.concatenate([np.zeros(n * NU, dtype=np.int32), np.full(self.rows.count, 8, dtype=np.int32)])
+        self._sense = np.concatenate([np.zeros(n * NU, dtype=np.int32), np.full(row_count, 8, dtype=np.int32)])
         self._guess: np.ndarray | None = None
         self._duals: np.ndarray | None = None
 
@@ -122,8 +129,22 @@ class Nmpc:
         return self._sqp(x0, ref, u_ref, d, lo, hi, t0)
 
     # ----------------------------------------------------------------- internals
-    def _merit(self, xs, us, ref, u_ref):
-        return self.cost.value(xs, us, ref, u_ref) + _MERIT_PENALTY * self.rows.violation(xs)
+    def _merit(self, x0, xs, us, ref, u_ref):
+        violation = self.rows.violation(xs)
+        if self.first_rows is not None:
+            violation += self.first_rows.violation(x0, us)
+        return self.cost.value(xs, us, ref, u_ref) + _MERIT_PENALTY * violation
+
+    def _constraint_rows(self, x0, xs, us, gamma):
+        """(rows (m, N*8), lower, upper) of the QP's general constraints on the step dU."""
+        c = self.rows.values(xs)
+        jac, lower, upper = self.rows.jacobian(gamma), self.rows.lo - c, self.rows.hi - c
+        if self.first_rows is not None:
+            c0 = self.first_rows.values(x0, us)
+            jac = np.vstack([jac, self.first_rows.jac])
+            lower = np.r_[lower, self.first_rows.lo - c0]
+            upper = np.r_[upper, self.first_rows.hi - c0]
+        return jac, np.maximum(lower, -_BIG), np.minimum(upper, _BIG)
 
     def _initial_guess(self, u_ref, lo, hi) -> np.ndarray:
         n = self.config.horizon
@@ -142,7 +163,7 @@ class Nmpc:
         n = self.config.horizon
         us = self._initial_guess(u_ref, lo, hi)
         xs, a, b = self._rollout(x0, us, d)
-        merit = self._merit(xs, us, ref, u_ref)
+        merit = self._merit(x0, xs, us, ref, u_ref)
         status, it = "max_iterations", 0
         lo_all, hi_all = np.tile(lo, n), np.tile(hi, n)
         for it in range(1, self.config.max_iterations + 1):
@@ -151,10 +172,10 @@ class Nmpc:
             gamma = sensitivities(a, b)
             hess, grad = self.cost.gauss_newton(gamma, xs, us, ref, u_ref)
             hess[np.diag_indices_from(hess)] += _LEVENBERG * np.max(np.diag(hess))
-            c = self.rows.values(xs)
-            upper = np.concatenate([hi_all - us.ravel(), np.minimum(self.rows.hi - c, _BIG)])
-            lower = np.concatenate([lo_all - us.ravel(), np.maximum(self.rows.lo - c, -_BIG)])
-            step, _, flag, info = daqp.solve(hess, grad, self.rows.jacobian(gamma), upper, lower, self._sense,
+            rows, row_lo, row_hi = self._constraint_rows(x0, xs, us, gamma)
+            upper = np.concatenate([hi_all - us.ravel(), row_hi])
+            lower = np.concatenate([lo_all - us.ravel(), row_lo])
+            step, _, flag, info = daqp.solve(hess, grad, rows, upper, lower, self._sense,
                                              dual_start=self._duals, iter_limit=_DAQP_ITER_LIMIT)
             if flag not in _DAQP_OK or not np.all(np.isfinite(step)):
                 return self._fallback(x0, lo, hi, "qp_failed", it, t0)
@@ -168,7 +189,7 @@ class Nmpc:
             for _ in range(_MAX_HALVINGS):
                 trial_us = np.clip(us + alpha * step, lo, hi)
                 trial = self._rollout(x0, trial_us, d)
-                trial_merit = self._merit(trial[0], trial_us, ref, u_ref)
+                trial_merit = self._merit(x0, trial[0], trial_us, ref, u_ref)
                 if trial_merit <= merit + _ARMIJO * alpha * min(decrease, 0.0):
                     break
                 alpha *= 0.5

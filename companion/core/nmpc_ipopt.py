@@ -47,6 +47,12 @@ class IpoptReference:
                     g.append(xs[rom.HIP.start + a, k] + xs[rom.HIP.start + b, k])
                     self._g_lo.append(-np.inf)
                     self._g_hi.append(af.same_side_sum_max_rad)
+        first = nmpc.first_rows
+        if first is not None:
+            hips = x0[rom.HIP] + first.tau * x0[rom.HIP_RATE] + 0.5 * first.tau ** 2 * us[rom.HIP_ACCEL, 0]
+            g.append(ca.DM(first.select) @ hips)
+            self._g_lo += list(first.lo)
+            self._g_hi += list(first.hi)
         nlp = {"x": ca.veccat(xs, us), "p": ca.veccat(x0, ref, u_ref, d), "f": cost, "g": ca.vertcat(*g)}
         opts = {"print_time": False, "ipopt": {"print_level": 0, "sb": "yes", "tol": tol, "max_iter": 500}}
         self._solver = ca.nlpsol("m4_nmpc_ipopt", "ipopt", nlp, opts)

@@ -190,3 +190,26 @@ def test_wrong_shapes_are_rejected_by_name(nmpc):
         nmpc.solve(rom.hover_state(AF), hover_ref()[:3], FULL)
     with pytest.raises(ValueError, match="thrust_max_n"):
         nmpc.solve(rom.hover_state(AF), hover_ref(), FULL[:3])
+
+
+def test_re_solved_faster_than_its_step_it_keeps_the_hips_in_range_between_nodes(nmpc):
+    # At 50 Hz with a 0.1 s model the robot only flies the first 20 ms of each plan: the hip
+    # bound must hold there too, not only at the 0.1 s nodes. Rotor 2's leg, folding fast
+    # towards its 0 deg stop (where the best posture after losing rotor 4 wants it).
+    tau, leg = 0.02, rom.HIP.start + 1
+    x0 = rom.hover_state(AF)
+    x0[leg], x0[rom.HIP_RATE.start + 1] = 0.012, -1.0
+
+    def hip_after_first_period(solver):
+        solver.reset()
+        res = solver.solve(x0, hover_ref(), ROTOR_4_OFF)
+        assert res.ok
+        return res, x0[leg] + tau * x0[rom.HIP_RATE.start + 1] + 0.5 * tau ** 2 * res.u[rom.HIP_ACCEL.start + 1]
+
+    _, node_only = hip_after_first_period(nmpc)
+    assert node_only < AF.hip_min_rad - 1e-3          # nodes alone let the leg pass its stop
+    m = Nmpc(AF, NmpcConfig(control_period_s=tau))
+    res, hip = hip_after_first_period(m)
+    assert hip >= AF.hip_min_rad - 1e-6
+    ref = IpoptReference(m).solve(x0, hover_ref(), ROTOR_4_OFF)
+    assert abs(res.cost - ref.cost) <= 1e-3 * abs(ref.cost)

@@ -1,0 +1,88 @@
+"""The disturbance estimator recovers forces and torques the model does not know."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from companion.airframe import load_airframe
+from companion.core import rom
+from companion.core.disturbance import DisturbanceEstimator
+
+AF = load_airframe()
+PERIOD = 0.02
+PLANT = rom.build_rom(AF, PERIOD, substeps=4).step
+
+
+def run(estimator, d_true, steps=80, x=None, u=None):
+    x = rom.hover_state(AF) if x is None else x
+    u = rom.hover_input(AF) if u is None else u
+    for _ in range(steps):
+        x_next = np.asarray(PLANT(x, u, d_true)).ravel()
+        est = estimator.update(x, u, x_next)
+        x = x_next
+    return est
+
+
+def test_a_constant_wind_force_is_recovered():
+    d_true = np.array([2.0, -1.5, 0.8, 0.0, 0.0, 0.0])
+    est = run(DisturbanceEstimator(AF, PERIOD, gain=0.3), d_true)
+    assert est == pytest.approx(d_true, abs=0.02)
+
+
+def test_a_constant_torque_is_recovered_even_while_the_robot_spins():
+    d_true = np.array([0.0, 0.0, 0.0, 0.05, -0.08, 0.1])
+    x = rom.hover_state(AF)
+    x[rom.RATES] = [0.0, 0.0, 8.0]
+    est = run(DisturbanceEstimator(AF, PERIOD, gain=0.3), d_true, x=x)
+    assert est == pytest.approx(d_true, abs=0.005)
+
+
+def test_a_heavier_robot_shows_up_as_a_downward_force():
+    heavy = rom.build_rom(dataclasses.replace(AF, body_mass_kg=AF.body_mass_kg * 1.1), PERIOD, 4).step
+    est_filter = DisturbanceEstimator(AF, PERIOD, gain=0.3)
+    x, u = rom.hover_state(AF), rom.hover_input(AF)
+    for _ in range(60):
+        x_next = np.asarray(heavy(x, u, np.zeros(6))).ravel()
+        est = est_filter.update(x, u, x_next)
+        x = x_next
+    # Same thrust, 10 % more hull mass: the model needs an extra weight of about the missing
+    # acceleration times its own mass, pointing down (NED +z).
+    m, m_plant = AF.total_mass_kg, AF.total_mass_kg + 0.1 * AF.body_mass_kg
+    expected = m * AF.gravity_m_s2 * (1 - m / m_plant)
+    assert est[2] == pytest.approx(expected, rel=0.05)
+    assert np.abs(est[:2]).max() < 0.01
+
+
+def test_the_estimate_is_bounded():
+    est = DisturbanceEstimator(AF, PERIOD, gain=1.0, force_max_n=5.0, torque_max_n_m=0.2)
+    out = run(est, np.array([50.0, 0.0, 0.0, 3.0, 0.0, 0.0]), steps=20)
+    assert out[0] == pytest.approx(5.0) and out[3] == pytest.approx(0.2)
+
+
+def test_gain_sets_how_fast_it_follows():
+    d_true = np.array([3.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    slow = run(DisturbanceEstimator(AF, PERIOD, gain=0.05), d_true, steps=5)
+    fast = run(DisturbanceEstimator(AF, PERIOD, gain=0.5), d_true, steps=5)
+    assert 0 < slow[0] < fast[0] <= 3.0 + 1e-6
+    assert slow[0] == pytest.approx(3.0 * (1 - 0.95 ** 5), rel=0.05)    # first-order filter
+
+
+def test_non_finite_measurements_leave_the_estimate_unchanged():
+    est = DisturbanceEstimator(AF, PERIOD)
+    before = run(est, np.array([1.0, 0, 0, 0, 0, 0]), steps=10)
+    x = rom.hover_state(AF)
+    bad = x.copy()
+    bad[0] = math.nan
+    assert est.update(x, rom.hover_input(AF), bad) == pytest.approx(before)
+    assert np.all(np.isfinite(est.update(x, np.full(8, math.inf), x)))
+    est.reset()
+    assert np.all(est.estimate == 0)
+
+
+@pytest.mark.parametrize("kwargs", [{"gain": 0.0}, {"gain": 1.5}, {"period_s": 0.0}])
+def test_bad_settings_are_rejected(kwargs):
+    args = {"period_s": PERIOD, **kwargs}
+    with pytest.raises(ValueError, match=next(iter(kwargs))):
+        DisturbanceEstimator(AF, **args)
