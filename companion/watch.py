@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import shutil
 import sys
 import threading
 import time
@@ -28,6 +29,7 @@ REFRESH_S = 0.1
 _HOME, _CLEAR_LINE, _CLEAR_BELOW, _CLEAR_SCREEN = "\x1b[H", "\x1b[K", "\x1b[J", "\x1b[2J"
 _BANNER_COLOUR = {"confirmed": "\x1b[1;97;41m", "suspect": "\x1b[1;30;43m"}
 _RESET = "\x1b[0m"
+_BANNER_LINE = 1
 
 
 @dataclass
@@ -61,13 +63,17 @@ class Latest:
 
 
 def render(vehicle: str, payloads: dict[str, dict[str, Any]], ages_s: dict[str, float],
-           bad_samples: int = 0, colour: bool = False) -> list[str]:
-    """The view as lines of text; a topic not seen yet says so, an old one says how old."""
-    state, setpoint, fault, nmpc, link = (payloads.get(t) for t in TOPICS)
+           bad_samples: int = 0, colour: bool = False, width: int | None = None) -> list[str]:
+    """The view as lines of text; a topic not seen yet says so, an old one says how old.
+
+    width cuts every line to that many characters (a wrapped line would break the redraw);
+    colour paints the fault banner (ANSI) for a terminal.
+    """
+    state, setpoint, fault, nmpc, link = (payloads.get(t) for t in ("state", "setpoint", "fault", "nmpc", "link"))
     t_s = next((p.get("t_s") for p in (state, nmpc, setpoint, link) if p and p.get("t_s") is not None), None)
     lines = [f"M4 feed {KEY_PREFIX}/{vehicle}   t = {_num(t_s, '.2f')} s"
              + (f"   ({bad_samples} unreadable samples)" if bad_samples else "")]
-    lines.append(_fault_banner(fault, colour))
+    lines.append(_fault_banner(fault))
     if state:
         lines += [
             f"pos NED m    {_vec(state.get('pos_ned_m'), '+7.2f')}   vel m/s {_vec(state.get('vel_ned_m_s'), '+6.2f')}",
@@ -85,10 +91,15 @@ def render(vehicle: str, payloads: dict[str, dict[str, Any]], ages_s: dict[str, 
     stale = [f"{t} {ages_s[t]:.1f} s" for t in TOPICS if t in ages_s and ages_s[t] > STALE_AFTER_S]
     if stale:
         lines.append("stale: " + ", ".join(stale))
+    if width:
+        lines = [line[:width] for line in lines]
+    banner_colour = _BANNER_COLOUR.get(str(fault.get("state"))) if fault else None
+    if colour and banner_colour:
+        lines[_BANNER_LINE] = f"{banner_colour}{lines[_BANNER_LINE]}{_RESET}"
     return lines
 
 
-def _fault_banner(fault: dict[str, Any] | None, colour: bool) -> str:
+def _fault_banner(fault: dict[str, Any] | None) -> str:
     if fault is None:
         return "fault        (waiting)"
     state = fault.get("state", "?")
@@ -97,7 +108,7 @@ def _fault_banner(fault: dict[str, Any] | None, colour: bool) -> str:
     text = f" FAULT {str(state).upper()}: {fault.get('message') or 'rotor ' + str(fault.get('rotor'))}"
     text += f" (detected at t = {_num(fault.get('detected_at_s'), '.2f')} s)" if fault.get("detected_at_s") is not None else ""
     text += f"  max thrust N {_vec(fault.get('thrust_max_estimate_n'), '5.1f')} "
-    return f"{_BANNER_COLOUR.get(state, '')}{text}{_RESET}" if colour else text
+    return text
 
 
 def _nmpc_line(nmpc: dict[str, Any] | None) -> str:
@@ -175,17 +186,17 @@ def run(args: argparse.Namespace, out: TextIO | None = None) -> int:
         session.close()
 
 
-def _view(vehicle: str, latest: Latest, colour: bool) -> list[str]:
+def _view(vehicle: str, latest: Latest, colour: bool = False, width: int | None = None) -> list[str]:
     payloads, received_s, bad = latest.snapshot()
     now_s = time.monotonic()
-    return render(vehicle, payloads, {t: now_s - s for t, s in received_s.items()}, bad, colour)
+    return render(vehicle, payloads, {t: now_s - s for t, s in received_s.items()}, bad, colour, width)
 
 
 def _once(vehicle: str, latest: Latest, timeout_s: float, out: TextIO) -> int:
     deadline_s = time.monotonic() + timeout_s
     while not latest.complete() and time.monotonic() < deadline_s:
         time.sleep(0.02)
-    out.write("\n".join(_view(vehicle, latest, colour=False)) + "\n")
+    out.write("\n".join(_view(vehicle, latest)) + "\n")
     missing = [t for t in TOPICS if t not in latest.snapshot()[0]]
     if missing:
         print(f"m4-companion watch: no {', '.join(missing)} within {timeout_s:g} s", file=sys.stderr)
@@ -198,7 +209,7 @@ def _live(vehicle: str, latest: Latest, out: TextIO) -> int:
     out.write(_CLEAR_SCREEN)
     try:
         while True:
-            lines = _view(vehicle, latest, colour)
+            lines = _view(vehicle, latest, colour, shutil.get_terminal_size().columns)
             out.write(_HOME + "".join(line + _CLEAR_LINE + "\n" for line in lines) + _CLEAR_BELOW)
             out.flush()
             time.sleep(REFRESH_S)

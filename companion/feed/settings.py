@@ -65,6 +65,8 @@ def parse_feed_settings(t: Table, base_dir: Path | None = None) -> FeedSettings:
     """Read a [feed] table; a relative zenoh_config path is taken from base_dir (the TOML's folder)."""
     enabled = t.boolean("enabled", True)
     zenoh_config = t.string("zenoh_config", "") or None
+    if zenoh_config and t.has("mode"):
+        raise ConfigError(f"{t.where}: give either zenoh_config or mode with endpoints, not both")
     settings = FeedSettings(
         enabled=enabled,
         vehicle=t.string("vehicle", DEFAULT_VEHICLE),

@@ -147,6 +147,7 @@ def test_feed_table_defaults_to_vehicle_m4_and_resolves_a_relative_zenoh_config(
 @pytest.mark.parametrize("table, named", [
     ({"mode": "client"}, "client mode needs connect"),
     ({"zenoh_config": "z.json5", "connect": "tcp/127.0.0.1:7447"}, "either zenoh_config"),
+    ({"zenoh_config": "z.json5", "mode": "client"}, "either zenoh_config"),
     ({"connect": "127.0.0.1:7447"}, "connect"),
     ({"vehicle": "m4/*", "connect": "tcp/127.0.0.1:7447"}, "vehicle"),
     ({"mode": "router"}, "mode"),

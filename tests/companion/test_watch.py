@@ -1,4 +1,5 @@
 import json
+import re
 import threading
 
 import pytest
@@ -72,7 +73,13 @@ def test_render_colours_the_fault_banner_only_when_asked(topic_fields):
     built = _payloads(topic_fields)
     assert "\x1b[" not in "".join(watch.render("test", built, {}))
     banner = watch.render("test", built, {}, colour=True)[1]
-    assert banner.startswith("\x1b[") and "thrust loss rotor 4" in banner
+    assert banner.startswith("\x1b[") and banner.endswith("\x1b[0m") and "thrust loss rotor 4" in banner
+
+
+def test_render_cuts_lines_to_the_terminal_width_and_still_resets_the_colour(topic_fields):
+    lines = watch.render("test", _payloads(topic_fields), {}, colour=True, width=40)
+    assert all(len(line) <= 40 for i, line in enumerate(lines) if i != 1)
+    assert lines[1].endswith("\x1b[0m") and len(re.sub(r"\x1b\[[0-9;]*m", "", lines[1])) == 40
 
 
 def test_render_flags_topics_that_stopped_arriving(topic_fields):
