@@ -74,18 +74,8 @@ def render(vehicle: str, payloads: dict[str, dict[str, Any]], ages_s: dict[str, 
     lines = [f"M4 feed {KEY_PREFIX}/{vehicle}   t = {_num(t_s, '.2f')} s"
              + (f"   ({bad_samples} unreadable samples)" if bad_samples else "")]
     lines.append(_fault_banner(fault))
-    if state:
-        lines += [
-            f"pos NED m    {_vec(state.get('pos_ned_m'), '+7.2f')}   vel m/s {_vec(state.get('vel_ned_m_s'), '+6.2f')}",
-            f"att deg      roll {_num(_at(state.get('euler_deg'), 0), '+6.1f')}  pitch {_num(_at(state.get('euler_deg'), 1), '+6.1f')}"
-            f"  yaw {_num(_at(state.get('euler_deg'), 2), '+7.1f')}   rates rad/s {_vec(state.get('rates_frd_rad_s'), '+5.2f')}",
-            f"thrust N     {_vec(state.get('thrust_n'), '6.2f')}   hip deg {_vec(state.get('hip_deg'), '6.1f')}",
-        ]
-    else:
-        lines.append("state        (waiting)")
-    lines.append(f"setpoint     thrust N {_vec(setpoint.get('thrust_n'), '6.2f')}   hip deg {_vec(setpoint.get('hip_deg'), '6.1f')}"
-                 + ("   THRUST CUT" if setpoint.get("thrust_cut") else "")
-                 if setpoint else "setpoint     (waiting)")
+    lines += _state_lines(state)
+    lines.append(_setpoint_line(setpoint))
     lines.append(_nmpc_line(nmpc))
     lines.append(_link_line(link))
     stale = [f"{t} {ages_s[t]:.1f} s" for t in TOPICS if t in ages_s and ages_s[t] > STALE_AFTER_S]
@@ -97,6 +87,25 @@ def render(vehicle: str, payloads: dict[str, dict[str, Any]], ages_s: dict[str, 
     if colour and banner_colour:
         lines[_BANNER_LINE] = f"{banner_colour}{lines[_BANNER_LINE]}{_RESET}"
     return lines
+
+
+def _state_lines(state: dict[str, Any] | None) -> list[str]:
+    if state is None:
+        return ["state        (waiting)"]
+    euler = state.get("euler_deg")
+    return [
+        f"pos NED m    {_vec(state.get('pos_ned_m'), '+7.2f')}   vel m/s {_vec(state.get('vel_ned_m_s'), '+6.2f')}",
+        f"att deg      roll {_num(_at(euler, 0), '+6.1f')}  pitch {_num(_at(euler, 1), '+6.1f')}"
+        f"  yaw {_num(_at(euler, 2), '+7.1f')}   rates rad/s {_vec(state.get('rates_frd_rad_s'), '+5.2f')}",
+        f"thrust N     {_vec(state.get('thrust_n'), '6.2f')}   hip deg {_vec(state.get('hip_deg'), '6.1f')}",
+    ]
+
+
+def _setpoint_line(setpoint: dict[str, Any] | None) -> str:
+    if setpoint is None:
+        return "setpoint     (waiting)"
+    return (f"setpoint     thrust N {_vec(setpoint.get('thrust_n'), '6.2f')}   hip deg {_vec(setpoint.get('hip_deg'), '6.1f')}"
+            + ("   THRUST CUT" if setpoint.get("thrust_cut") else ""))
 
 
 def _fault_banner(fault: dict[str, Any] | None) -> str:
