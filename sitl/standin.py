@@ -104,12 +104,14 @@ class StandInCompanion:
 @contextlib.contextmanager
 def served(companion: StandInCompanion, options):
     """`sitl.serve.Server` with `options` (its links: the companion's URL) in a thread of this
-    process, the companion answering in another; both stopped on exit."""
+    process, the companion answering in another; both stopped on exit. Entered once the
+    companion has heard the FC (so it knows where to send)."""
     server = Server(replace(options, mavlink_urls=(companion.url,)))
     thread = threading.Thread(target=server.run, daemon=True)
     companion.start()
     thread.start()
     try:
+        companion.wait_for("HEARTBEAT", timeout_s=10.0)
         yield server
     finally:
         server.stop()
