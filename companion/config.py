@@ -1,0 +1,173 @@
+"""The companion's configuration: ONE TOML file with every tunable, validated at start.
+
+`load_config(path)` reads the file (None: every default, which flies the reference airframe
+on the SITL's default link) and returns a frozen CompanionConfig; anything malformed raises
+ConfigError naming the table and key. deploy/companion.toml documents every key.
+
+The tables map onto the settings dataclasses of the parts they configure (NmpcConfig,
+ReferenceConfig, TouchdownConfig, FaultDetectorConfig, FeedSettings): a key is a field's
+name, its default is the field's default, and a field in radians (`*_rad`) is written in
+degrees (`*_deg`) in the file. Relative paths are taken from the file's folder. The Zenoh
+feed is the [feed] table of companion.feed.settings (absent: no feed).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from companion.airframe import Airframe, load_airframe
+from companion.core.disturbance import DisturbanceEstimator
+from companion.core.fault_detector import FaultDetectorConfig
+from companion.core.nmpc_config import NmpcConfig, NmpcWeights
+from companion.core.reference import ReferenceConfig
+from companion.core.touchdown import TouchdownConfig
+from companion.feed.settings import FeedSettings, parse_feed_settings
+from companion.scenario import Mission, load_mission
+from companion.toml_fields import ConfigError, Table, load_toml
+
+RATE_MAX_HZ = 100.0
+DEFAULT_RATE_HZ = 10.0          # the paper's control rate
+DEFAULT_DISTURBANCE_GAIN = inspect.signature(DisturbanceEstimator).parameters["gain"].default
+# pymavlink connection strings the companion accepts for the flight controller.
+_NETWORK_URL = re.compile(r"^(udpin|udpout|udp|tcp|tcpin):[^:\s]+:\d{1,5}$")
+_SERIAL_URL = re.compile(r"^(/dev/\S+?|COM\d+)(,\d+)?$")
+
+
+@dataclass(frozen=True)
+class LinkConfig:
+    fc_url: str = "udpin:127.0.0.1:14550"   # pymavlink form; serial: "/dev/ttyTHS1,921600"
+    signing_key_path: Path | None = None    # 32-byte key (hex or raw); None: unsigned
+    telemetry_timeout_s: float = 0.3        # no telemetry for this long: the link is lost
+    fc_system_id: int = 1                   # only this flight controller is listened to
+    fc_component_id: int = 1
+
+
+@dataclass(frozen=True)
+class CompanionConfig:
+    rate_hz: float = DEFAULT_RATE_HZ
+    nmpc: NmpcConfig = field(default_factory=lambda: NmpcConfig(control_period_s=1.0 / DEFAULT_RATE_HZ))
+    disturbance_gain: float = DEFAULT_DISTURBANCE_GAIN
+    reference: ReferenceConfig = field(default_factory=ReferenceConfig)
+    touchdown: TouchdownConfig = field(default_factory=TouchdownConfig)
+    fault_detector: FaultDetectorConfig = field(default_factory=FaultDetectorConfig)
+    link: LinkConfig = field(default_factory=LinkConfig)
+    feed: FeedSettings = field(default_factory=lambda: FeedSettings(enabled=False))   # the Zenoh feed
+    airframe_path: Path | None = None       # None: the bundled reference airframe
+    mission_path: Path | None = None        # None: no mission (hold where the flight starts)
+    airframe: Airframe = field(default_factory=load_airframe)
+    mission: Mission = field(default_factory=Mission)
+
+    @property
+    def control_period_s(self) -> float:
+        return 1.0 / self.rate_hz
+
+
+def load_config(path: str | Path | None = None) -> CompanionConfig:
+    """Read and validate the companion's configuration; None gives the defaults."""
+    if path is None:
+        return parse_config({}, "defaults")
+    path = Path(path)
+    return parse_config(load_toml(path), path.name, path.parent)
+
+
+def parse_config(data: dict, where: str, base_dir: Path | None = None) -> CompanionConfig:
+    top = Table(data, where)
+    airframe_path = _path(top, "airframe_file", base_dir)
+    mission_path = _path(top, "mission_file", base_dir)
+    control = top.table("control")
+    rate_hz = control.number("rate_hz", DEFAULT_RATE_HZ, lo=0.0, lo_open=True, hi=RATE_MAX_HZ)
+    control.finish()
+    nmpc_table = top.table("nmpc")
+    disturbance_gain = nmpc_table.number("disturbance_gain", DEFAULT_DISTURBANCE_GAIN, lo=0.0, lo_open=True, hi=1.0)
+    nmpc = nmpc_config(nmpc_table, 1.0 / rate_hz)
+    config = CompanionConfig(
+        rate_hz=rate_hz,
+        nmpc=nmpc,
+        disturbance_gain=disturbance_gain,
+        reference=_settings(top.table("reference"), ReferenceConfig),
+        touchdown=_settings(top.table("touchdown"), TouchdownConfig),
+        fault_detector=_settings(top.table("fault_detector"), FaultDetectorConfig),
+        link=_link(top.table("link"), base_dir),
+        feed=parse_feed_settings(top.table("feed"), base_dir) if top.has("feed") else FeedSettings(enabled=False),
+        airframe_path=airframe_path,
+        mission_path=mission_path,
+        airframe=load_airframe(airframe_path),
+        mission=Mission() if mission_path is None else load_mission(mission_path),
+    )
+    top.finish()
+    return config
+
+
+def nmpc_config(t: Table, control_period_s: float) -> NmpcConfig:
+    """The [nmpc] table (and its [nmpc.weights]) as the NMPC's own settings."""
+    weights = _settings(t.table("weights"), NmpcWeights)
+    return _settings(t, NmpcConfig, weights=weights, control_period_s=control_period_s)
+
+
+def _settings(t: Table, cls: type, **given: Any):
+    """A frozen settings dataclass from a table: one key per field not `given`, defaulting to
+    the field's default; numbers >= 0; `*_rad` fields read from `*_deg` keys; fields whose
+    default is None are optional numbers. The dataclass's own validate() has the last word."""
+    default = cls()
+    values = dict(given)
+    for f in dataclasses.fields(cls):
+        if f.name in given:
+            continue
+        d = getattr(default, f.name)
+        in_degrees = f.name.endswith("_rad")
+        key = f.name[:-4] + "_deg" if in_degrees else f.name
+        if isinstance(d, bool):
+            value = t.boolean(key, d)
+        elif isinstance(d, int):
+            value = t.integer(key, d, lo=0)
+        elif isinstance(d, tuple):
+            value = t.vector(key, len(d), list(d), lo=0.0)
+        elif isinstance(d, float) or d is None:
+            if d is None and not t.has(key):
+                continue
+            value = t.number(key, math.degrees(d) if in_degrees and d is not None else d, lo=0.0)
+            value = math.radians(value) if in_degrees else value
+        else:
+            raise TypeError(f"{cls.__name__}.{f.name}: no TOML form for {type(d).__name__}")
+        values[f.name] = value
+    t.finish()
+    settings = dataclasses.replace(default, **values)
+    try:
+        settings.validate()
+    except ValueError as e:
+        raise ConfigError(f"{t.where}: {e}") from None
+    return settings
+
+
+def _link(t: Table, base_dir: Path | None) -> LinkConfig:
+    d = LinkConfig()
+    link = LinkConfig(
+        fc_url=t.string("fc_url", d.fc_url),
+        signing_key_path=_path(t, "signing_key_file", base_dir, must_exist=False),
+        telemetry_timeout_s=t.number("telemetry_timeout_s", d.telemetry_timeout_s, lo=0.0, lo_open=True, hi=10.0),
+        fc_system_id=t.integer("fc_system_id", d.fc_system_id, lo=1, hi=255),
+        fc_component_id=t.integer("fc_component_id", d.fc_component_id, lo=1, hi=255),
+    )
+    t.finish()
+    if not (_NETWORK_URL.match(link.fc_url) or _SERIAL_URL.match(link.fc_url)):
+        raise ConfigError(f"{t.where} fc_url must look like udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT "
+                          f"or a serial device /dev/NAME,BAUD; got {link.fc_url!r}")
+    return link
+
+
+def _path(t: Table, key: str, base_dir: Path | None, must_exist: bool = True) -> Path | None:
+    """An optional file path ("" or absent: None), relative to base_dir."""
+    text = t.string(key, "")
+    if not text:
+        return None
+    p = Path(text).expanduser()
+    p = p if p.is_absolute() or base_dir is None else base_dir / p
+    if must_exist and not p.is_file():
+        raise ConfigError(f"{t.where} {key}: no such file {p}")
+    return p

@@ -1,0 +1,152 @@
+import dataclasses
+import math
+from pathlib import Path
+
+import pytest
+
+from companion.airframe import load_airframe
+from companion.config import CompanionConfig, load_config
+from companion.core.fault_detector import FaultDetectorConfig
+from companion.core.nmpc_config import NmpcConfig
+from companion.toml_fields import ConfigError
+
+EXAMPLE = Path(__file__).resolve().parents[2] / "deploy" / "companion.toml"
+
+
+def write(tmp_path, text, name="companion.toml"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_defaults_fly_the_reference_airframe_at_the_papers_rate_on_the_sitl_link(tmp_path):
+    c = load_config()
+    assert c.rate_hz == 10.0 and c.control_period_s == pytest.approx(0.1)
+    assert c.nmpc == NmpcConfig(control_period_s=0.1)
+    assert c.fault_detector == FaultDetectorConfig()
+    assert c.airframe == load_airframe() and c.airframe_path is None
+    assert c.mission.waypoints == () and c.mission_path is None
+    assert c.link.fc_url == "udpin:127.0.0.1:14550" and c.link.signing_key_path is None
+    assert c.link.telemetry_timeout_s == 0.3 and (c.link.fc_system_id, c.link.fc_component_id) == (1, 1)
+    assert not c.feed.enabled
+    assert load_config(write(tmp_path, "")) == c          # an empty file is all defaults
+
+
+def test_example_file_loads_and_differs_from_the_defaults_only_in_link_and_feed():
+    c = load_config(EXAMPLE)
+    assert c.link.fc_url == "/dev/ttyTHS1,921600"
+    assert c.feed.enabled and c.feed.vehicle == "m4" and c.feed.zenoh_config == Path("/etc/m4/zenoh-companion.json5")
+    # A default changed in code and not in the example (or the reverse) shows up here.
+    assert dataclasses.replace(c, link=CompanionConfig().link, feed=CompanionConfig().feed) == load_config()
+
+
+def _file_keys(settings) -> set[str]:
+    return {f.name[:-4] + "_deg" if f.name.endswith("_rad") else f.name for f in dataclasses.fields(settings)}
+
+
+def test_example_file_names_every_key_of_every_table():
+    text = EXAMPLE.read_text()
+    c = CompanionConfig()
+    keys = (_file_keys(c.nmpc) - {"weights", "control_period_s"} | _file_keys(c.nmpc.weights)
+            | _file_keys(c.fault_detector) | _file_keys(c.reference) | _file_keys(c.touchdown)
+            | {"rate_hz", "disturbance_gain", "airframe_file", "mission_file", "fc_url", "signing_key_file",
+               "telemetry_timeout_s", "fc_system_id", "fc_component_id"})
+    missing = sorted(k for k in keys if f"\n{k} = " not in text and f"\n# {k} = " not in text)
+    assert not missing, f"deploy/companion.toml does not document {missing}"
+
+
+def test_nmpc_table_maps_onto_the_nmpc_settings_with_angles_in_degrees(tmp_path):
+    c = load_config(write(tmp_path, """
+[control]
+rate_hz = 50.0
+[nmpc]
+horizon = 20
+dt_s = 0.05
+roll_pitch_max_deg = 60.0
+fixed_hip_deg = 45.0
+codegen = false
+[nmpc.weights]
+position = [1.0, 2.0, 3.0]
+thrust = 0.5
+"""))
+    n = c.nmpc
+    assert (n.horizon, n.dt_s, n.codegen) == (20, 0.05, False)
+    assert n.roll_pitch_max_rad == pytest.approx(math.radians(60)) and n.fixed_hip_rad == pytest.approx(math.radians(45))
+    assert n.control_period_s == pytest.approx(0.02)
+    assert n.weights.position == (1.0, 2.0, 3.0) and n.weights.thrust == 0.5
+    assert n.weights.velocity == NmpcConfig().weights.velocity
+
+
+def test_detector_reference_and_touchdown_tables_reach_their_settings(tmp_path):
+    c = load_config(write(tmp_path, """
+[fault_detector]
+deficit_min_n = 3.0
+confirm_s = 0.2
+[reference]
+accel_max_m_s2 = 1.0
+[touchdown]
+dwell_s = 0.5
+"""))
+    assert c.fault_detector.deficit_min_n == 3.0 and c.fault_detector.confirm_s == 0.2
+    assert c.reference.accel_max_m_s2 == 1.0 and c.touchdown.dwell_s == 0.5
+
+
+def test_relative_mission_and_airframe_files_are_found_beside_the_config(tmp_path):
+    write(tmp_path, '[mission]\non_fault = "continue"\n[[mission.waypoint]]\nned_m = [5.0, 0.0, -2.0]\n', "m.toml")
+    af_text = (Path(load_airframe.__code__.co_filename).parent / "airframes" / "m4_reference.toml").read_text()
+    write(tmp_path, af_text.replace('name = "m4-reference"', 'name = "m4-copy"'), "af.toml")
+    c = load_config(write(tmp_path, 'mission_file = "m.toml"\nairframe_file = "af.toml"\n'))
+    assert c.mission.on_fault == "continue" and c.mission.waypoints[0].ned_m == (5.0, 0.0, -2.0)
+    assert c.airframe.name == "m4-copy" and c.airframe_path == tmp_path / "af.toml"
+
+
+@pytest.mark.parametrize("text, names", [
+    ("rate = 10.0", "unknown key(s) rate"),
+    ("[control]\nrate_hz = 0.0", "rate_hz"),
+    ("[control]\nrate_hz = 150.0", "rate_hz"),
+    ("[control]\nrate_hz = \"fast\"", "rate_hz"),
+    ("[nmpc]\nhorizon = 0", "horizon"),
+    ("[nmpc]\nhorizon = 2.5", "horizon"),
+    ("[nmpc]\ndt_s = -0.1", "dt_s"),
+    ("[nmpc]\nroll_pitch_max_deg = 120.0", "roll_pitch_max"),
+    ("[nmpc]\ndisturbance_gain = 1.5", "disturbance_gain"),
+    ("[nmpc]\nhorizn = 5", "horizn"),
+    ("[nmpc.weights]\nposition = [1.0, 2.0]", "position"),
+    ("[nmpc.weights]\nthrust = -1.0", "thrust"),
+    ("[nmpc.weights]\nthrust = 0.0", "thrust"),
+    ("[fault_detector]\nwindow_s = 0.0", "window_s"),
+    ("[fault_detector]\nestimate_gain = 2.0", "estimate_gain"),
+    ("[fault_detector]\nthreshold = 1.0", "threshold"),
+    ("[reference]\naccel_max_m_s2 = 0.0", "accel_max_m_s2"),
+    ("[touchdown]\ndwell_s = -1.0", "dwell_s"),
+    ("[link]\nfc_url = \"serial:ttyS0\"", "fc_url"),
+    ("[link]\nfc_url = \"udpin:127.0.0.1\"", "fc_url"),
+    ("[link]\ntelemetry_timeout_s = 0.0", "telemetry_timeout_s"),
+    ("[link]\nfc_system_id = 0", "fc_system_id"),
+    ("[link]\nfc_component_id = 256", "fc_component_id"),
+    ("[feed]\nvehicle = \"m4\"", "[feed]"),
+    ("[feed]\nmode = \"router\"", "mode"),
+    ("mission_file = \"missing.toml\"", "mission_file"),
+    ("airframe_file = \"missing.toml\"", "airframe_file"),
+])
+def test_each_bad_key_or_value_is_rejected_with_its_name(tmp_path, text, names):
+    with pytest.raises(ConfigError, match=names.replace("[", r"\[").replace("(", r"\(").replace(")", r"\)")):
+        load_config(write(tmp_path, text))
+
+
+def test_a_bad_mission_file_is_reported_with_its_own_key(tmp_path):
+    write(tmp_path, '[mission]\non_fault = "panic"\n', "m.toml")
+    with pytest.raises(ConfigError, match="on_fault"):
+        load_config(write(tmp_path, 'mission_file = "m.toml"\n'))
+
+
+def test_serial_and_network_links_are_accepted(tmp_path):
+    for url in ("/dev/ttyTHS1,921600", "/dev/ttyACM0", "udpout:10.0.0.2:14550", "tcp:127.0.0.1:5760"):
+        assert load_config(write(tmp_path, f'[link]\nfc_url = "{url}"\n')).link.fc_url == url
+
+
+def test_missing_or_malformed_file_is_a_config_error(tmp_path):
+    with pytest.raises(ConfigError, match="no such file"):
+        load_config(tmp_path / "absent.toml")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_config(write(tmp_path, "[control\n"))
