@@ -101,7 +101,9 @@ def _defaults(root: ET.Element, af: Airframe) -> None:
     collision = _sub(top, "default", class_="collision")
     _sub(collision, "geom", contype="1", conaffinity="0", group="3")
     sagittal = _sub(top, "default", class_="sagittal")
-    _sub(sagittal, "joint", range=_fmt(af.hip_min_rad, af.hip_max_rad))
+    # No hard stops: the servo's reference stays in [hip_min, hip_max] and the joint follows it
+    # within the servo's small overshoot, which a stop would turn into an impact.
+    _sub(sagittal, "joint", limited="false")
     frontal = _sub(top, "default", class_="frontal")
     _sub(frontal, "joint", axis="1 0 0")
     thruster = _sub(top, "default", class_="thruster")
