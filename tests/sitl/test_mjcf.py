@@ -23,6 +23,7 @@ def hover():
 def test_committed_model_files_equal_a_fresh_generation():
     assert (mjcf.MODEL_DIR / mjcf.ROBOT_FILE).read_text() == mjcf.robot_xml(AF)
     assert (mjcf.MODEL_DIR / mjcf.SCENE_FILE).read_text() == mjcf.scene_xml(AF)
+    assert (mjcf.MODEL_DIR / mjcf.README_FILE).read_text() == mjcf.readme_md(AF)
 
 
 def test_masses_are_the_airframe_lumps_and_add_up_to_the_total(hover):
