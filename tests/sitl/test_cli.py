@@ -1,0 +1,74 @@
+"""`m4-sitl`: bad input gives one error line and exit code 2, never a traceback."""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+
+import pytest
+
+from sitl import scenarios
+from sitl.cli import main
+
+
+def _run(*args, timeout_s=60.0):
+    return subprocess.run([sys.executable, "-m", "sitl.cli", *args], capture_output=True, text=True, timeout=timeout_s)
+
+
+def _one_error_line(proc) -> str:
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2, proc.stderr
+    assert len(lines) == 1 and lines[0].startswith("m4-sitl: error: "), proc.stderr
+    return lines[0]
+
+
+def test_list_prints_the_builtin_scenarios(capsys):
+    assert main(["list"]) == 0
+    assert capsys.readouterr().out.split() == scenarios.builtin_names()
+
+
+@pytest.mark.parametrize("args, says", [
+    (["serve", "--scenario", "no-such-scenario"], "unknown scenario 'no-such-scenario'"),
+    (["serve", "--mavlink", "tcp:127.0.0.1:5760"], "bad MAVLink URL"),
+    (["serve", "--duration", "0"], "--duration: must be > 0"),
+    (["serve", "--seed", "-1"], "--seed: must be >= 0"),
+    (["fly"], "invalid choice: 'fly'"),
+    ([], "required: command"),
+])
+def test_bad_arguments_give_one_error_line_and_exit_2(capsys, args, says):
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("m4-sitl: error: ") and says in err[0]
+
+
+def test_malformed_scenario_file_names_the_key(tmp_path, capsys):
+    path = tmp_path / "bad.toml"
+    path.write_text('name = "bad"\nduration_s = 5.0\n[start]\nned_m = [0.0, 0.0, -2.0]\nyaw = 3\n')
+    assert main(["serve", "--scenario", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "yaw" in err and err.count("\n") == 1
+
+
+def test_bad_signing_key_file_is_one_error_line(tmp_path, capsys):
+    key = tmp_path / "key"
+    key.write_text("not a key")
+    assert main(["serve", "--signing-key", str(key)]) == 2
+    assert "signing key" in capsys.readouterr().err
+
+
+def test_port_in_use_is_one_error_line_and_exit_2():
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+        line = _one_error_line(_run("serve", "--mavlink", f"udpin:127.0.0.1:{port}"))
+    assert f"udpin:127.0.0.1:{port}: cannot open" in line
+
+
+def test_serve_runs_a_scenario_to_the_duration_and_exits_0(tmp_path):
+    tlog = tmp_path / "x.tlog"
+    proc = _run("serve", "--scenario", "hover-rotor-loss", "--duration", "0.5", "--lockstep-timeout", "0.2",
+                "--mavlink", "udpin:127.0.0.1:0", "--tlog", str(tlog))
+    assert proc.returncode == 0, proc.stderr
+    assert "stopped at t=0.500 s" in proc.stderr
+    assert tlog.exists()
