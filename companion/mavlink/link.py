@@ -4,6 +4,9 @@ URLs, as pymavlink writes them: `udpin:HOST:PORT` listens there and answers whoe
 last; `udpout:HOST:PORT` sends there from an ephemeral port and reads the replies. Each
 packet sent and each packet received (good or rejected) goes to the tlog when one is given.
 Nothing here blocks: `receive()` drains what has arrived, `wait_readable()` waits.
+`lock_peer(address)` pins a udpin link to one sender (e.g. the flight controller once its
+HEARTBEAT came): datagrams from anyone else are then dropped and counted (`foreign_datagrams`)
+and can no longer redirect the replies.
 """
 
 from __future__ import annotations
@@ -56,7 +59,9 @@ class UdpLink:
         if key is not None:
             setup_signing(self.mav, key, link_id)
         self.peer: tuple[str, int] | None = None
+        self.locked_peer: tuple[str, int] | None = None
         self.bad_packets = 0
+        self.foreign_datagrams = 0
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             if self.endpoint.mode == "udpin":
@@ -92,6 +97,10 @@ class UdpLink:
 
     def receive(self) -> list[mavlink.MAVLink_message]:
         """Every message that has arrived; rejected and garbled packets are counted, not returned."""
+        return [msg for _, msgs in self.receive_from() for msg in msgs]
+
+    def receive_from(self) -> list[tuple[tuple[str, int], list[mavlink.MAVLink_message]]]:
+        """Like `receive()`, with each datagram's sender: [(address, its messages), ...]."""
         out = []
         while True:
             try:
@@ -100,15 +109,30 @@ class UdpLink:
                 return out
             except OSError:
                 continue
-            if self.endpoint.mode == "udpin":
-                self.peer = sender
-            for msg in self.mav.parse_buffer(data) or ():
-                if self.tlog is not None:
-                    self.tlog.record(msg.get_msgbuf() if msg.get_type() != "BAD_DATA" else bytes(msg.data))
-                if msg.get_type() == "BAD_DATA":
-                    self.bad_packets += 1
-                else:
-                    out.append(msg)
+            out.append((sender, self.ingest(data, sender)))
+
+    def ingest(self, data: bytes, sender: tuple[str, int]) -> list[mavlink.MAVLink_message]:
+        """The messages of one datagram from `sender` (what `receive()` does with each)."""
+        if self.locked_peer is not None and sender != self.locked_peer:
+            self.foreign_datagrams += 1
+            return []
+        if self.endpoint.mode == "udpin":
+            self.peer = sender
+        out = []
+        for msg in self.mav.parse_buffer(data) or ():
+            if self.tlog is not None:
+                self.tlog.record(msg.get_msgbuf() if msg.get_type() != "BAD_DATA" else bytes(msg.data))
+            if msg.get_type() == "BAD_DATA":
+                self.bad_packets += 1
+            else:
+                out.append(msg)
+        return out
+
+    def lock_peer(self, address: tuple[str, int] | None) -> None:
+        """From now on only `address` is heard and answered (None: anyone again)."""
+        self.locked_peer = address
+        if address is not None and self.endpoint.mode == "udpin":
+            self.peer = address
 
     def signing_counters(self) -> SigningCounters:
         return SigningCounters.of(self.mav)
