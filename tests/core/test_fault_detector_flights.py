@@ -17,6 +17,7 @@ import pytest
 
 from companion.airframe import ROTOR_COUNT, load_airframe
 from companion.core import rom
+from companion.core.disturbance import DisturbanceEstimator
 from companion.core.fault_detector import FaultDetector, FaultState
 from companion.core.reference import MissionReference
 from companion.core.thrust_loss_baseline import ThrustLossCheck
@@ -80,18 +81,46 @@ def hip_wave(t, x, amplitude_rad, frequency_hz=0.7):
     return ddq_ref + 20.0 * (q_ref - x[rom.HIP]) + 8.0 * (dq_ref - x[rom.HIP_RATE])
 
 
-def fly(reference, duration_s, *, fault=None, noise=False, seed=0, hip_wave_rad=0.0, plant=AF, detector=None,
-        stop_tilt_deg=70.0):
-    """Fly the reference; fault = (at_s, rotor 1..4, loss). Returns the detector's statuses per
-    control instant [(t, status)] and the time the run stopped."""
+class PdController:
+    """The fault-blind geometric PD on the reference, hips optionally waving."""
+
+    def __init__(self, reference, hip_wave_rad=0.0):
+        self.reference, self._wave = reference, hip_wave_rad
+
+    def __call__(self, t, x, thrust_max_n):
+        p_ref, v_ref = self.reference.state(t)
+        return np.r_[pd_control(x, p_ref, v_ref), hip_wave(t, x, self._wave)]
+
+
+class NmpcController:
+    """The companion's loop: offset-free NMPC on the mission reference, with the detector's
+    thrust_max_estimate_n as its thrust bounds (no other knowledge of the fault)."""
+
+    def __init__(self, nmpc, reference):
+        nmpc.reset()
+        self.reference, self._nmpc = reference, nmpc
+        self._estimator = DisturbanceEstimator(AF, CONTROL_DT_S)
+        self._last = None
+
+    def __call__(self, t, x, thrust_max_n):
+        d = np.zeros(rom.ND) if self._last is None else self._estimator.update(*self._last, x)
+        cfg = self._nmpc.config
+        u = self._nmpc.solve(x, self.reference.reference(t, cfg.horizon, cfg.dt_s), thrust_max_n, d).u
+        self._last = (x, u)
+        return u
+
+
+def fly(controller, duration_s, *, fault=None, noise=False, seed=0, plant=AF, detector=None, stop_tilt_deg=70.0):
+    """Fly with controller(t, measured state, thrust bounds) -> input (8,) at 10 Hz; fault =
+    (at_s, rotor 1..4, loss). Returns the detector's status at each control instant
+    [(t, status)] and the time the run stopped."""
     rng = np.random.default_rng(seed)
-    p0, _ = reference.state(0.0)
+    p0, _ = controller.reference.state(0.0)
     x = rom.hover_state(AF, p0)
     thrust = np.full(ROTOR_COUNT, plant.hover_thrust_per_rotor_n)
     detector = FaultDetector(AF) if detector is None else detector
     statuses = []
-    cmd = thrust.copy()
-    hip_accel = np.zeros(ROTOR_COUNT)
+    u = np.r_[thrust, np.zeros(ROTOR_COUNT)]
     per_control = round(CONTROL_DT_S / PLANT_DT_S)
     decay = math.exp(-PLANT_DT_S / AF.motor_time_constant_s)
     average = AF.motor_time_constant_s / PLANT_DT_S * (1 - decay)     # exact first-order lag over a step
@@ -102,17 +131,16 @@ def fly(reference, duration_s, *, fault=None, noise=False, seed=0, hip_wave_rad=
             if noise:
                 for sl, sigma in NOISE:
                     measured[sl] += rng.normal(0.0, sigma, sl.stop - sl.start)
-            statuses.append((t, detector.update(t, measured, cmd)))
-            p_ref, v_ref = reference.state(t)
-            cmd = pd_control(measured, p_ref, v_ref)
-            hip_accel = hip_wave(t, measured, hip_wave_rad)
+            status = detector.update(t, measured, u[rom.THRUST])
+            statuses.append((t, status))
+            u = controller(t, measured, status.thrust_max_estimate_n)
         ceiling = np.full(ROTOR_COUNT, AF.thrust_max_n)
         if fault is not None and t >= fault[0]:
             ceiling[fault[1] - 1] = (1 - fault[2]) * HOVER_N
-        target = np.minimum(cmd, ceiling)
+        target = np.minimum(u[rom.THRUST], ceiling)
         applied = target + (thrust - target) * average
         thrust = target + (thrust - target) * decay
-        x = np.array(STEPS[plant](x, np.r_[applied, hip_accel], np.zeros(rom.ND))).ravel()
+        x = np.array(STEPS[plant](x, np.r_[applied, u[rom.HIP_ACCEL]], np.zeros(rom.ND))).ravel()
         if math.degrees(max(abs(x[3]), abs(x[4]))) > stop_tilt_deg:
             break
     return statuses, t
@@ -137,7 +165,7 @@ def first_confirmed(statuses):
 
 
 def run_fault_case(reference_fn, at_s, rotor, loss, noise, plant=AF):
-    statuses, _ = fly(reference_fn(), at_s + 1.2, fault=(at_s, rotor, loss), noise=noise, seed=rotor, plant=plant)
+    statuses, _ = fly(PdController(reference_fn()), at_s + 1.2, fault=(at_s, rotor, loss), noise=noise, seed=rotor, plant=plant)
     confirmed = first_confirmed(statuses)
     final = statuses[-1][1]
     true_max = (1 - loss) * HOVER_N
@@ -176,19 +204,19 @@ def test_every_rotor_loss_is_isolated_quickly_and_sized_within_ten_percent_of_ho
 
 
 FAULT_FREE_FLIGHTS = (
-    ("agile: 3 m/s legs, sharp turns, climbs", agile_reference, {}),
-    ("agile, hips waving over 40 deg", agile_reference, {"hip_wave_rad": math.radians(20)}),
-    ("agile, heavier hull and more inertia than the model", agile_reference, {"plant": MISMATCHED_AF}),
-    ("hover", hover_reference, {}),
+    ("agile: 3 m/s legs, sharp turns, climbs", agile_reference, 0.0, AF),
+    ("agile, hips waving over 40 deg", agile_reference, math.radians(20), AF),
+    ("agile, heavier hull and more inertia than the model", agile_reference, 0.0, MISMATCHED_AF),
+    ("hover", hover_reference, 0.0, AF),
 )
 
 
 @pytest.mark.parametrize("noise", [False, True], ids=["exact", "noisy"])
 def test_agile_fault_free_flight_raises_no_alarm(noise):
     rows, alarms = [], 0
-    for name, ref_fn, kwargs in FAULT_FREE_FLIGHTS:
+    for name, ref_fn, wave, plant in FAULT_FREE_FLIGHTS:
         for seed in range(3 if noise else 1):
-            statuses, t_end = fly(ref_fn(), 30.0, noise=noise, seed=seed, **kwargs)
+            statuses, t_end = fly(PdController(ref_fn(), wave), 30.0, noise=noise, seed=seed, plant=plant)
             assert t_end > 29.9, f"the test controller lost the vehicle in {name}"
             states = [s.state for _, s in statuses]
             suspects = sum(1 for a, b in zip(states, states[1:]) if a is FaultState.HEALTHY and b is FaultState.SUSPECT)
@@ -221,8 +249,8 @@ def test_the_ardupilot_style_baseline_is_slower_and_names_no_rotor():
     rows = []
     for name, ref_fn, at_s in (("hover", hover_reference, 1.03), ("3 m/s", forward_reference, 3.03)):
         for loss in (1.0, 0.33):
-            base, _ = fly(ref_fn(), at_s + 3.0, fault=(at_s, 4, loss), detector=ThrustLossCheck(AF))
-            ours, _ = fly(ref_fn(), at_s + 3.0, fault=(at_s, 4, loss))
+            base, _ = fly(PdController(ref_fn()), at_s + 3.0, fault=(at_s, 4, loss), detector=ThrustLossCheck(AF))
+            ours, _ = fly(PdController(ref_fn()), at_s + 3.0, fault=(at_s, 4, loss))
             b, o = first_confirmed(base), first_confirmed(ours)
             rows.append(f"  {name} rotor 4 loss {loss:4.2f}: baseline "
                         f"{'never' if b is None else f'{b.detected_at_s - at_s:.2f} s'}, "
