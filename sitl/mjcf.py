@@ -61,17 +61,11 @@ def leg_lumps(af: Airframe, sx: float) -> tuple[Lump, Lump, Lump]:
             Lump(m_w, (sx * length, 0.0, 0.0), (disk_diam, disk_diam, m_w * rw**2 / 2)))
 
 
-def _inertia_about_axis(lumps, axis, yaw_rad: float) -> float:
-    """Moment of inertia of the lumps, turned by yaw_rad about z, about `axis` through the origin."""
-    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
-    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    e = np.asarray(axis, dtype=float)
-    total = 0.0
-    for lump in lumps:
-        p = rot @ np.array(lump.pos_m)
-        local = rot.T @ e
-        total += local @ np.diag(lump.inertia_diag_kg_m2) @ local + lump.mass_kg * (p @ p - (p @ e) ** 2)
-    return total
+def sagittal_inertia_kg_m2(af: Airframe) -> float:
+    """Inertia the sagittal servo moves: link and wheel about the hip's vertical axis (the same
+    in every posture)."""
+    return sum(lump.inertia_diag_kg_m2[2] + lump.mass_kg * (lump.pos_m[0] ** 2 + lump.pos_m[1] ** 2)
+               for lump in leg_lumps(af, 1.0)[1:])
 
 
 def servo_gains(inertia_kg_m2: float, time_constant_s: float) -> tuple[float, float]:
@@ -142,8 +136,7 @@ def _actuators(root: ET.Element, af: Airframe) -> None:
         # which is -spin k_m T about FLU z.
         _sub(act, "general", name=f"thrust{i + 1}", class_="thruster", site=f"thrust{i + 1}",
              gear=_fmt(0, 0, 1, 0, 0, -af.spin_sign[i] * af.moment_coefficient_m))
-    # The sagittal inertia about the hip does not depend on the posture: one pair of gains.
-    kp, kv = servo_gains(_inertia_about_axis(leg_lumps(af, 1.0)[1:], (0, 0, 1), 0.0), af.servo_time_constant_s)
+    kp, kv = servo_gains(sagittal_inertia_kg_m2(af), af.servo_time_constant_s)
     for i in range(ROTOR_COUNT):
         # ctrl: reference rate; act: reference angle (integrated natively, kept in the joint range).
         _sub(act, "intvelocity", name=f"hip{i + 1}", class_="m4", joint=f"sagittal{i + 1}", kp=_fmt(kp),

@@ -53,8 +53,8 @@ class MatchResult:
                 "att_rms_deg": _rms(ang), "att_max_deg": float(ang.max())}
 
     def summary(self) -> str:
-        lines = [f"ROM vs plant, rotor {FAILED_ROTOR} off at t = 0, hover thrust on the others, hips held "
-                 "(open loop):"]
+        lines = [f"ROM vs plant, rotor {FAILED_ROTOR} off at t = 0, hover thrust on the others, "
+                 + "hips held (open loop):"]
         for t in SUMMARY_HORIZONS_S:
             e = self.errors_until(t)
             lines.append(f"  over {t:.2f} s: centre of mass error RMS {e['pos_rms_m']:.3f} m, max "

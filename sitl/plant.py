@@ -31,12 +31,13 @@ _STEP_TOLERANCE_S = 1e-9
 # period: falling 1 m in 5 ms would take 200 m/s).
 _CONTACT_CHECK_MARGIN_M = 1.0
 _CONTACT_BIT = int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+_NOMINAL_PLANT = PlantOptions()       # frozen: safe as a shared default
 
 
 class Plant:
     physics_dt_s = PHYSICS_DT_S
 
-    def __init__(self, airframe: Airframe, options: PlantOptions = PlantOptions(), *,
+    def __init__(self, airframe: Airframe, options: PlantOptions = _NOMINAL_PLANT, *,
                  start_ned_m=(0.0, 0.0, -2.0), start_yaw_rad: float = 0.0, seed: int = 0):
         """Starts hovering at rest: nominal hips, every rotor at the hover thrust of this plant."""
         start = _vector("start_ned_m", start_ned_m, 3)
@@ -69,7 +70,7 @@ class Plant:
         self._drag = HullDrag(airframe, d.qvel[qvel0:qvel0 + 6], d.qfrc_applied[qvel0:qvel0 + 6])
         self._noise = SensorNoise(airframe, seed)
 
-        self._thrust_max_n = options.thrust_max_n or airframe.thrust_max_n
+        self._thrust_max_n = airframe.thrust_max_n if options.thrust_max_n is None else options.thrust_max_n
         m.actuator_ctrlrange[self._thrust, 1] = self._thrust_max_n
         self._limit_n = np.full(ROTOR_COUNT, self._thrust_max_n)
         self.hover_thrust_n = m.body_subtreemass[self._hull] * airframe.gravity_m_s2 / ROTOR_COUNT

@@ -46,7 +46,7 @@ def test_hull_inertia_is_the_airframe_one_about_the_hull_centre(hover):
 
 
 def test_thrusters_sit_at_the_airframe_positions_in_the_hover_posture(hover):
-    model, data = hover
+    _, data = hover
     hull = data.body("hull")
     expected = AF.thruster_positions_frd_m(np.full(ROTOR_COUNT, AF.nominal_hip_rad))
     for i in range(ROTOR_COUNT):
@@ -81,7 +81,7 @@ def test_thrust_actuators_have_the_motor_lag_limits_and_reaction_moment_sign(hov
 
 
 def test_hover_keyframe_holds_the_hover_thrust_and_nominal_posture(hover):
-    model, data = hover
+    _, data = hover
     for i in range(ROTOR_COUNT):
         assert data.actuator(f"thrust{i + 1}").ctrl[0] == pytest.approx(AF.hover_thrust_per_rotor_n)
         assert data.joint(f"sagittal{i + 1}").qpos[0] == pytest.approx(AF.nominal_hip_rad)
@@ -100,3 +100,14 @@ def test_scene_steps_with_random_inputs_without_any_mujoco_warning():
         mujoco.mj_step(model, data, nstep=20)
     assert all(w.number == 0 for w in data.warning), [w.number for w in data.warning]
     assert np.all(np.isfinite(data.qpos))
+
+
+def test_sagittal_servo_gains_give_the_airframe_time_constant_on_the_leg_inertia(hover):
+    model, _ = hover
+    length = AF.leg_length_m
+    inertia = (AF.leg_wheel_mass_kg * (length**2 + AF.wheel_radius_m**2 / 2)
+               + AF.leg_link_mass_kg * ((length / 2) ** 2 + (3 * AF.link_radius_m**2 + length**2) / 12))
+    omega = 1.0 / AF.servo_time_constant_s
+    for n in range(1, ROTOR_COUNT + 1):
+        assert model.actuator(f"hip{n}").gainprm[0] == pytest.approx(inertia * omega**2)
+        assert model.actuator(f"hiprate{n}").gainprm[0] == pytest.approx(2 * inertia * omega)
