@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import socket
+import threading
+import time
+
 import numpy as np
 import pytest
 
 from companion.airframe import load_airframe
 from companion.mavlink import mavutil
 from companion.scenario import Fault, PlantOptions, Scenario
-from sitl.serve import ServeOptions
+from sitl.serve import ServeOptions, Server
 from sitl.standin import StandInCompanion, served
 
 KEY = bytes(range(1, 33))
@@ -83,3 +87,27 @@ def test_signed_setpoints_fly_and_unsigned_ones_are_dropped_and_counted():
     assert server.vehicle.fc.counters.setpoints_accepted == 0
     assert 0 < server.links[0].signing_counters().rejected <= unsigned.answered
     assert not np.allclose(unsigned.of_type("M4_THRUSTER_STATUS")[-1].thrust_cmd_n, thrust, atol=0.2)
+
+
+def test_companion_that_starts_late_still_gets_the_first_frame():
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = Server(ServeOptions(scenario=NOISY_FAULT, mavlink_urls=(f"udpout:127.0.0.1:{port}",), duration_s=0.2))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    time.sleep(0.3)                            # the t = 0 frame went nowhere
+    companion = StandInCompanion(port=port).start()
+    thread.join(timeout=10.0)
+    companion.close()
+    server.close()
+    assert not thread.is_alive()
+    assert server.vehicle.fc.counters.setpoints_accepted == 10
+
+
+def test_realtime_applies_the_freshest_setpoints():
+    thrust = [14.2, 15.2, 15.2, 14.2]
+    companion = StandInCompanion(answer=lambda t_ms: (thrust, [0.78] * 4, [0.0] * 4, 0))
+    _, server = _fly(0.5, companion, scenario=Scenario(name="hover", duration_s=60.0), realtime=True)
+    assert server.vehicle.fc.counters.setpoints_accepted >= 10
+    assert np.allclose(companion.of_type("M4_THRUSTER_STATUS")[-1].thrust_cmd_n, thrust, atol=1e-4)
