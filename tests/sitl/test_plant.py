@@ -124,6 +124,18 @@ def test_constant_yaw_moment_settles_at_the_rate_where_drag_balances_it():
     assert r40 == pytest.approx(hand, rel=0.01)
 
 
+def test_falling_with_the_motors_off_reaches_the_speed_where_drag_balances_weight():
+    plant = Plant(AF, start_ned_m=(0.0, 0.0, -1000.0))
+    plant.command(np.zeros(ROTOR_COUNT), NOMINAL)
+    plant.step(15.0)
+    s = plant.state()
+    weight = AF.total_mass_kg * AF.gravity_m_s2
+    a, b = AF.drag_quadratic_n_s2_m2, AF.drag_linear_n_s_m
+    terminal = (-b + math.sqrt(b * b + 4 * a * weight)) / (2 * a)
+    assert s.vel_ned_m_s == pytest.approx([0.0, 0.0, terminal], rel=1e-3, abs=1e-6)
+    assert np.abs(s.euler_rad).max() < 1e-6                     # drag acts at the hull centre
+
+
 def test_one_leg_moved_moves_the_centre_of_mass_as_the_lumps_say():
     plant = on_the_floor()
     before = plant.state()
