@@ -3,10 +3,13 @@
     force   = -(linear + quadratic |v|) v              world frame, at the hull centre
     torque  = -(rotational_linear) w - yaw_quadratic |w_z| w_z e_z      body frame
 
-Both laws keep their form under the NWU/FLU <-> NED/FRD flip, so they are applied directly
-to the free joint's generalized forces: its first three dofs are the world-frame translation
-of the hull centre, the last three the body-frame rotation. Pure Python floats, once per
-physics step.
+Both laws keep their form under the NWU/FLU <-> NED/FRD flip. They are applied as the
+damping of the free joint's six dofs (its first three are the world-frame translation of
+the hull centre, the last three the body-frame rotation), which MuJoCo integrates implicitly
+at every physics step: the coefficients are linear + quadratic |v| for the translation and
+rotational_linear (+ yaw_quadratic |w_z| about z) for the rotation. Only the speeds inside
+the coefficients are refreshed, once per `update()` call (every servo period); drag time
+constants are seconds, so the coefficients lag by a negligible 5 ms.
 """
 
 from __future__ import annotations
@@ -19,14 +22,15 @@ from companion.airframe import Airframe
 
 
 class HullDrag:
-    def __init__(self, af: Airframe, qvel: np.ndarray, qfrc: np.ndarray):
-        """qvel, qfrc: views of the free joint's six dofs in MjData.qvel and MjData.qfrc_applied."""
+    def __init__(self, af: Airframe, qvel: np.ndarray, damping: np.ndarray):
+        """qvel, damping: views of the free joint's six dofs in MjData.qvel and MjModel.dof_damping."""
         self._lin, self._quad = af.drag_linear_n_s_m, af.drag_quadratic_n_s2_m2
         self._rot, self._yaw_quad = af.drag_rotational_linear_n_m_s, af.drag_yaw_quadratic_n_m_s2
-        self._qvel, self._qfrc = qvel, qfrc
+        self._qvel, self._damping = qvel, damping
+        self.update()
 
-    def apply(self) -> None:
-        vx, vy, vz, wx, wy, wz = self._qvel.tolist()
-        c = -(self._lin + self._quad * math.sqrt(vx * vx + vy * vy + vz * vz))
-        rot = -self._rot
-        self._qfrc[:] = (c * vx, c * vy, c * vz, rot * wx, rot * wy, (rot - self._yaw_quad * abs(wz)) * wz)
+    def update(self) -> None:
+        vx, vy, vz, _, _, wz = self._qvel.tolist()
+        c = self._lin + self._quad * math.sqrt(vx * vx + vy * vy + vz * vz)
+        rot = self._rot
+        self._damping[:] = (c, c, c, rot, rot, rot + self._yaw_quad * abs(wz))

@@ -67,7 +67,7 @@ class Plant:
         qpos0, qvel0 = m.jnt_qposadr[root.id], m.jnt_dofadr[root.id]
         self._pos, self._quat = slice(qpos0, qpos0 + 3), slice(qpos0 + 3, qpos0 + 7)
         self._vel, self._rates = slice(qvel0, qvel0 + 3), slice(qvel0 + 3, qvel0 + 6)
-        self._drag = HullDrag(airframe, d.qvel[qvel0:qvel0 + 6], d.qfrc_applied[qvel0:qvel0 + 6])
+        self._drag = HullDrag(airframe, d.qvel[qvel0:qvel0 + 6], m.dof_damping[qvel0:qvel0 + 6])
         self._noise = SensorNoise(airframe, seed)
 
         self._thrust_max_n = airframe.thrust_max_n if options.thrust_max_n is None else options.thrust_max_n
@@ -118,7 +118,7 @@ class Plant:
         self._apply_thrust()
         self._hip_target = np.where(np.isfinite(hip), hip, self._hip_target)
         self._hips.set_target(self._hip_target.tolist(), np.where(np.isfinite(rate), rate, 0.0).tolist())
-        self._servo_countdown = 0           # the servo controller reacts at the next step
+        self._servo_countdown = 0           # the servo controller (and drag, gate) react at the next step
 
     def set_rotor_loss(self, rotor: int, loss: float) -> None:
         """Loss of effectiveness of rotor 1..4: its max thrust becomes (1 - loss) x the airframe's
@@ -137,16 +137,20 @@ class Plant:
         n = round(duration_s / self.physics_dt_s)
         if n < 0 or abs(n * self.physics_dt_s - duration_s) > _STEP_TOLERANCE_S:
             raise ValueError(f"duration_s must be a non-negative multiple of {self.physics_dt_s} s, got {duration_s}")
-        m, d, hips, drag = self.model, self.data, self._hips, self._drag.apply
-        for _ in range(n):
+        # The servo controller, the drag coefficients and the contact gate update once per servo
+        # period; MuJoCo runs the physics steps in between in one call.
+        m, d = self.model, self.data
+        while n > 0:
             if self._servo_countdown == 0:
                 self._servo_countdown = self._servo_period_steps
                 self._gate_contact()
-                if not hips.settled:
+                self._drag.update()
+                if not self._hips.settled:
                     self._update_servo_reference()
-            self._servo_countdown -= 1
-            drag()
-            mujoco.mj_step(m, d)
+            k = min(n, self._servo_countdown)
+            mujoco.mj_step(m, d, nstep=k)
+            self._servo_countdown -= k
+            n -= k
 
     def _gate_contact(self) -> None:
         opt = self.model.opt
