@@ -75,7 +75,7 @@ def _add_serve(sub) -> None:
 def _serve(args) -> int:
     scenario = scenarios.resolve(args.scenario) if args.scenario else Scenario(name="hover", duration_s=3600.0)
     key = load_key(args.signing_key) if args.signing_key else None
-    from sitl.serve import ServeError, ServeOptions, Server      # MuJoCo only once the input is good
+    from sitl.serve import ServeError, ServeOptions, Server  # MuJoCo only once the input is good
 
     options = ServeOptions(scenario=scenario, mavlink_urls=tuple(args.mavlink or (DEFAULT_URL,)),
                            realtime=args.realtime, viewer=args.viewer, tlog_path=args.tlog, signing_key=key,

@@ -68,10 +68,10 @@ class FcCounters:
 
 
 class FlightController:
-    def __init__(self, airframe: Airframe, plant, home: Home = Home()):
+    def __init__(self, airframe: Airframe, plant, home: Home | None = None):
         self.airframe = airframe
         self.plant = plant
-        self.telemetry_builder = Telemetry(airframe, home)
+        self.telemetry_builder = Telemetry(airframe, home or Home())
         self.schedule = StreamSchedule()
         self.failsafe = Failsafe(airframe)
         self.counters = FcCounters()

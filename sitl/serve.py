@@ -99,7 +99,7 @@ class Server:
         import mujoco.viewer
         try:
             self._viewer = mujoco.viewer.launch_passive(self.vehicle.plant.model, self.vehicle.plant.data)
-        except Exception as e:      # no display, no GL: whatever MuJoCo raises, say it in one line
+        except Exception as e:  # noqa: BLE001 - no display, no GL: whatever MuJoCo raises, in one line
             raise ServeError(f"cannot open the MuJoCo viewer: {e}") from None
 
     def _sync_viewer(self) -> None:

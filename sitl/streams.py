@@ -61,7 +61,7 @@ class StreamSchedule:
                 return
             interval = self._defaults[msg_id]
         else:
-            interval = max(1, int(round(interval_us / 1000.0)))
+            interval = max(1, round(interval_us / 1000.0))
         self._interval_ms[msg_id] = interval
         self._next_ms[msg_id] = math.ceil(now_ms / interval) * interval
 

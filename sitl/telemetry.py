@@ -54,9 +54,9 @@ def _f4(v) -> list[float]:
 
 
 class Telemetry:
-    def __init__(self, airframe: Airframe, home: Home = Home()):
+    def __init__(self, airframe: Airframe, home: Home | None = None):
         self.airframe = airframe
-        self.home = home
+        self.home = home or Home()
         m = mavlink
         self._builders = {
             m.MAVLINK_MSG_ID_HEARTBEAT: self.heartbeat,
@@ -96,11 +96,11 @@ class Telemetry:
     def global_position_int(self, snap: Snapshot):
         s = snap.state
         lat, lon, alt = self.home.geodetic(s.pos_ned_m)
-        v_cm_s = [int(round(100.0 * v)) for v in s.vel_ned_m_s]
-        hdg_cdeg = int(round(math.degrees(s.euler_rad[2]) * 100.0)) % 36000
+        v_cm_s = [round(100.0 * v) for v in s.vel_ned_m_s]
+        hdg_cdeg = round(math.degrees(s.euler_rad[2]) * 100.0) % 36000
         return mavlink.MAVLink_global_position_int_message(
-            snap.t_ms, int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000.0)),
-            int(round(-s.pos_ned_m[2] * 1000.0)), *v_cm_s, hdg_cdeg)
+            snap.t_ms, round(lat * 1e7), round(lon * 1e7), round(alt * 1000.0),
+            round(-s.pos_ned_m[2] * 1000.0), *v_cm_s, hdg_cdeg)
 
     def actuator_output_status(self, snap: Snapshot):
         outputs = np.zeros(32)
@@ -111,7 +111,7 @@ class Telemetry:
     def home_position(self, snap: Snapshot):
         h = self.home
         return mavlink.MAVLink_home_position_message(
-            int(round(h.lat_deg * 1e7)), int(round(h.lon_deg * 1e7)), int(round(h.alt_amsl_m * 1000.0)),
+            round(h.lat_deg * 1e7), round(h.lon_deg * 1e7), round(h.alt_amsl_m * 1000.0),
             0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, snap.t_ms * 1000)
 
     def autopilot_version(self, snap: Snapshot):

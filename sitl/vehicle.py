@@ -10,7 +10,7 @@ paces it (lockstep or real time) and moves the bytes.
 from __future__ import annotations
 
 import sys
-from typing import Callable, Iterable
+from collections.abc import Callable, Iterable
 
 from companion.airframe import Airframe
 from companion.mavlink import mavlink

@@ -4,7 +4,14 @@ Import every MAVLink thing from here (or `companion.mavlink.dialect`): it is the
 that makes pymavlink speak MAVLink 2 and registers the project's dialect.
 """
 
-from companion.mavlink.dialect import (COMPANION_COMPONENT_ID, DIALECT, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink,
-                                       mavutil, new_mav)
+from companion.mavlink.dialect import (
+                                       COMPANION_COMPONENT_ID,
+                                       DIALECT,
+                                       FC_COMPONENT_ID,
+                                       FC_SYSTEM_ID,
+                                       mavlink,
+                                       mavutil,
+                                       new_mav,
+)
 
 __all__ = ["COMPANION_COMPONENT_ID", "DIALECT", "FC_COMPONENT_ID", "FC_SYSTEM_ID", "mavlink", "mavutil", "new_mav"]

@@ -15,10 +15,11 @@ import sys
 
 os.environ["MAVLINK20"] = "1"
 
-import pymavlink.dialects.v20 as _v20  # noqa: E402  (after MAVLINK20 on purpose)
-from pymavlink import mavutil  # noqa: E402
+# Imported after MAVLINK20 is set, on purpose.
+import pymavlink.dialects.v20 as _v20
+from pymavlink import mavutil
 
-from companion.mavlink import m4_generated as mavlink  # noqa: E402
+from companion.mavlink import m4_generated as mavlink
 
 DIALECT = "m4"
 sys.modules[f"{_v20.__name__}.{DIALECT}"] = mavlink

@@ -12,6 +12,7 @@ import struct
 import threading
 import time
 from pathlib import Path
+from typing import Self
 
 _TIME = struct.Struct(">Q")
 
@@ -35,7 +36,7 @@ class TlogWriter:
         with self._lock:
             self._file.close()
 
-    def __enter__(self) -> TlogWriter:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc) -> None:

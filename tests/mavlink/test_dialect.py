@@ -42,7 +42,8 @@ def test_a_message_id_above_255_round_trips():
     (packet,) = sink.packets
     assert packet[0] == mavlink.PROTOCOL_MARKER_V2
     (msg,) = new_mav(None, 1, 1).parse_buffer(packet)
-    assert msg.get_msgId() == 48000 > 255
+    assert msg.get_msgId() == mavlink.MAVLINK_MSG_ID_M4_SETPOINT
+    assert msg.get_msgId() > 255
     assert msg.time_boot_ms == 1234 and msg.period_ms == 20
     assert list(msg.thrust_n) == [1.0, 2.0, 3.0, 4.0]
     assert msg.get_srcComponent() == COMPANION_COMPONENT_ID

@@ -55,11 +55,11 @@ def test_setpoint_thrust_and_hips_show_up_in_the_fc_status():
     hip = np.radians([60.0, 40.0, 50.0, 45.0])
     companion = StandInCompanion(answer=lambda t_ms: (thrust, hip, np.zeros(4), 0))
     msgs = _run(companion, 0.6)
-    status = [m for m in msgs if m.get_type() == "M4_THRUSTER_STATUS" and m.time_boot_ms == 600][0]
+    status = next(m for m in msgs if m.get_type() == "M4_THRUSTER_STATUS" and m.time_boot_ms == 600)
     assert np.allclose(status.thrust_cmd_n, thrust, atol=1e-4)
     assert np.allclose(status.thrust_n, thrust, atol=0.05)          # 30 ms motor lag, long settled
     assert np.allclose(status.thrust_limit_n, af.thrust_max_n)
-    joints = [m for m in msgs if m.get_type() == "M4_JOINT_STATE" and m.time_boot_ms == 600][0]
+    joints = next(m for m in msgs if m.get_type() == "M4_JOINT_STATE" and m.time_boot_ms == 600)
     assert np.allclose(joints.hip_angle_rad, hip, atol=math.radians(1.0))
     output = [m for m in msgs if m.get_type() == "ACTUATOR_OUTPUT_STATUS"][-1]
     assert np.allclose(output.actuator[:4], thrust / af.thrust_max_n, atol=1e-4)

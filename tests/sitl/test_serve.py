@@ -76,7 +76,7 @@ def test_tlog_has_every_packet_of_both_directions(tmp_path):
 
 def test_signed_setpoints_fly_and_unsigned_ones_are_dropped_and_counted():
     thrust = [14.0, 15.0, 15.5, 14.5]
-    answer = lambda t_ms: (thrust, [0.78] * 4, [0.0] * 4, 0)   # noqa: E731
+    answer = lambda t_ms: (thrust, [0.78] * 4, [0.0] * 4, 0)
     signed, server = _fly(0.3, StandInCompanion(key=KEY, answer=answer), signing_key=KEY)
     assert np.allclose(signed.of_type("M4_THRUSTER_STATUS")[-1].thrust_cmd_n, thrust, atol=1e-4)
     assert server.vehicle.fc.counters.setpoints_accepted == _instants_before(signed, 300)
