@@ -17,7 +17,8 @@ class SensorNoise:
         self._rng = np.random.default_rng(seed)
 
     def measure(self, truth: PlantState) -> PlantState:
-        """The truth plus noise on position, velocity, attitude, rates and hip angles and rates.
+        """The truth plus noise on position, velocity, attitude (through the Euler angles, the
+        quaternion rebuilt from them), body rates, hip angles and hip rates (the gyro's noise).
         Thrusts, the centre of mass and the ground flag are not measured quantities: kept."""
         af, rng = self._af, self._rng
         euler = truth.euler_rad + rng.normal(0.0, af.attitude_noise_rad, 3)
