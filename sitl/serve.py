@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import sys
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -96,10 +97,16 @@ class Server:
         return self._stop or (end is not None and self.vehicle.now_ms >= round(end * 1000))
 
     def _open_viewer(self) -> None:
+        import glfw
         import mujoco.viewer
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            if not glfw.init():      # MuJoCo would exit the process instead of raising
+                raise ServeError("cannot open the MuJoCo viewer: no display (GLFW could not initialise)")
         try:
             self._viewer = mujoco.viewer.launch_passive(self.vehicle.plant.model, self.vehicle.plant.data)
-        except Exception as e:  # noqa: BLE001 - no display, no GL: whatever MuJoCo raises, in one line
+        except Exception as e:  # noqa: BLE001 - no GL context etc.: whatever MuJoCo raises, in one line
             raise ServeError(f"cannot open the MuJoCo viewer: {e}") from None
 
     def _sync_viewer(self) -> None:

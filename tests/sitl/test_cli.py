@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import socket
 import subprocess
 import sys
@@ -73,3 +74,10 @@ def test_serve_runs_a_scenario_to_the_duration_and_exits_0(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "stopped at t=0.500 s" in proc.stderr
     assert tlog.exists()
+
+
+def test_viewer_without_a_display_is_one_error_line():
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    proc = subprocess.run([sys.executable, "-m", "sitl.cli", "serve", "--viewer", "--mavlink", "udpin:127.0.0.1:0"],
+                          capture_output=True, text=True, timeout=60.0, env=env, check=False)
+    assert "viewer" in _one_error_line(proc)
