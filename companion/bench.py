@@ -21,7 +21,13 @@ from companion.core import rom
 from companion.core.nmpc import Nmpc
 from companion.core.nmpc_config import NmpcConfig
 from companion.core.nmpc_ipopt import IpoptReference
-from companion.core.rom_sim import PlantMismatch, RotorFault, SimConfig, hold_reference, simulate
+from companion.core.rom_sim import (
+    PlantMismatch,
+    RotorFault,
+    SimConfig,
+    hold_reference,
+    simulate,
+)
 
 _FAILED_ROTOR = 3
 
@@ -53,12 +59,13 @@ class BenchReport:
                  f"{self.solve_ms_max:.3f}"),
                 ("IPOPT (reference)", f"{self.ipopt_ms_median:.3f}", f"{self.ipopt_ms_p99:.3f}", "")]
         widths = [max(len(r[i]) for r in rows) for i in range(4)]
-        lines = [f"NMPC bench: N = {self.horizon}, dt = {self.dt_s} s, {self.solves} warm-started solves "
-                 f"(setup {self.setup_s:.1f} s)"]
+        lines = [(f"NMPC bench: N = {self.horizon}, dt = {self.dt_s} s, {self.solves} warm-started solves "
+                  f"(setup {self.setup_s:.1f} s)")]
         lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in rows]
-        lines += [f"speed-up vs IPOPT: {self.speedup_vs_ipopt:.1f} x   SQP iterations (median): "
-                  f"{self.iterations_median:g}   fallbacks: {self.fallbacks}   IPOPT failures: {self.ipopt_failures}",
-                  f"relative cost gap to IPOPT: median {self.cost_gap_rel_median:.2e}, max {self.cost_gap_rel_max:.2e}"]
+        lines.append(f"speed-up vs IPOPT: {self.speedup_vs_ipopt:.1f} x   SQP iterations (median): "
+                     f"{self.iterations_median:g}   fallbacks: {self.fallbacks}   IPOPT failures: {self.ipopt_failures}")
+        lines.append(f"relative cost gap to IPOPT: median {self.cost_gap_rel_median:.2e}, "
+                     f"max {self.cost_gap_rel_max:.2e}")
         return "\n".join(lines)
 
 

@@ -36,7 +36,7 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
 
 
 def _run_bench(args: argparse.Namespace) -> int:
-    from companion.bench import run_bench     # CasADi and the solver load only when needed
+    from companion.bench import run_bench  # CasADi and the solver load only when needed
 
     report = run_bench(horizon=args.horizon, dt_s=args.dt, solves=args.solves, seed=args.seed)
     print(json.dumps(report.as_dict()) if args.json else report.table())

@@ -57,7 +57,7 @@ def compiled(fn: ca.Function) -> ca.Function:
             lib.parent.mkdir(parents=True, exist_ok=True)
             partial = lib.with_suffix(f".{os.getpid()}.tmp")
             result = subprocess.run([cc, *COMPILER_FLAGS, "-o", str(partial), str(Path(tmp, src_name)), "-lm"],
-                                    capture_output=True, text=True)
+                                    capture_output=True, text=True, check=False)
             if result.returncode != 0:
                 partial.unlink(missing_ok=True)
                 raise CodegenError(f"compiling {fn.name()} failed: {result.stderr.strip()[:2000]}")

@@ -95,7 +95,13 @@ class TrackingCost:
                      u_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Hessian and gradient of the cost in dU, with dX = Gamma dU (x0 is fixed)."""
         wg = self._qw2 * gamma
-        hess = gamma.T @ wg + self._r_hess
+        hess = self._r_hess.copy()
+        for j in range(us.shape[0]):
+            # Gamma is block lower-triangular: column block j lives in state rows j+1..N only.
+            cols = slice(j * NU, (j + 1) * NU)
+            block = gamma[j * NX:, :(j + 1) * NU].T @ wg[j * NX:, cols]
+            hess[:(j + 1) * NU, cols] += block
+            hess[cols, :j * NU] += block[:j * NU].T
         grad = wg.T @ (xs[1:] - x_ref[1:]).ravel() + self._rw2 * (us - u_ref).ravel()
         return hess, grad
 
@@ -114,7 +120,7 @@ class StateRows:
     hi: np.ndarray
 
     @staticmethod
-    def build(horizon: int, entries: list[tuple[tuple[int, ...], float, float]]) -> "StateRows":
+    def build(horizon: int, entries: list[tuple[tuple[int, ...], float, float]]) -> StateRows:
         """entries: (state indices summed, lo, hi), each repeated over the stages 1..N."""
         first, second, lo, hi = [], [], [], []
         for k in range(horizon):
@@ -180,7 +186,7 @@ class FirstPeriodHipRows:
 
     @staticmethod
     def build(horizon: int, tau: float, hip_bounds: tuple[float, float],
-              side_pairs: tuple[tuple[int, int], ...], side_sum_max_rad: float) -> "FirstPeriodHipRows":
+              side_pairs: tuple[tuple[int, int], ...], side_sum_max_rad: float) -> FirstPeriodHipRows:
         hips = NU // 2
         select = np.vstack([np.eye(hips)] + [np.eye(hips)[a] + np.eye(hips)[b] for a, b in side_pairs])
         lo = np.r_[np.full(hips, hip_bounds[0]), np.full(len(side_pairs), -np.inf)]

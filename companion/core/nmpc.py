@@ -1,6 +1,6 @@
 """The fault-agnostic NMPC: thrust and leg posture planned together over a short horizon.
 
-Route (chosen by measurement, see README "NMPC speed"): a Gauss-Newton SQP in single
+Route (chosen by measurement, `m4-companion bench`): a Gauss-Newton SQP in single
 shooting. Each iteration makes ONE call of a compiled CasADi function (rollout + every
 stage's Jacobians), condenses the problem into a dense QP over the N * 8 inputs in numpy
 and solves it with DAQP (a dual active-set solver), warm-started from the previous active
@@ -24,8 +24,14 @@ import numpy as np
 from companion.airframe import ROTOR_COUNT, Airframe
 from companion.core import rom
 from companion.core.codegen_cache import compiled
-from companion.core.condensing import (FirstPeriodHipRows, Linearisation, TrackingCost, linearisation,
-                                        sensitivities, state_rows)
+from companion.core.condensing import (
+    FirstPeriodHipRows,
+    Linearisation,
+    TrackingCost,
+    linearisation,
+    sensitivities,
+    state_rows,
+)
 from companion.core.nmpc_config import NmpcConfig
 from companion.core.nmpc_targets import hover_targets
 from companion.core.rom import ND, NU, NX

@@ -77,7 +77,7 @@ class NmpcConfig:
     fixed_hip_rad: float | None = None
     control_period_s: float | None = None
     max_iterations: int = 10
-    cost_tol_rel: float = 1e-6         # converged when the QP step would lower the cost by less than this
+    cost_tol_rel: float = 1e-5         # converged when the QP step would lower the cost by less than this
     codegen: bool = True               # compile the linearisation to C (cached); False: CasADi's VM
 
     def validate(self) -> None:

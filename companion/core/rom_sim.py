@@ -11,8 +11,8 @@ sequences of the bench. Everything is returned as arrays.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -104,7 +104,7 @@ def simulate(nmpc: Nmpc, x_init: np.ndarray, reference: Callable[[float], np.nda
     estimator = None if sim.estimator_gain is None else DisturbanceEstimator(af, period, sim.estimator_gain)
     rng = np.random.default_rng(sim.seed)
     kick_steps = None if sim.kick_every_s is None else max(1, round(sim.kick_every_s / period))
-    steps = int(round(sim.duration_s / period))
+    steps = round(sim.duration_s / period)
     n = nmpc.config.horizon
     xs, xm, refs = np.zeros((steps + 1, rom.NX)), np.zeros((steps, rom.NX)), np.zeros((steps, n + 1, rom.NX))
     us, delivered, known = np.zeros((steps, rom.NU)), np.zeros((steps, ROTOR_COUNT)), np.zeros((steps, ROTOR_COUNT))

@@ -14,7 +14,14 @@ from companion.airframe import load_airframe
 from companion.core import rom
 from companion.core.nmpc import Nmpc
 from companion.core.nmpc_config import NmpcConfig
-from companion.core.rom_sim import PlantMismatch, RotorFault, SimConfig, hold_reference, rotor_loss_figures, simulate
+from companion.core.rom_sim import (
+    PlantMismatch,
+    RotorFault,
+    SimConfig,
+    hold_reference,
+    rotor_loss_figures,
+    simulate,
+)
 
 AF = load_airframe()
 PERIOD = 0.02

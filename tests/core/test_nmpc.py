@@ -138,7 +138,8 @@ def test_warm_start_gives_the_same_answer_as_a_cold_start(nmpc):
     cold = nmpc.solve(x0, hover_ref(), ROTOR_4_OFF)
     warm = nmpc.solve(x0, hover_ref(), ROTOR_4_OFF)
     assert cold.ok and warm.ok
-    assert warm.u == pytest.approx(cold.u, abs=0.05)
+    assert warm.u[rom.THRUST] == pytest.approx(cold.u[rom.THRUST], abs=0.2)           # N
+    assert warm.u[rom.HIP_ACCEL] == pytest.approx(cold.u[rom.HIP_ACCEL], abs=1.0)     # rad/s^2, of +-50
     assert warm.cost == pytest.approx(cold.cost, rel=1e-4)
 
 

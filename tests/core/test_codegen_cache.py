@@ -1,0 +1,47 @@
+"""Compiled CasADi functions: built once, cached by a hash of the code, reused without a compiler."""
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from companion.core import codegen_cache
+
+
+def square_plus(c):
+    x = ca.SX.sym("x", 2)
+    return ca.Function("m4_test_square", [x], [x ** 2 + c])
+
+
+def test_the_compiled_function_computes_what_the_symbolic_one_does(tmp_path, monkeypatch):
+    monkeypatch.setenv(codegen_cache.CACHE_ENV, str(tmp_path))
+    fn = codegen_cache.compiled(square_plus(1.0))
+    assert np.asarray(fn([2.0, 3.0])).ravel() == pytest.approx([5.0, 10.0])
+    assert len(list(tmp_path.glob("m4_test_square_*.so"))) == 1
+
+
+def test_a_cached_library_is_loaded_without_compiling_again(tmp_path, monkeypatch):
+    monkeypatch.setenv(codegen_cache.CACHE_ENV, str(tmp_path))
+    codegen_cache.compiled(square_plus(1.0))
+
+    def no_compiler(*args, **kwargs):
+        raise AssertionError("compiled again")
+
+    monkeypatch.setattr(codegen_cache.subprocess, "run", no_compiler)
+    fn = codegen_cache.compiled(square_plus(1.0))
+    assert np.asarray(fn([1.0, 1.0])).ravel() == pytest.approx([2.0, 2.0])
+
+
+def test_a_changed_problem_gets_its_own_library(tmp_path, monkeypatch):
+    monkeypatch.setenv(codegen_cache.CACHE_ENV, str(tmp_path))
+    codegen_cache.compiled(square_plus(1.0))
+    fn = codegen_cache.compiled(square_plus(2.0))
+    assert np.asarray(fn([0.0, 0.0])).ravel() == pytest.approx([2.0, 2.0])
+    assert len(list(tmp_path.glob("m4_test_square_*.so"))) == 2
+
+
+def test_a_missing_compiler_is_reported_clearly(tmp_path, monkeypatch):
+    monkeypatch.setenv(codegen_cache.CACHE_ENV, str(tmp_path))
+    monkeypatch.setenv("CC", "")
+    monkeypatch.setattr(codegen_cache.shutil, "which", lambda name: None)
+    with pytest.raises(codegen_cache.CodegenError, match="no C compiler"):
+        codegen_cache.compiled(square_plus(1.0))
