@@ -13,7 +13,7 @@ explains). The evidence of the last window_s is pooled before voting.
 
 Confirmed is final (one rotor fault per flight). From confirmation on, the rotor's ceiling is
 estimated as the thrust it delivered while commanded at or above it (commanded - deficit),
-refined at every such interval, and handed out in thrust_max_estimate_n: a partial loss is a
+lowered whenever it clearly delivers less than that, and handed out in thrust_max_estimate_n: a partial loss is a
 ceiling the rotor never exceeds, a total loss a ceiling near 0. The NMPC keeps its cost and
 model and only sees a tighter bound (no controller switch).
 
@@ -33,8 +33,7 @@ import numpy as np
 
 from companion.airframe import ROTOR_COUNT, Airframe
 from companion.core import rom
-from companion.core.fault_residual import (IntervalFit, ResidualNoise, ThrustResidualModel, best_hypothesis,
-                                           combine)
+from companion.core.fault_residual import IntervalFit, ResidualNoise, ThrustResidualModel, best_hypothesis, combine
 
 
 class FaultState(IntEnum):
@@ -67,7 +66,8 @@ class FaultDetectorConfig:
     window_s: float = 0.1                 # evidence pooled over this much time before voting
     confirm_s: float = 0.1                # votes for one rotor during this long confirm it
     saturation_margin_n: float = 0.5      # a rotor commanded within this of its ceiling is at its ceiling
-    estimate_gain: float = 0.3            # weight of each new ceiling observation after confirmation
+    ceiling_deficit_min_n: float = 0.5    # a deficit this large of the lost rotor at its ceiling lowers the estimate
+    estimate_gain: float = 0.3            # weight of each such observation after confirmation
     bias_time_constant_s: float = 2.0     # learning time of the residual the model always shows
     max_gap_s: float = 0.5                # frames further apart restart the evidence
 
@@ -87,8 +87,8 @@ class FaultDetectorConfig:
 @dataclass(frozen=True)
 class _Evidence:
     rotor: int | None                  # 0-based rotor voted for, None: no vote
+    deficit_n: np.ndarray              # (4,) expected - delivered thrust of each rotor over the interval
     delivered_n: np.ndarray            # (4,) thrust each rotor delivered over the interval (estimate)
-    fit: IntervalFit | None            # the model fit of this interval (None with direct telemetry)
 
 
 class FaultDetector:
@@ -155,7 +155,7 @@ class FaultDetector:
         i = int(np.argmax(deficit))
         others = np.delete(deficit, i)
         votes = deficit[i] >= self._c.deficit_min_n and np.all(others < self._c.deficit_min_n / 2)
-        return _Evidence(rotor=i if votes else None, delivered_n=delivered_n, fit=None)
+        return _Evidence(rotor=i if votes else None, deficit_n=deficit, delivered_n=delivered_n)
 
     def _model_evidence(self, time_s: float, x_prev: np.ndarray, x: np.ndarray, average_n: np.ndarray,
                         dt: float) -> _Evidence:
@@ -171,7 +171,7 @@ class FaultDetector:
                  and left <= c.unexplained_max * explained + 3.0 * 6 * len(self._window))
         if self._state is FaultState.HEALTHY and not votes:
             self._bias_per_s += min(dt / c.bias_time_constant_s, 1.0) * (raw / dt - self._bias_per_s)
-        return _Evidence(rotor=i if votes else None, delivered_n=average_n - fit.deficit_n, fit=fit)
+        return _Evidence(rotor=i if votes else None, deficit_n=fit.deficit_n, delivered_n=average_n - fit.deficit_n)
 
     def _decide(self, time_s: float, evidence: _Evidence, target_n: np.ndarray) -> None:
         if self._state is FaultState.CONFIRMED:
@@ -187,9 +187,13 @@ class FaultDetector:
             self._estimate_n = self._clip(evidence.delivered_n[self._rotor])
 
     def _refine(self, evidence: _Evidence, target_n: np.ndarray) -> None:
-        """Move the ceiling estimate towards what the rotor delivered while commanded at its ceiling."""
+        """Lower the ceiling estimate towards what the rotor delivered when, commanded at its
+        ceiling, it clearly delivered less. A rotor that delivers what it is asked says only
+        that its ceiling is at least that: no update, so noise cannot ratchet the estimate."""
         i = self._rotor
         if target_n[i] < self._estimate_n - self._c.saturation_margin_n:
+            return
+        if evidence.deficit_n[i] < self._c.ceiling_deficit_min_n:
             return
         observed = evidence.delivered_n[i]
         self._estimate_n = self._clip(self._estimate_n + self._c.estimate_gain * (observed - self._estimate_n))

@@ -19,6 +19,8 @@ from companion.airframe import ROTOR_COUNT, load_airframe
 from companion.core import rom
 from companion.core.disturbance import DisturbanceEstimator
 from companion.core.fault_detector import FaultDetector, FaultState
+from companion.core.nmpc import Nmpc
+from companion.core.nmpc_config import NmpcConfig
 from companion.core.reference import MissionReference
 from companion.core.thrust_loss_baseline import ThrustLossCheck
 from companion.scenario import Mission, Waypoint
@@ -258,3 +260,49 @@ def test_the_ardupilot_style_baseline_is_slower_and_names_no_rotor():
             assert o.rotor == 4
             assert b is None or (b.rotor is None and b.detected_at_s > o.detected_at_s)
     print("\nbaseline (ArduCopter thrust-loss check) vs this detector, fault-blind PD controller:\n" + "\n".join(rows))
+
+
+@pytest.fixture(scope="module")
+def nmpc():
+    return Nmpc(AF, NmpcConfig(control_period_s=CONTROL_DT_S))
+
+
+def test_with_the_nmpc_in_the_loop_every_rotor_loss_is_isolated_sized_and_handed_over(nmpc):
+    """The companion's loop: the NMPC learns of the fault only through the detector's bounds."""
+    rows, failures = [], []
+    for name, rotor, loss in CASES:
+        at_s, ref_fn, limit_s = (1.03, hover_reference, 0.3) if name == "hover" else (3.03, forward_reference, 0.5)
+        statuses, t_end = fly(NmpcController(nmpc, ref_fn()), at_s + 3.0, fault=(at_s, rotor, loss), noise=True,
+                              seed=rotor, stop_tilt_deg=85.0)
+        confirmed = first_confirmed(statuses)
+        if confirmed is None or confirmed.rotor != rotor:
+            failures.append(f"{name} rotor {rotor} loss {loss}: detected {confirmed and confirmed.rotor}")
+            continue
+        latency = confirmed.detected_at_s - at_s
+        true_max = (1 - loss) * HOVER_N
+        est_at = confirmed.thrust_max_estimate_n[rotor - 1] - true_max
+        est_end = statuses[-1][1].thrust_max_estimate_n[rotor - 1] - true_max
+        survived = t_end >= at_s + 3.0 - 0.02
+        rows.append(f"  {name:6s} rotor {rotor} loss {loss:4.2f}: rotor {confirmed.rotor} after {latency:.2f} s, "
+                    f"estimate error {est_at:+.2f} N at detection, {est_end:+.2f} N 3 s later; "
+                    f"{'flew on' if survived else f'tilted past 85 deg at {t_end - at_s:.2f} s'}")
+        if latency > (limit_s if loss == 1.0 else 0.5):
+            failures.append(f"{name} rotor {rotor} loss {loss}: latency {latency:.2f} s")
+        if max(abs(est_at), abs(est_end)) > 0.1 * HOVER_N:
+            failures.append(f"{name} rotor {rotor} loss {loss}: estimate off by {est_at:+.2f} / {est_end:+.2f} N")
+    print("\nNMPC (10 Hz, offset-free) in the loop, bounds from the detector, sensor noise:\n" + "\n".join(rows))
+    assert not failures, "\n".join(failures)
+
+
+def test_with_the_nmpc_in_the_loop_agile_fault_free_flight_raises_no_alarm(nmpc):
+    rows, alarms = [], 0
+    for seed in range(3):
+        statuses, t_end = fly(NmpcController(nmpc, agile_reference()), 30.0, noise=True, seed=seed)
+        assert t_end > 29.9, "the NMPC lost the vehicle in fault-free flight"
+        states = [s.state for _, s in statuses]
+        alarms += states[-1] is FaultState.CONFIRMED
+        suspects = sum(1 for a, b in zip(states, states[1:]) if a is FaultState.HEALTHY and b is FaultState.SUSPECT)
+        rows.append(f"  seed {seed}: {suspects} suspect episodes, final {states[-1].name}, "
+                    f"largest deficit seen {max(s.deficit_n.max() for _, s in statuses):.2f} N")
+    print("\nNMPC in the loop, agile fault-free 30 s flights with sensor noise:\n" + "\n".join(rows))
+    assert alarms == 0
