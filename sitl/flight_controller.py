@@ -68,8 +68,9 @@ class FcCounters:
 
 
 class FlightController:
-    def __init__(self, airframe: Airframe, plant, home: Home | None = None):
+    def __init__(self, airframe: Airframe, plant, home: Home | None = None, lockstep: bool = False):
         self.airframe = airframe
+        self.lockstep = lockstep
         self.plant = plant
         self.telemetry_builder = Telemetry(airframe, home or Home())
         self.schedule = StreamSchedule()
@@ -166,8 +167,11 @@ class FlightController:
                         armed=self.mode != FcMode.LANDED, landed=landed)
 
     def telemetry(self, now_ms: int, frame: bool = False) -> list[mavlink.MAVLink_message]:
-        """The streams due at `now_ms` (with `frame`: plus the lockstep frame), in order."""
+        """The streams due at `now_ms` (with `frame`: plus the lockstep frame), in order. In
+        lockstep M4_THRUSTER_STATUS goes out only in frames: it tells the companion to answer."""
         ids = self.schedule.due(now_ms, FRAME if frame else ())
+        if self.lockstep and not frame:
+            ids = [i for i in ids if i != FRAME[-1]]
         if not ids:
             return []
         snap = self.snapshot(now_ms)

@@ -58,7 +58,8 @@ class Server:
 
     def __init__(self, options: ServeOptions, airframe: Airframe | None = None):
         self.options = options
-        self.vehicle = Vehicle(options.scenario, airframe or load_airframe(), options.seed)
+        self.vehicle = Vehicle(options.scenario, airframe or load_airframe(), options.seed,
+                               lockstep=not options.realtime)
         self._viewer = None
         self._viewer_synced = 0.0
         self._stop = False

@@ -27,11 +27,11 @@ def _log(text: str) -> None:
 
 
 class Vehicle:
-    def __init__(self, scenario: Scenario, airframe: Airframe, seed: int = 0):
+    def __init__(self, scenario: Scenario, airframe: Airframe, seed: int = 0, lockstep: bool = False):
         self.scenario = scenario
         self.plant = Plant(airframe, scenario.plant, start_ned_m=scenario.start.ned_m,
                            start_yaw_rad=scenario.start.yaw_rad, seed=seed)
-        self.fc = FlightController(airframe, self.plant)
+        self.fc = FlightController(airframe, self.plant, lockstep=lockstep)
         self.now_ms = 0
         self._faults = sorted(((round(f.at_s * 1000), f) for f in scenario.faults), key=lambda x: x[0])
 

@@ -84,3 +84,10 @@ def test_thrust_cut_flag_stops_the_motors():
     msgs = _run(companion, 0.3)
     status = [m for m in msgs if m.get_type() == "M4_THRUSTER_STATUS"][-1]
     assert list(status.thrust_cmd_n) == [0.0] * 4 and max(status.thrust_n) < 0.1
+
+
+def test_in_lockstep_thruster_status_marks_only_the_control_instants():
+    msgs = _run(StandInCompanion(period_ms=100), 1.0)
+    stamps = [m.time_boot_ms for m in msgs if m.get_type() == "M4_THRUSTER_STATUS"]
+    assert sorted(set(stamps)) == list(range(0, 1001, 100))
+    assert len([m for m in msgs if m.get_type() == "ATTITUDE" and 0 <= m.time_boot_ms < 1000]) == 100
