@@ -36,6 +36,7 @@ _FAILED_ROTOR = 3
 class BenchReport:
     horizon: int
     dt_s: float
+    control_period_s: float         # one solve per control period (the model keeps dt_s)
     solves: int
     setup_s: float                  # building (and, on a cold cache, compiling) the solver
     solve_ms_median: float
@@ -59,8 +60,8 @@ class BenchReport:
                  f"{self.solve_ms_max:.3f}"),
                 ("IPOPT (reference)", f"{self.ipopt_ms_median:.3f}", f"{self.ipopt_ms_p99:.3f}", "")]
         widths = [max(len(r[i]) for r in rows) for i in range(4)]
-        lines = [(f"NMPC bench: N = {self.horizon}, dt = {self.dt_s} s, {self.solves} warm-started solves "
-                  f"(setup {self.setup_s:.1f} s)")]
+        lines = [(f"NMPC bench: N = {self.horizon}, dt = {self.dt_s} s, re-solved every {self.control_period_s} s, "
+                  f"{self.solves} warm-started solves (setup {self.setup_s:.1f} s)")]
         lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in rows]
         lines.append(f"speed-up vs IPOPT: {self.speedup_vs_ipopt:.1f} x   SQP iterations (median): "
                      f"{self.iterations_median:g}   fallbacks: {self.fallbacks}   IPOPT failures: {self.ipopt_failures}")
@@ -71,19 +72,21 @@ class BenchReport:
 
 def bench_sequence(af: Airframe, nmpc: Nmpc, solves: int, seed: int = 0):
     """The closed-loop-like sequence of `solves` control steps (one solve each)."""
-    dt = nmpc.config.dt_s
-    duration = solves * dt
-    sim = SimConfig(duration_s=duration, control_period_s=dt, faults=(RotorFault(duration / 2, _FAILED_ROTOR, 1.0),),
+    period = nmpc.config.dt_s * nmpc.config.warm_start_shift
+    duration = solves * period
+    sim = SimConfig(duration_s=duration, control_period_s=period, faults=(RotorFault(duration / 2, _FAILED_ROTOR, 1.0),),
                     mismatch=PlantMismatch(mass_scale=1.1, thrust_scale=0.95, wind_force_ned_n=(1.0, -0.5, 0.0)),
                     estimator_gain=0.3, kick_every_s=1.0, noise_scale=1.0, seed=seed)
     x0 = rom.hover_state(af)
     return simulate(nmpc, x0, hold_reference(x0, nmpc.config.horizon), sim)
 
 
-def run_bench(horizon: int = 5, dt_s: float = 0.1, solves: int = 300, seed: int = 0) -> BenchReport:
+def run_bench(horizon: int = 5, dt_s: float = 0.1, solves: int = 300, seed: int = 0,
+              control_period_s: float | None = None) -> BenchReport:
+    """control_period_s: re-solve this often (None: every dt_s)."""
     af = load_airframe()
     t0 = time.perf_counter()
-    nmpc = Nmpc(af, NmpcConfig(horizon=horizon, dt_s=dt_s))
+    nmpc = Nmpc(af, NmpcConfig(horizon=horizon, dt_s=dt_s, control_period_s=control_period_s))
     setup_s = time.perf_counter() - t0
     log = bench_sequence(af, nmpc, solves, seed)
     ipopt = IpoptReference(nmpc)
@@ -98,7 +101,8 @@ def run_bench(horizon: int = 5, dt_s: float = 0.1, solves: int = 300, seed: int 
     gaps_arr = np.array(gaps) if gaps else np.array([np.nan])
     ours = log.solve_ms
     return BenchReport(
-        horizon=horizon, dt_s=dt_s, solves=solves, setup_s=setup_s,
+        horizon=horizon, dt_s=dt_s, control_period_s=dt_s if control_period_s is None else control_period_s,
+        solves=solves, setup_s=setup_s,
         solve_ms_median=float(np.median(ours)), solve_ms_p99=float(np.percentile(ours, 99)),
         solve_ms_max=float(ours.max()), iterations_median=float(np.median(log.iterations)),
         fallbacks=int(log.fallback.sum()), ipopt_ms_median=float(np.median(ipopt_ms)),

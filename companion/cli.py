@@ -29,6 +29,8 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="time warm-started NMPC solves beside IPOPT on the same problems")
     p.add_argument("--horizon", type=_positive_int, default=5, help="NMPC horizon N (default 5)")
     p.add_argument("--dt", type=_positive_float, default=0.1, help="NMPC step in seconds (default 0.1)")
+    p.add_argument("--period", type=_positive_float, default=None,
+                   help="control period in seconds, one solve each (default: the NMPC step)")
     p.add_argument("--solves", type=_positive_int, default=300, help="solves in the sequence (default 300)")
     p.add_argument("--seed", type=int, default=0, help="seed of the kicks and noise")
     p.add_argument("--json", action="store_true", help="print one JSON object on one line")
@@ -38,7 +40,8 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
 def _run_bench(args: argparse.Namespace) -> int:
     from companion.bench import run_bench  # CasADi and the solver load only when needed
 
-    report = run_bench(horizon=args.horizon, dt_s=args.dt, solves=args.solves, seed=args.seed)
+    report = run_bench(horizon=args.horizon, dt_s=args.dt, solves=args.solves, seed=args.seed,
+                       control_period_s=args.period)
     print(json.dumps(report.as_dict()) if args.json else report.table())
     return 0
 
@@ -51,10 +54,19 @@ def _add_watch(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=watch.run)
 
 
+def _add_run(sub: argparse._SubParsersAction) -> None:
+    from companion import run
+
+    p = sub.add_parser("run", help="fly: MAVLink telemetry in, NMPC setpoints out, at the control rate")
+    run.add_arguments(p)
+    p.set_defaults(func=run.run)
+
+
 # One line per subcommand.
 SUBCOMMANDS = (
     _add_bench,
     _add_watch,
+    _add_run,
 )
 
 

@@ -29,3 +29,10 @@ def test_bad_arguments_exit_with_a_usage_error(args, capsys):
         main(args)
     assert e.value.code == 2
     assert "usage: m4-companion" in capsys.readouterr().err
+
+
+def test_bench_table_names_both_routes_and_the_control_period(capsys):
+    assert main(["bench", "--solves", "6", "--period", "0.05"]) == 0
+    out = capsys.readouterr().out
+    assert "re-solved every 0.05 s" in out
+    assert "GN-SQP + DAQP" in out and "IPOPT" in out and "relative cost gap" in out
