@@ -3,13 +3,18 @@ flies on stale setpoints."""
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import pytest
 
-from companion.scenario import Scenario
+from companion.airframe import load_airframe
+from companion.scenario import PlantOptions, Scenario, Start
 from sitl.failsafe import LAND_AFTER_S, LAND_SPEED_M_S
 from sitl.flight_controller import STALE_MIN_MS, FcMode
 from sitl.serve import ServeOptions
 from sitl.standin import StandInCompanion, served
+from sitl.vehicle import Vehicle
 
 STOP_MS = 1000
 
@@ -55,3 +60,18 @@ def test_land_descends_at_half_a_metre_per_second_and_cuts_thrust_on_the_ground(
     final = [m for m in msgs if m.get_type() == "M4_THRUSTER_STATUS"][-1]
     assert list(final.thrust_cmd_n) == [0.0] * 4
     assert positions[8000].z > -0.3 and abs(positions[8000].vz) < 0.05
+
+
+def test_before_any_setpoint_the_fc_holds_its_start_pose_and_never_lands():
+    af = load_airframe()
+    start = Start(ned_m=(3.0, -1.0, -4.0), yaw_deg=30.0)
+    vehicle = Vehicle(Scenario(name="wait", duration_s=60.0, start=start,
+                               plant=PlantOptions(sensor_noise=True)), af, seed=1)
+    sent = []
+    vehicle.start(sent.extend)
+    vehicle.advance_to(5000, sent.extend)
+    state = vehicle.plant.state()
+    assert vehicle.fc.mode == FcMode.HOLD
+    assert np.linalg.norm(state.pos_ned_m - np.array(start.ned_m)) < 0.1
+    assert state.euler_rad[2] == pytest.approx(math.radians(30.0), abs=math.radians(2.0))
+    assert [m.text for m in sent if m.get_type() == "STATUSTEXT"] == ["FC failsafe HOLD: no fresh setpoints"]
