@@ -171,7 +171,8 @@ class FaultDetector:
                  and left <= c.unexplained_max * explained + 3.0 * 6 * len(self._window))
         if self._state is FaultState.HEALTHY and not votes:
             self._bias_per_s += min(dt / c.bias_time_constant_s, 1.0) * (raw / dt - self._bias_per_s)
-        return _Evidence(rotor=i if votes else None, deficit_n=fit.deficit_n, delivered_n=average_n - fit.deficit_n)
+        return _Evidence(rotor=i if votes else None, deficit_n=pooled.deficit_n,
+                         delivered_n=pooled.expected_thrust_n - pooled.deficit_n)
 
     def _decide(self, time_s: float, evidence: _Evidence, target_n: np.ndarray) -> None:
         if self._state is FaultState.CONFIRMED:

@@ -101,7 +101,7 @@ class NmpcController:
     def __init__(self, nmpc, reference):
         nmpc.reset()
         self.reference, self._nmpc = reference, nmpc
-        self._estimator = DisturbanceEstimator(AF, CONTROL_DT_S)
+        self._estimator = DisturbanceEstimator(AF, nmpc.config.control_period_s)
         self._last = None
 
     def __call__(self, t, x, thrust_max_n):
@@ -112,10 +112,11 @@ class NmpcController:
         return u
 
 
-def fly(controller, duration_s, *, fault=None, noise=False, seed=0, plant=AF, detector=None, stop_tilt_deg=70.0):
-    """Fly with controller(t, measured state, thrust bounds) -> input (8,) at 10 Hz; fault =
-    (at_s, rotor 1..4, loss). Returns the detector's status at each control instant
-    [(t, status)] and the time the run stopped."""
+def fly(controller, duration_s, *, fault=None, noise=False, seed=0, plant=AF, detector=None, stop_tilt_deg=70.0,
+        later_faults=(), control_dt_s=CONTROL_DT_S):
+    """Fly with controller(t, measured state, thrust bounds) -> input (8,) every control_dt_s;
+    fault = (at_s, rotor 1..4, loss), later_faults more of them. Returns the detector's status
+    at each control instant [(t, status)] and the time the run stopped."""
     rng = np.random.default_rng(seed)
     p0, _ = controller.reference.state(0.0)
     x = rom.hover_state(AF, p0)
@@ -123,7 +124,8 @@ def fly(controller, duration_s, *, fault=None, noise=False, seed=0, plant=AF, de
     detector = FaultDetector(AF) if detector is None else detector
     statuses = []
     u = np.r_[thrust, np.zeros(ROTOR_COUNT)]
-    per_control = round(CONTROL_DT_S / PLANT_DT_S)
+    per_control = round(control_dt_s / PLANT_DT_S)
+    faults = ([] if fault is None else [fault]) + list(later_faults)
     decay = math.exp(-PLANT_DT_S / AF.motor_time_constant_s)
     average = AF.motor_time_constant_s / PLANT_DT_S * (1 - decay)     # exact first-order lag over a step
     for k in range(round(duration_s / PLANT_DT_S)):
@@ -137,8 +139,9 @@ def fly(controller, duration_s, *, fault=None, noise=False, seed=0, plant=AF, de
             statuses.append((t, status))
             u = controller(t, measured, status.thrust_max_estimate_n)
         ceiling = np.full(ROTOR_COUNT, AF.thrust_max_n)
-        if fault is not None and t >= fault[0]:
-            ceiling[fault[1] - 1] = (1 - fault[2]) * HOVER_N
+        for at_s, rotor, loss in faults:
+            if t >= at_s:
+                ceiling[rotor - 1] = (1 - loss) * HOVER_N
         target = np.minimum(u[rom.THRUST], ceiling)
         applied = target + (thrust - target) * average
         thrust = target + (thrust - target) * decay
@@ -247,21 +250,6 @@ def test_rotor_loss_on_a_plant_unlike_the_model_is_still_isolated_and_sized():
     assert not failures, "\n".join(failures)
 
 
-def test_the_ardupilot_style_baseline_is_slower_and_names_no_rotor():
-    rows = []
-    for name, ref_fn, at_s in (("hover", hover_reference, 1.03), ("3 m/s", forward_reference, 3.03)):
-        for loss in (1.0, 0.33):
-            base, _ = fly(PdController(ref_fn()), at_s + 3.0, fault=(at_s, 4, loss), detector=ThrustLossCheck(AF))
-            ours, _ = fly(PdController(ref_fn()), at_s + 3.0, fault=(at_s, 4, loss))
-            b, o = first_confirmed(base), first_confirmed(ours)
-            rows.append(f"  {name} rotor 4 loss {loss:4.2f}: baseline "
-                        f"{'never' if b is None else f'{b.detected_at_s - at_s:.2f} s'}, "
-                        f"this detector {o.detected_at_s - at_s:.2f} s (rotor {o.rotor})")
-            assert o.rotor == 4
-            assert b is None or (b.rotor is None and b.detected_at_s > o.detected_at_s)
-    print("\nbaseline (ArduCopter thrust-loss check) vs this detector, fault-blind PD controller:\n" + "\n".join(rows))
-
-
 @pytest.fixture(scope="module")
 def nmpc():
     return Nmpc(AF, NmpcConfig(control_period_s=CONTROL_DT_S))
@@ -306,3 +294,61 @@ def test_with_the_nmpc_in_the_loop_agile_fault_free_flight_raises_no_alarm(nmpc)
                     f"largest deficit seen {max(s.deficit_n.max() for _, s in statuses):.2f} N")
     print("\nNMPC in the loop, agile fault-free 30 s flights with sensor noise:\n" + "\n".join(rows))
     assert alarms == 0
+
+
+def test_the_ardupilot_style_baseline_is_slower_and_names_no_rotor(nmpc):
+    """Both detectors watch an NMPC flight; the baseline's status never changes the NMPC's bounds."""
+    rows = []
+    for name, ref_fn, at_s in (("hover", hover_reference, 1.03), ("3 m/s", forward_reference, 3.03)):
+        for loss in (1.0, 0.66, 0.33):
+            base, _ = fly(NmpcController(nmpc, ref_fn()), at_s + 3.0, fault=(at_s, 4, loss), noise=True,
+                          detector=ThrustLossCheck(AF), stop_tilt_deg=85.0)
+            ours, _ = fly(NmpcController(nmpc, ref_fn()), at_s + 3.0, fault=(at_s, 4, loss), noise=True,
+                          stop_tilt_deg=85.0)
+            b, o = first_confirmed(base), first_confirmed(ours)
+            rows.append(f"  {name} rotor 4 loss {loss:4.2f}: baseline "
+                        f"{'never' if b is None else f'{b.detected_at_s - at_s:.2f} s'}, "
+                        f"this detector {o.detected_at_s - at_s:.2f} s (rotor {o.rotor})")
+            assert o.rotor == 4
+            assert b is None or (b.rotor is None and b.detected_at_s > o.detected_at_s)
+    print("\nbaseline (ArduCopter thrust-loss check) vs this detector, NMPC in the loop:\n" + "\n".join(rows))
+
+
+def test_a_loss_that_grows_in_steps_is_followed_by_the_estimate(nmpc):
+    """The paper's third experiment: rotor 4 loses 33 % at 7 s, 66 % at 14 s, 100 % at 21 s
+    (here every 3 s, along 3 m/s legs with the NMPC in the loop)."""
+    steps = ((3.03, 4, 0.33), (6.03, 4, 0.66), (9.03, 4, 1.0))
+    reference = MissionReference(Mission(waypoints=(Waypoint((15.0, 0.0, -2.0), 3.0, 0.0),
+                                                    Waypoint((15.0, 15.0, -3.0), 3.0, 0.0))), (0.0, 0.0, -2.0), AF)
+    statuses, t_end = fly(NmpcController(nmpc, reference), 12.0, fault=steps[0], later_faults=steps[1:],
+                          noise=True, stop_tilt_deg=85.0)
+    rows = []
+    for (at_s, _, loss), end_s in zip(steps, (6.0, 9.0, 12.0)):
+        estimate = [s.thrust_max_estimate_n[3] for t, s in statuses if t <= end_s][-1]
+        rows.append(f"  loss {loss:4.2f} from {at_s:.2f} s: estimate {estimate:5.2f} N at {end_s:.1f} s, "
+                    f"true {(1 - loss) * HOVER_N:5.2f} N")
+        assert abs(estimate - (1 - loss) * HOVER_N) <= 0.1 * HOVER_N
+    print("\nrotor 4 losing thrust in steps, NMPC in the loop:\n" + "\n".join(rows) + f"\n  flew to {t_end:.1f} s")
+    assert first_confirmed(statuses).rotor == 4
+
+
+def test_at_50_hz_telemetry_the_detector_keeps_its_latency_and_stays_quiet(nmpc):
+    rows, failures = [], []
+    for name, ref_fn, at_s in (("hover", hover_reference, 1.013), ("3 m/s", forward_reference, 3.013)):
+        for rotor, loss in ((4, 1.0), (1, 0.33)):
+            statuses, _ = fly(PdController(ref_fn()), at_s + 1.0, fault=(at_s, rotor, loss), noise=True,
+                              control_dt_s=0.02)
+            c = first_confirmed(statuses)
+            ok = c is not None and c.rotor == rotor
+            err = c.thrust_max_estimate_n[rotor - 1] - (1 - loss) * HOVER_N if ok else math.nan
+            rows.append(f"  {name} rotor {rotor} loss {loss:4.2f}: "
+                        + (f"after {c.detected_at_s - at_s:.2f} s, estimate error {err:+.2f} N" if ok else "MISSED"))
+            if not ok or c.detected_at_s - at_s > 0.3 or abs(err) > 0.1 * HOVER_N:
+                failures.append(rows[-1])
+    statuses, _ = fly(PdController(agile_reference()), 30.0, noise=True, control_dt_s=0.02)
+    states = [s.state for _, s in statuses]
+    suspects = sum(1 for a, b in zip(states, states[1:]) if a is FaultState.HEALTHY and b is FaultState.SUSPECT)
+    rows.append(f"  agile fault-free 30 s: {suspects} suspect episodes, final {states[-1].name}")
+    print("\n50 Hz telemetry and control, PD controller, sensor noise:\n" + "\n".join(rows))
+    assert states[-1] is FaultState.HEALTHY
+    assert not failures, "\n".join(failures)
