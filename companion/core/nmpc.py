@@ -205,7 +205,7 @@ class Nmpc:
             us, (xs, a, b), merit = trial_us, trial, trial_merit
         if not (np.all(np.isfinite(xs)) and np.isfinite(merit)):
             return self._fallback(x0, lo, hi, "qp_failed", it, t0)
-        self._guess = us
+        self._guess = us.copy()
         cost = self.cost.value(xs, us, ref, u_ref)
         return NmpcResult(u=us[0].copy(), x_pred=xs, u_pred=us, solve_ms=_ms_since(t0), iterations=it,
                           status=status, ok=True, cost=cost, fallback=False)
@@ -219,7 +219,6 @@ class Nmpc:
         if finite_x0:
             brake = -x0[rom.HIP_RATE] / self.config.dt_s
             us[:, rom.HIP_ACCEL] = np.clip(brake, lo[rom.HIP_ACCEL], hi[rom.HIP_ACCEL])
-        us = np.nan_to_num(np.clip(us, lo, hi), nan=0.0)
         us = np.clip(us, lo, hi)
         xs = np.tile(np.nan_to_num(x0), (n + 1, 1))
         if finite_x0:
