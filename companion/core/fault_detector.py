@@ -33,7 +33,12 @@ import numpy as np
 
 from companion.airframe import ROTOR_COUNT, Airframe
 from companion.core import rom
-from companion.core.fault_residual import IntervalFit, ResidualNoise, ThrustResidualModel, best_hypothesis, combine
+from companion.core.fault_residual import (CHANNELS, IntervalFit, ResidualNoise, ThrustResidualModel,
+                                           best_hypothesis, combine)
+
+# A residual of pure noise has a chi2 of about one per channel and interval; the best rotor may
+# leave this many times that unexplained on top of its share.
+_NOISE_CHI2_MARGIN = 3.0
 
 
 class FaultState(IntEnum):
@@ -103,7 +108,7 @@ class FaultDetector:
         self._prev: tuple[float, np.ndarray] | None = None
         self._lag_n = np.zeros(ROTOR_COUNT)
         self._window: deque[tuple[float, IntervalFit]] = deque()
-        self._bias_per_s = np.zeros(6)
+        self._bias_per_s = np.zeros(len(CHANNELS))
         self._rotor: int | None = None
         self._state = FaultState.HEALTHY
         self._suspect_since_s = 0.0
@@ -123,15 +128,21 @@ class FaultDetector:
     def update(self, time_s: float, state_measured, thrust_cmd_n, thrust_limit_n=None,
                thrust_delivered_n=None) -> FaultStatus:
         """One telemetry frame. thrust_limit_n (4,): each rotor's limit as known without this
-        detector (default the airframe's thrust_max_n); thrust_delivered_n (4,): the flight
-        controller's per-thruster thrust, NaN (or None) when unknown."""
+        detector (default and NaN entries: the airframe's thrust_max_n); thrust_delivered_n
+        (4,): the flight controller's per-thruster thrust, NaN (or None) when unknown. A frame
+        with a non-finite state or command is skipped and restarts the evidence."""
         x = np.asarray(state_measured, dtype=float).reshape(rom.NX)
+        cmd = np.asarray(thrust_cmd_n, dtype=float).reshape(ROTOR_COUNT)
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(cmd))):
+            self._prev = None                  # a broken frame: restart the evidence at the next good one
+            return self.status
         if thrust_limit_n is not None:
-            self._limit_n = np.asarray(thrust_limit_n, dtype=float).reshape(ROTOR_COUNT).copy()
+            limit = np.asarray(thrust_limit_n, dtype=float).reshape(ROTOR_COUNT)
+            self._limit_n = np.where(np.isfinite(limit), limit, self._af.thrust_max_n)
         ceiling = self._limit_n.copy()
         if self._state is FaultState.CONFIRMED:
             ceiling[self._rotor] = min(self._estimate_n, ceiling[self._rotor])
-        target = np.clip(np.asarray(thrust_cmd_n, dtype=float).reshape(ROTOR_COUNT), self._af.thrust_min_n, ceiling)
+        target = np.clip(cmd, self._af.thrust_min_n, ceiling)
         delivered = None if thrust_delivered_n is None else np.asarray(thrust_delivered_n, dtype=float)
         prev, self._prev = self._prev, (time_s, x)
         dt = None if prev is None else time_s - prev[0]
@@ -167,8 +178,9 @@ class FaultDetector:
         pooled = combine([f for _, f in self._window])
         self._deficit_n = pooled.deficit_n
         i, explained, left = best_hypothesis(pooled)
+        noise_chi2 = _NOISE_CHI2_MARGIN * len(CHANNELS) * len(self._window)   # what noise alone leaves
         votes = (pooled.deficit_n[i] >= c.deficit_min_n and explained >= c.chi2_min
-                 and left <= c.unexplained_max * explained + 3.0 * 6 * len(self._window))
+                 and left <= c.unexplained_max * explained + noise_chi2)
         if self._state is FaultState.HEALTHY and not votes:
             self._bias_per_s += min(dt / c.bias_time_constant_s, 1.0) * (raw / dt - self._bias_per_s)
         return _Evidence(rotor=i if votes else None, deficit_n=pooled.deficit_n,

@@ -113,3 +113,24 @@ def test_baseline_restarts_its_timer_whenever_the_robot_stops_sinking():
         x[rom.V] = (0.0, 0.0, 0.4 if k % 8 else -0.1)
         status = check.update(k * DT, x, cmd)
     assert status.state is not FaultState.CONFIRMED
+
+
+def test_a_frame_with_nan_is_skipped_without_poisoning_later_detection():
+    det = FaultDetector(AF)
+    frames = list(hover_frames(12))
+    for t, x, cmd in frames[:4]:
+        det.update(t, x, cmd)
+    broken = frames[4][1].copy()
+    broken[rom.V] = math.nan
+    assert det.update(frames[4][0], broken, frames[4][2]).state is FaultState.HEALTHY
+    for t, x, cmd in frames[5:]:
+        status = det.update(t, x, cmd)
+    assert status.state is FaultState.HEALTHY and np.all(np.isfinite(status.deficit_n))
+    assert np.abs(status.deficit_n).max() < 0.05
+
+
+def test_unknown_limits_from_the_flight_controller_fall_back_on_the_airframe():
+    det = FaultDetector(AF)
+    status = det.update(0.0, rom.hover_state(AF), np.full(ROTOR_COUNT, HOVER_N),
+                        thrust_limit_n=[math.nan, 20.0, math.nan, 25.0])
+    assert np.allclose(status.thrust_max_estimate_n, [AF.thrust_max_n, 20.0, AF.thrust_max_n, 25.0])

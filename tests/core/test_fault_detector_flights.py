@@ -113,10 +113,11 @@ class NmpcController:
 
 
 def fly(controller, duration_s, *, fault=None, noise=False, seed=0, plant=AF, detector=None, stop_tilt_deg=70.0,
-        later_faults=(), control_dt_s=CONTROL_DT_S):
+        later_faults=(), control_dt_s=CONTROL_DT_S, report_delivered=False):
     """Fly with controller(t, measured state, thrust bounds) -> input (8,) every control_dt_s;
     fault = (at_s, rotor 1..4, loss), later_faults more of them. Returns the detector's status
-    at each control instant [(t, status)] and the time the run stopped."""
+    at each control instant [(t, status)] and the time the run stopped. report_delivered: the
+    flight controller reports each rotor's thrust (with 0.3 N of noise when noise is on)."""
     rng = np.random.default_rng(seed)
     p0, _ = controller.reference.state(0.0)
     x = rom.hover_state(AF, p0)
@@ -135,7 +136,10 @@ def fly(controller, duration_s, *, fault=None, noise=False, seed=0, plant=AF, de
             if noise:
                 for sl, sigma in NOISE:
                     measured[sl] += rng.normal(0.0, sigma, sl.stop - sl.start)
-            status = detector.update(t, measured, u[rom.THRUST])
+            delivered = None
+            if report_delivered:
+                delivered = thrust + (rng.normal(0.0, 0.3, ROTOR_COUNT) if noise else 0.0)
+            status = detector.update(t, measured, u[rom.THRUST], thrust_delivered_n=delivered)
             statuses.append((t, status))
             u = controller(t, measured, status.thrust_max_estimate_n)
         ceiling = np.full(ROTOR_COUNT, AF.thrust_max_n)
@@ -350,5 +354,27 @@ def test_at_50_hz_telemetry_the_detector_keeps_its_latency_and_stays_quiet(nmpc)
     suspects = sum(1 for a, b in zip(states, states[1:]) if a is FaultState.HEALTHY and b is FaultState.SUSPECT)
     rows.append(f"  agile fault-free 30 s: {suspects} suspect episodes, final {states[-1].name}")
     print("\n50 Hz telemetry and control, PD controller, sensor noise:\n" + "\n".join(rows))
+    assert states[-1] is FaultState.HEALTHY
+    assert not failures, "\n".join(failures)
+
+
+def test_with_per_thruster_telemetry_the_deficit_is_read_directly(nmpc):
+    rows, failures = [], []
+    for name, ref_fn, at_s in (("hover", hover_reference, 1.03), ("3 m/s", forward_reference, 3.03)):
+        for rotor, loss in ((4, 1.0), (2, 0.66), (3, 0.33)):
+            statuses, _ = fly(NmpcController(nmpc, ref_fn()), at_s + 2.0, fault=(at_s, rotor, loss), noise=True,
+                              report_delivered=True, stop_tilt_deg=85.0)
+            c = first_confirmed(statuses)
+            ok = c is not None and c.rotor == rotor
+            err = statuses[-1][1].thrust_max_estimate_n[rotor - 1] - (1 - loss) * HOVER_N if ok else math.nan
+            rows.append(f"  {name} rotor {rotor} loss {loss:4.2f}: "
+                        + (f"after {c.detected_at_s - at_s:.2f} s, estimate error {err:+.2f} N" if ok else "MISSED"))
+            if not ok or c.detected_at_s - at_s > 0.3 or abs(err) > 0.1 * HOVER_N:
+                failures.append(rows[-1])
+    statuses, _ = fly(NmpcController(nmpc, agile_reference()), 30.0, noise=True, report_delivered=True)
+    states = [s.state for _, s in statuses]
+    rows.append(f"  agile fault-free 30 s: final {states[-1].name}, "
+                f"{sum(1 for st in states if st is FaultState.SUSPECT)} suspect frames")
+    print("\nper-thruster thrust telemetry (0.3 N noise), NMPC in the loop:\n" + "\n".join(rows))
     assert states[-1] is FaultState.HEALTHY
     assert not failures, "\n".join(failures)
