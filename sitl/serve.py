@@ -78,9 +78,10 @@ class Server:
 
     # -- plumbing --------------------------------------------------------------------------------
     def send(self, msgs) -> None:
-        for msg in msgs:
+        msgs = list(msgs)
+        if msgs:
             for link in self.links:
-                link.send(msg)
+                link.send_all(msgs)
 
     def poll(self) -> None:
         """Handle everything that has arrived, at the current simulated instant."""

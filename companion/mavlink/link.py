@@ -21,6 +21,7 @@ from companion.mavlink.tlog import TlogWriter
 
 MODES = ("udpin", "udpout")
 _DATAGRAM_MAX = 65535
+DATAGRAM_PAYLOAD_MAX = 1400      # below a 1500-byte Ethernet MTU with IP and UDP headers
 
 
 class LinkError(ValueError):
@@ -62,6 +63,7 @@ class UdpLink:
         self.locked_peer: tuple[str, int] | None = None
         self.bad_packets = 0
         self.foreign_datagrams = 0
+        self._batch: list[bytes] | None = None
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             if self.endpoint.mode == "udpin":
@@ -82,18 +84,43 @@ class UdpLink:
         return self.sock.fileno()
 
     def write(self, packet: bytes) -> None:
-        """Called by the protocol object with each packed packet."""
+        """Called by the protocol object with each packed packet (collected inside `send_all`)."""
+        if self._batch is not None:
+            self._batch.append(bytes(packet))
+        else:
+            self._send_datagram([packet])
+
+    def _send_datagram(self, packets: list[bytes]) -> None:
         if self.peer is None:
             return
         try:
-            self.sock.sendto(packet, self.peer)
+            self.sock.sendto(b"".join(packets), self.peer)
         except OSError:
             return           # no listener (yet) or a full buffer: UDP drops, as on a radio
         if self.tlog is not None:
-            self.tlog.record(packet)
+            for packet in packets:
+                self.tlog.record(packet)
 
     def send(self, msg: mavlink.MAVLink_message) -> None:
         self.mav.send(msg)
+
+    def send_all(self, msgs) -> None:
+        """Send several messages in as few datagrams as fit in `DATAGRAM_PAYLOAD_MAX` bytes (as
+        PX4 does; every MAVLink parser reads several packets from one datagram)."""
+        self._batch = []
+        try:
+            for msg in msgs:
+                self.mav.send(msg)
+        finally:
+            batch, self._batch = self._batch, None
+        datagram: list[bytes] = []
+        for packet in batch:
+            if datagram and sum(map(len, datagram)) + len(packet) > DATAGRAM_PAYLOAD_MAX:
+                self._send_datagram(datagram)
+                datagram = []
+            datagram.append(packet)
+        if datagram:
+            self._send_datagram(datagram)
 
     def receive(self) -> list[mavlink.MAVLink_message]:
         """Every message that has arrived; rejected and garbled packets are counted, not returned."""
