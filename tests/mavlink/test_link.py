@@ -8,7 +8,7 @@ import time
 import pytest
 
 from companion.mavlink import mavlink, mavutil
-from companion.mavlink.link import LinkError, UdpLink, parse_url, wait_readable
+from companion.mavlink.link import DATAGRAM_PAYLOAD_MAX, LinkError, UdpLink, parse_url, wait_readable
 from companion.mavlink.tlog import TlogWriter
 
 
@@ -58,3 +58,18 @@ def test_tlog_holds_both_directions_and_pymavlink_reads_it(tmp_path):
     assert [(m.get_type(), m.get_srcComponent()) for m in msgs] == [("M4_SETPOINT", 191), ("ATTITUDE", 1)]
     assert msgs[0]._timestamp <= msgs[1]._timestamp
     assert abs(msgs[0]._timestamp - time.time()) < 60.0
+
+
+def test_send_all_packs_messages_into_datagrams_below_the_mtu():
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rx:
+        rx.bind(("127.0.0.1", 0))
+        rx.settimeout(2.0)
+        link = UdpLink(f"udpout:127.0.0.1:{rx.getsockname()[1]}", 1, 1)
+        link.send_all([mavlink.MAVLink_attitude_message(t, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0) for t in range(100)])
+        link.close()
+        parser, datagrams, got = mavlink.MAVLink(None), [], []
+        while len(got) < 100:
+            datagrams.append(rx.recv(65535))
+            got += parser.parse_buffer(datagrams[-1]) or []
+    assert [m.time_boot_ms for m in got] == list(range(100))
+    assert 1 < len(datagrams) < 100 and max(map(len, datagrams)) <= DATAGRAM_PAYLOAD_MAX
