@@ -65,7 +65,7 @@ def test_send_all_packs_messages_into_datagrams_below_the_mtu():
         rx.bind(("127.0.0.1", 0))
         rx.settimeout(2.0)
         link = UdpLink(f"udpout:127.0.0.1:{rx.getsockname()[1]}", 1, 1)
-        link.send_all([mavlink.MAVLink_attitude_message(t, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0) for t in range(100)])
+        link.send_all([mavlink.MAVLink_attitude_message(t, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6) for t in range(100)])
         link.close()
         parser, datagrams, got = mavlink.MAVLink(None), [], []
         while len(got) < 100:
