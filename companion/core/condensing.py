@@ -1,10 +1,10 @@
 """Single-shooting linearisation of the ROM and its condensing into a dense QP on the inputs.
 
-`linearisation(rom_fns, horizon)` is ONE CasADi function: from (x0, U, d) it rolls the model
+`linearisation(step, horizon)` is ONE CasADi function: from (x0, U, d) it rolls the model
 out over the horizon and returns the trajectory with every stage's Jacobians A_k = dx+/dx,
-B_k = dx+/du. `condense` then eliminates the states: with dX = Gamma dU the Gauss-Newton QP
-of the tracking cost has only the N * 8 inputs as variables, and every state constraint is a
-linear row in the inputs. At N = 5 that is 40 variables, small enough for a dense active-set
+B_k = dx+/du. `sensitivities` and `TrackingCost.gauss_newton` then eliminate the states: with
+dX = Gamma dU the Gauss-Newton QP of the tracking cost has only the N * 8 inputs as
+variables, and every state constraint is a linear row in the inputs. At N = 5 that is 40 variables, small enough for a dense active-set
 solver.
 """
 
@@ -54,8 +54,9 @@ class Linearisation:
         n = self.horizon
         self._x0[:], self._us[:], self._d[:] = x0, us.ravel(), d
         self._evaluate()
-        if self._buffer.ret() != 0:
-            raise RuntimeError(f"{self._fn.name()} failed with code {self._buffer.ret()}")
+        if self._buffer.ret() != 0:          # reported like a diverged rollout: the caller falls back
+            for arr in (self._xs, self._a, self._b):
+                arr.fill(np.nan)
         # Column-major outputs: X (20, N+1) is xs (N+1, 20); A (20, 20N) holds A_k^T blocks.
         return (self._xs.reshape(n + 1, NX).copy(),
                 self._a.reshape(n, NX, NX).transpose(0, 2, 1).copy(),

@@ -77,6 +77,15 @@ def test_non_finite_state_or_reference_gives_a_bounded_fallback(nmpc, where, bad
     assert_within(nmpc, res, ROTOR_4_OFF)
 
 
+def test_a_state_too_wild_to_roll_out_gives_a_bounded_fallback(nmpc):
+    x0 = rom.hover_state(AF)
+    x0[rom.RATES] = 1e200
+    nmpc.reset()
+    res = nmpc.solve(x0, hover_ref(), ROTOR_4_OFF)
+    assert res.fallback and not res.ok
+    assert_within(nmpc, res, ROTOR_4_OFF)
+
+
 def test_non_finite_bounds_and_disturbance_are_survived(nmpc):
     nmpc.reset()
     res = nmpc.solve(rom.hover_state(AF), hover_ref(), [math.nan, math.inf, 20.0, -5.0],
