@@ -1,0 +1,207 @@
+"""The companion's run loop: telemetry in, NMPC setpoints out, at the control rate.
+
+When to answer (lockstep and real time alike): after draining the link, the newest
+M4_THRUSTER_STATUS (the last message of a telemetry frame) is answered when its instant is
+at least one control period after the last answered one (the first is always answered). In
+lockstep the FC's frames fall on our grid (multiples of period_ms), so every frame is
+answered and the FC waits for it; in real time the freshest frame is answered at about our
+rate. The setpoint carries that frame's time_boot_ms.
+
+Telemetry loss: no telemetry for `telemetry_timeout_s` (wall clock) marks the link lost:
+no setpoint goes out (none can: no frame), it is logged, sent as STATUSTEXT (warning) and
+published. When telemetry returns, control resumes; if the FC's clock moved on by more
+than a couple of periods meanwhile, the controller drops its warm start and the stale
+previous state first.
+
+A confirmed fault is announced once: STATUSTEXT MAV_SEVERITY_CRITICAL "thrust loss rotor N"
+(that severity is used for nothing else), the same text on the feed's fault topic.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.config import CompanionConfig
+from companion.controller import ControlStep, Controller
+from companion.core import rom
+from companion.fc_link import FcLink
+from companion.feed import Feed, open_feed
+from companion.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from companion.mavlink.connect import open_link
+from companion.mavlink.link import wait_readable
+from companion.mavlink.signing import load_key
+from companion.telemetry import THRUSTER_STATUS, TelemetryAssembler, rom_state
+
+log = logging.getLogger("m4-companion")
+
+RESUME_GAP_PERIODS = 2            # FC clock moved more than this many periods during a loss: reset
+
+
+@dataclass
+class LoopCounters:
+    answered: int = 0             # setpoints sent
+    skipped_incomplete: int = 0   # frames without the full picture yet (e.g. no joint state)
+    link_losses: int = 0
+    solve_ms_max: float = 0.0
+
+
+class CompanionApp:
+    def __init__(self, config: CompanionConfig, fc: FcLink, controller: Controller, feed: Feed | None = None,
+                 clock=time.monotonic):
+        self.config = config
+        self.fc = fc
+        self.controller = controller
+        self.feed = feed or Feed.disabled()
+        self.clock = clock
+        self.period_ms = max(1, round(1000.0 * config.control_period_s))
+        self.telemetry = TelemetryAssembler(reboot_gap_s=config.link.telemetry_timeout_s)
+        self.counters = LoopCounters()
+        self.connected = False
+        self.last_step: ControlStep | None = None
+        self._last_answered_ms: int | None = None
+        self._was_locked = False
+        self._stop = False
+
+    # -- the loop ----------------------------------------------------------------------------------
+    def stop(self) -> None:
+        self._stop = True
+
+    def run(self) -> None:
+        while not self._stop:
+            now = self.clock()
+            wait_s = min(self.fc.next_due_s(now), self._loss_deadline_s(now)) - now
+            wait_readable([self.fc.link], min(max(wait_s, 0.0), 0.1))
+            self.poll()
+
+    def poll(self) -> None:
+        """Everything that has arrived, then the answer, the watchdog and the periodic messages."""
+        msgs = self.fc.receive()
+        now = self.clock()
+        if self.fc.locked and not self._was_locked:
+            self._was_locked = True
+            log.info("flight controller found at %s; asking for telemetry every %d ms", self.fc.fc_address,
+                     self.period_ms)
+            self.fc.request_intervals(self.config.control_period_s)
+        newest, reboots = None, self.telemetry.counters.reboots
+        for msg in msgs:
+            if self.telemetry.add(msg, now) and msg.get_msgId() == THRUSTER_STATUS:
+                newest = msg.time_boot_ms
+        if self.telemetry.counters.reboots > reboots:
+            log.warning("the flight controller's clock went back after a silence: it rebooted")
+            self._last_answered_ms = None
+            self.controller.resume()
+        if newest is not None:
+            self._on_telemetry(newest)
+            if self._due(newest):
+                self._answer(newest)
+        self._watchdog(now)
+        self.fc.tick(now)
+
+    # -- answering ---------------------------------------------------------------------------------
+    def _due(self, t_ms: int) -> bool:
+        last = self._last_answered_ms
+        return last is None or t_ms - last >= self.period_ms
+
+    def _answer(self, t_ms: int) -> None:
+        snap = self.telemetry.snapshot()
+        if snap is None:
+            self.counters.skipped_incomplete += 1
+            return
+        x = rom_state(snap, self.config.airframe)
+        step = self.controller.step(t_ms / 1000.0, x, snap.thrust_n, snap.thrust_limit_n)
+        self.fc.send_setpoint(t_ms, self.period_ms, step.setpoint)
+        self.fc.send_fault_status(t_ms, step.fault)
+        self._last_answered_ms = t_ms
+        self.last_step = step
+        self.counters.answered += 1
+        if step.nmpc is not None:
+            self.counters.solve_ms_max = max(self.counters.solve_ms_max, step.nmpc.solve_ms)
+        if step.fault_confirmed_now:
+            self._announce_fault(step)
+        self._publish(step, snap.thrust_n)
+
+    def _announce_fault(self, step: ControlStep) -> None:
+        text = step.fault.message
+        self.fc.statustext(mavlink.MAV_SEVERITY_CRITICAL, text)
+        log.error("t=%.3f s: %s (thrust bound now %s N)", step.time_s, text,
+                  np.round(step.fault.thrust_max_estimate_n, 2))
+
+    def _publish(self, step: ControlStep, thrust_n) -> None:
+        x, t, f, sp = step.state, step.time_s, step.fault, step.setpoint
+        self.feed.state(t, pos_ned_m=x[rom.P], vel_ned_m_s=x[rom.V], euler_rad=x[rom.EULER],
+                        rates_frd_rad_s=x[rom.RATES], hip_rad=x[rom.HIP], thrust_n=thrust_n)
+        self.feed.setpoint(t, thrust_n=sp.thrust_n, hip_rad=sp.hip_angle_rad, hip_rate_rad_s=sp.hip_rate_rad_s,
+                           thrust_cut=sp.thrust_cut)
+        self.feed.fault(t, state=int(f.state), rotor=f.rotor, thrust_max_estimate_n=f.thrust_max_estimate_n,
+                        message=f.message, detected_at_s=f.detected_at_s)
+        if step.nmpc is not None:
+            r = step.nmpc
+            self.feed.nmpc(t, solve_ms=r.solve_ms, iterations=r.iterations, status=r.status, cost=r.cost, ok=r.ok,
+                           fallback=r.fallback, dt_s=self.controller.nmpc.config.dt_s,
+                           predicted_p_ned_m=r.x_pred[:, rom.P])
+        self._publish_link(t)
+
+    def _publish_link(self, t_s: float | None) -> None:
+        h = self.fc.health()
+        last = self.telemetry.last_received_s()
+        self.feed.link(t_s, connected=self.connected, last_msg_age_s=None if last is None else self.clock() - last,
+                       msgs_per_s=0.0, bad_crc=h.bad_crc, bad_signature=h.bad_signature,
+                       dropped_foreign=h.foreign)
+
+    # -- link loss ---------------------------------------------------------------------------------
+    def _loss_deadline_s(self, now: float) -> float:
+        last = self.telemetry.last_received_s()
+        if not self.connected or last is None:
+            return now + 1.0
+        return last + self.config.link.telemetry_timeout_s
+
+    def _on_telemetry(self, t_ms: int) -> None:
+        if self.connected:
+            return
+        self.connected = True
+        if self._last_answered_ms is None:
+            log.info("telemetry flowing (t=%.3f s)", t_ms / 1000.0)
+            return
+        gap_ms = t_ms - self._last_answered_ms
+        log.warning("telemetry back after the FC's clock moved %d ms; control resumes", gap_ms)
+        self.fc.statustext(mavlink.MAV_SEVERITY_NOTICE, "companion: telemetry back, control resumes")
+        if gap_ms > RESUME_GAP_PERIODS * self.period_ms:
+            self.controller.resume()
+        self.fc.request_intervals(self.config.control_period_s)
+        self._publish_link(t_ms / 1000.0)
+
+    def _watchdog(self, now: float) -> None:
+        if self.connected and now >= self._loss_deadline_s(now):
+            self.connected = False
+            self.counters.link_losses += 1
+            last_s = None if self._last_answered_ms is None else self._last_answered_ms / 1000.0
+            log.warning("no telemetry for %.2f s: link lost, setpoints stopped", self.config.link.telemetry_timeout_s)
+            self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, "companion: telemetry lost, setpoints stopped")
+            self._publish_link(last_s)
+
+
+def open_app(config: CompanionConfig) -> CompanionApp:
+    """The app with its link open, its feed open and its NMPC built (compiled on a first start).
+    A bad URL, a port in use or a bad key/feed setting raises LinkError/ConfigError/FeedError."""
+    key = load_key(config.link.signing_key_path) if config.link.signing_key_path is not None else None
+    link = open_link(config.link.fc_url, FC_SYSTEM_ID, COMPANION_COMPONENT_ID, key=key)
+    feed = None
+    try:
+        feed = open_feed(config.feed)
+        controller = Controller(config)
+    except BaseException:
+        link.close()
+        if feed is not None:
+            feed.close()
+        raise
+    fc = FcLink(link, config.link.fc_system_id, config.link.fc_component_id)
+    return CompanionApp(config, fc, controller, feed)
+
+
+def close_app(app: CompanionApp) -> None:
+    app.fc.link.close()
+    app.feed.close()

@@ -1,0 +1,66 @@
+"""`m4-companion run [--fc URL] [--config FILE] [--mission FILE]`: the companion in flight.
+
+Reads the configuration (defaults without --config), builds the NMPC (compiling it on a
+first start, cached) and opens the link before it says "ready", then runs until SIGINT or
+SIGTERM. A bad configuration, URL, key, feed setting or a port in use prints one line on
+stderr and exits with 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+import signal
+import sys
+from pathlib import Path
+
+from companion.toml_fields import ConfigError
+
+EXIT_BAD_INPUT = 2
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--fc", metavar="URL", help="the flight controller: udpin:HOST:PORT, udpout:HOST:PORT, "
+                                               "tcp:HOST:PORT, tcpin:HOST:PORT or /dev/NAME,BAUD "
+                                               "(default: the configuration's [link] fc_url)")
+    p.add_argument("--config", type=Path, metavar="FILE", help="the companion's TOML configuration")
+    p.add_argument("--mission", type=Path, metavar="FILE",
+                   help="a scenario file or a file with a [mission] table (default: the configuration's)")
+
+
+def _config(args: argparse.Namespace):
+    from companion.config import load_config
+    from companion.scenario import load_mission
+
+    config = load_config(args.config)
+    if args.fc is not None:          # checked when the link opens
+        config = dataclasses.replace(config, link=dataclasses.replace(config.link, fc_url=args.fc))
+    if args.mission is not None:
+        config = dataclasses.replace(config, mission=load_mission(args.mission), mission_path=args.mission)
+    return config
+
+
+def run(args: argparse.Namespace) -> int:
+    logging.basicConfig(level=logging.INFO, format="m4-companion: %(message)s", stream=sys.stderr)
+    from companion.app import close_app, open_app
+    from companion.feed import FeedError
+    from companion.mavlink.link import LinkError
+
+    try:
+        config = _config(args)
+        app = open_app(config)
+    except (ConfigError, LinkError, FeedError) as e:
+        print(f"m4-companion: error: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: app.stop())
+    logging.getLogger("m4-companion").info("ready: %g Hz on %s", config.rate_hz, config.link.fc_url)
+    try:
+        app.run()
+    finally:
+        close_app(app)
+        c = app.counters
+        logging.getLogger("m4-companion").info("stopped after %d setpoints; %d link losses; slowest solve %.1f ms",
+                                               c.answered, c.link_losses, c.solve_ms_max)
+    return 0

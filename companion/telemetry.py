@@ -1,0 +1,193 @@
+"""The flight controller's telemetry assembled into one picture of the vehicle, and its ROM state.
+
+Pure logic: feed decoded messages (ATTITUDE, ATTITUDE_QUATERNION, LOCAL_POSITION_NED,
+M4_JOINT_STATE, M4_THRUSTER_STATUS) with the companion's monotonic clock to `add()`; ask
+for `snapshot()` and `rom_state()`.
+
+Each stream keeps its newest sample by the FC's `time_boot_ms`: a duplicate or an older
+stamp is dropped and counted, except after a reboot of the FC (its clock jumps back after
+the stream was silent for `reboot_gap_s`), which clears every stream. A message with a
+non-finite field (or a quaternion that is not a unit one) is rejected and counted; in
+M4_THRUSTER_STATUS a NaN means "the FC cannot tell" (contract) and is kept as NaN.
+
+Frames: everything stays NED/FRD as on the wire. LOCAL_POSITION_NED is the hull centre (the
+IMU); the ROM's p and v are the whole robot's centre of mass, offset by
+`Airframe.com_offset_frd_m(hip)` rotated into NED, its velocity including omega x r and the
+offset's own motion with the legs.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.airframe import ROTOR_COUNT, Airframe
+from companion.core import rom
+from companion.mavlink import mavlink
+
+ATTITUDE = mavlink.MAVLINK_MSG_ID_ATTITUDE
+ATTITUDE_QUATERNION = mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION
+LOCAL_POSITION = mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED
+JOINT_STATE = mavlink.MAVLINK_MSG_ID_M4_JOINT_STATE
+THRUSTER_STATUS = mavlink.MAVLINK_MSG_ID_M4_THRUSTER_STATUS
+STREAMS = (ATTITUDE, ATTITUDE_QUATERNION, LOCAL_POSITION, JOINT_STATE, THRUSTER_STATUS)
+_QUAT_NORM_TOLERANCE = 0.05
+
+
+def _vec(*values) -> np.ndarray:
+    return np.array(values, dtype=float).reshape(-1)
+
+
+def _decode(msg) -> dict[str, np.ndarray]:
+    """The fields of one telemetry message as float arrays, named with units and frames."""
+    i = msg.get_msgId()
+    if i == ATTITUDE:
+        return {"euler_rad": _vec(msg.roll, msg.pitch, msg.yaw),
+                "rates_frd_rad_s": _vec(msg.rollspeed, msg.pitchspeed, msg.yawspeed)}
+    if i == ATTITUDE_QUATERNION:
+        return {"quat_wxyz": _vec(msg.q1, msg.q2, msg.q3, msg.q4),
+                "rates_frd_rad_s": _vec(msg.rollspeed, msg.pitchspeed, msg.yawspeed)}
+    if i == LOCAL_POSITION:
+        return {"pos_ned_m": _vec(msg.x, msg.y, msg.z), "vel_ned_m_s": _vec(msg.vx, msg.vy, msg.vz)}
+    if i == JOINT_STATE:
+        return {"hip_rad": _vec(msg.hip_angle_rad), "hip_rate_rad_s": _vec(msg.hip_rate_rad_s)}
+    return {"thrust_cmd_n": _vec(msg.thrust_cmd_n), "thrust_n": _vec(msg.thrust_n),
+            "thrust_limit_n": _vec(msg.thrust_limit_n)}
+
+
+def _valid(msg_id: int, values: dict[str, np.ndarray]) -> bool:
+    if msg_id == THRUSTER_STATUS:
+        return all(v.size == ROTOR_COUNT for v in values.values())
+    if not all(np.all(np.isfinite(v)) for v in values.values()):
+        return False
+    if msg_id == ATTITUDE_QUATERNION:
+        return abs(float(np.linalg.norm(values["quat_wxyz"])) - 1.0) <= _QUAT_NORM_TOLERANCE
+    return True
+
+
+@dataclass(frozen=True)
+class Sample:
+    time_ms: int              # the FC's clock
+    received_s: float         # the companion's monotonic clock
+    values: dict[str, np.ndarray]
+
+
+@dataclass
+class TelemetryCounters:
+    accepted: int = 0
+    stale: int = 0            # duplicate or older time_boot_ms than the stream's newest
+    nonfinite: int = 0        # NaN/inf field or a quaternion that is not a unit one
+    reboots: int = 0
+
+
+@dataclass(frozen=True)
+class VehicleSnapshot:
+    """The newest sample of every stream; hull centre position (NED) as on the wire."""
+
+    time_ms: int                        # the newest instant among the streams
+    times_ms: dict[int, int]            # per stream id
+    euler_rad: np.ndarray               # roll, pitch, yaw (ZYX), body FRD -> NED
+    rates_frd_rad_s: np.ndarray
+    pos_ned_m: np.ndarray               # hull centre
+    vel_ned_m_s: np.ndarray             # hull centre
+    hip_rad: np.ndarray
+    hip_rate_rad_s: np.ndarray
+    thrust_cmd_n: np.ndarray            # as the FC reports them (NaN: it cannot tell)
+    thrust_n: np.ndarray
+    thrust_limit_n: np.ndarray
+
+
+def euler_from_quat_wxyz(q) -> np.ndarray:
+    """(roll, pitch, yaw), ZYX, of the rotation body FRD -> NED given by the unit quaternion q."""
+    w, x, y, z = np.asarray(q, dtype=float) / np.linalg.norm(q)
+    sin_pitch = float(np.clip(2.0 * (w * y - x * z), -1.0, 1.0))
+    return np.array([math.atan2(2.0 * (w * x + y * z), w * w - x * x - y * y + z * z),
+                     math.asin(sin_pitch),
+                     math.atan2(2.0 * (w * z + x * y), w * w + x * x - y * y - z * z)])
+
+
+class TelemetryAssembler:
+    def __init__(self, reboot_gap_s: float = 0.3):
+        self.reboot_gap_s = reboot_gap_s
+        self.counters = TelemetryCounters()
+        self._samples: dict[int, Sample] = {}
+
+    def add(self, msg, now_s: float) -> bool:
+        """Take one message; True when it is a telemetry sample and was accepted."""
+        msg_id = msg.get_msgId()
+        if msg_id not in STREAMS:
+            return False
+        values = _decode(msg)
+        if not _valid(msg_id, values):
+            self.counters.nonfinite += 1
+            return False
+        t_ms = int(msg.time_boot_ms)
+        newest = self._samples.get(msg_id)
+        if newest is not None and t_ms <= newest.time_ms:
+            if t_ms == newest.time_ms or now_s - newest.received_s < self.reboot_gap_s:
+                self.counters.stale += 1
+                return False
+            self._samples.clear()
+            self.counters.reboots += 1
+        self._samples[msg_id] = Sample(t_ms, now_s, values)
+        self.counters.accepted += 1
+        return True
+
+    def clear(self) -> None:
+        self._samples.clear()
+
+    def sample(self, msg_id: int) -> Sample | None:
+        return self._samples.get(msg_id)
+
+    def age_s(self, msg_id: int, now_s: float) -> float | None:
+        """Companion seconds since the stream's newest sample arrived (None: never)."""
+        s = self._samples.get(msg_id)
+        return None if s is None else now_s - s.received_s
+
+    def last_received_s(self) -> float | None:
+        return max((s.received_s for s in self._samples.values()), default=None)
+
+    def snapshot(self) -> VehicleSnapshot | None:
+        """None until position, joints, thrusters and an attitude (either message) have come."""
+        s = self._samples
+        att, quat = s.get(ATTITUDE), s.get(ATTITUDE_QUATERNION)
+        if att is None and quat is None or any(i not in s for i in (LOCAL_POSITION, JOINT_STATE, THRUSTER_STATUS)):
+            return None
+        if att is not None and (quat is None or att.time_ms >= quat.time_ms):
+            euler, rates = att.values["euler_rad"], att.values["rates_frd_rad_s"]
+        else:
+            euler, rates = euler_from_quat_wxyz(quat.values["quat_wxyz"]), quat.values["rates_frd_rad_s"]
+        pos, joints, thr = s[LOCAL_POSITION].values, s[JOINT_STATE].values, s[THRUSTER_STATUS].values
+        times = {i: sample.time_ms for i, sample in s.items()}
+        return VehicleSnapshot(
+            time_ms=max(times.values()), times_ms=times, euler_rad=euler, rates_frd_rad_s=rates,
+            pos_ned_m=pos["pos_ned_m"], vel_ned_m_s=pos["vel_ned_m_s"],
+            hip_rad=joints["hip_rad"], hip_rate_rad_s=joints["hip_rate_rad_s"],
+            thrust_cmd_n=thr["thrust_cmd_n"], thrust_n=thr["thrust_n"], thrust_limit_n=thr["thrust_limit_n"])
+
+
+def com_offset_rate_frd_m_s(af: Airframe, hip_rad, hip_rate_rad_s) -> np.ndarray:
+    """d/dt of Airframe.com_offset_frd_m(hip) for the hips moving at hip_rate_rad_s."""
+    q, qd = np.asarray(hip_rad, dtype=float), np.asarray(hip_rate_rad_s, dtype=float)
+    signs = af.leg_direction_signs
+    d_thrusters = np.zeros((ROTOR_COUNT, 3))
+    d_thrusters[:, 0] = -af.leg_length_m * signs[:, 0] * np.sin(q) * qd
+    d_thrusters[:, 1] = af.leg_length_m * signs[:, 1] * np.cos(q) * qd
+    return af.leg_mass_kg * d_thrusters.sum(axis=0) / af.total_mass_kg
+
+
+def rom_state(snap: VehicleSnapshot, af: Airframe) -> np.ndarray:
+    """The NMPC's state (20) from a snapshot: centre of mass position and velocity (NED)."""
+    rot = rom.rotation_ned_from_frd(snap.euler_rad)
+    r_frd = af.com_offset_frd_m(snap.hip_rad)
+    r_dot_frd = com_offset_rate_frd_m_s(af, snap.hip_rad, snap.hip_rate_rad_s)
+    x = np.zeros(rom.NX)
+    x[rom.P] = snap.pos_ned_m + rot @ r_frd
+    x[rom.EULER] = snap.euler_rad
+    x[rom.HIP] = snap.hip_rad
+    x[rom.V] = snap.vel_ned_m_s + rot @ (np.cross(snap.rates_frd_rad_s, r_frd) + r_dot_frd)
+    x[rom.RATES] = snap.rates_frd_rad_s
+    x[rom.HIP_RATE] = snap.hip_rate_rad_s
+    return x
