@@ -102,8 +102,8 @@ class Plant:
         mujoco.mj_setConst(m, self.data)
 
     def _apply_thrust(self) -> None:
-        cmd = np.clip(self._thrust_request_n, self.airframe.thrust_min_n, self._limit_n)
-        self.data.ctrl[self._thrust] = cmd
+        self._esc_cmd_n = np.clip(self._thrust_request_n, self.airframe.thrust_min_n, self._thrust_max_n)
+        self.data.ctrl[self._thrust] = np.minimum(self._esc_cmd_n, self._limit_n)
 
     def command(self, thrust_n, hip_rad, hip_rate_rad_s=None) -> None:
         """Thrusts (N, rotors 1..4) and hip targets (rad) with their rates (rad/s, default 0).
@@ -179,9 +179,10 @@ class Plant:
             rates_frd_rad_s=frames.flip_vector(d.qvel[self._rates]),
             hip_rad=d.qpos[self._hip_qpos].copy(),
             hip_rate_rad_s=d.qvel[self._hip_qvel].copy(),
-            thrust_cmd_n=d.ctrl[self._thrust].copy(),
+            thrust_cmd_n=self._esc_cmd_n.copy(),
             thrust_n=d.act[self._thrust_act].copy(),
             thrust_limit_n=self._limit_n.copy(),
+            thrust_rated_max_n=np.full(ROTOR_COUNT, self._thrust_max_n),
             com_ned_m=frames.flip_vector(d.subtree_com[self._hull]),
             on_ground=bool(d.ncon > 0),
         )

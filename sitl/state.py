@@ -17,8 +17,9 @@ class PlantState:
     rates_frd_rad_s: np.ndarray
     hip_rad: np.ndarray            # (4,) sagittal angles, rotors 1..4
     hip_rate_rad_s: np.ndarray
-    thrust_cmd_n: np.ndarray       # (4,) last commanded (after clamping to [0, limit])
+    thrust_cmd_n: np.ndarray       # (4,) sent to the ESCs: the request clamped to [0, rated max]
     thrust_n: np.ndarray           # (4,) delivered (after motor lag and fault)
-    thrust_limit_n: np.ndarray     # (4,) current max per rotor (fault applied)
+    thrust_limit_n: np.ndarray     # (4,) current max per rotor, fault applied (truth, for metrics)
+    thrust_rated_max_n: np.ndarray  # (4,) max per rotor as configured (all the FC knows)
     com_ned_m: np.ndarray          # whole-robot centre of mass (truth, for metrics)
     on_ground: bool                # any contact with the floor

@@ -46,11 +46,12 @@ def test_inject_failure_off_stops_the_rotor_and_ok_restores_it():
         ack = _command(companion, m.MAV_CMD_INJECT_FAILURE, m.FAILURE_UNIT_SYSTEM_MOTOR, m.FAILURE_TYPE_OFF, 4)
         assert ack.result == m.MAV_RESULT_ACCEPTED
         assert ack.target_system == 1 and ack.target_component == 191
-        off = _status_after(companion, ack, lambda s: s.thrust_limit_n[3] == 0.0 and s.thrust_n[3] < 0.1)
-        assert off is not None and min(off.thrust_limit_n[:3]) == af.thrust_max_n
+        off = _status_after(companion, ack, lambda s: s.thrust_n[3] < 0.1)
+        assert off is not None and min(off.thrust_n[:3]) > 1.0
+        assert list(off.thrust_limit_n) == [af.thrust_max_n] * 4      # the FC knows its rating, not the fault
         ack = _command(companion, m.MAV_CMD_INJECT_FAILURE, m.FAILURE_UNIT_SYSTEM_MOTOR, m.FAILURE_TYPE_OK, 4)
         assert ack.result == m.MAV_RESULT_ACCEPTED
-        assert _status_after(companion, ack, lambda s: s.thrust_limit_n[3] == af.thrust_max_n) is not None
+        assert _status_after(companion, ack, lambda s: s.thrust_n[3] > 0.9 * af.hover_thrust_per_rotor_n) is not None
         texts = [t.text for t in companion.of_type("STATUSTEXT")]
         assert "rotor 4 loss 100% injected" in texts and "rotor 4 restored" in texts
 
@@ -59,7 +60,7 @@ def test_inject_failure_instance_zero_stops_every_rotor():
     with _fc() as companion:
         ack = _command(companion, m.MAV_CMD_INJECT_FAILURE, m.FAILURE_UNIT_SYSTEM_MOTOR, m.FAILURE_TYPE_OFF, 0)
         assert ack.result == m.MAV_RESULT_ACCEPTED
-        assert _status_after(companion, ack, lambda s: list(s.thrust_limit_n) == [0.0] * 4) is not None
+        assert _status_after(companion, ack, lambda s: max(s.thrust_n) < 0.1) is not None
 
 
 @pytest.mark.parametrize("unit, failure_type, instance, result", [
@@ -78,8 +79,8 @@ def test_rotor_loss_command_caps_the_rotor_relative_to_hover_thrust():
         ack = _command(companion, m.MAV_CMD_M4_ROTOR_LOSS, 2, 0.5)
         assert ack.result == m.MAV_RESULT_ACCEPTED
         expected = 0.5 * af.hover_thrust_per_rotor_n
-        status = _status_after(companion, ack, lambda s: abs(s.thrust_limit_n[1] - expected) < 1e-4)
-        assert status is not None and status.thrust_cmd_n[1] <= expected + 1e-4
+        status = _status_after(companion, ack, lambda s: abs(s.thrust_n[1] - expected) < 0.01)
+        assert status is not None and status.thrust_cmd_n[1] > expected      # the command is what was asked
         assert _command(companion, m.MAV_CMD_M4_ROTOR_LOSS, 2, 1.5).result == m.MAV_RESULT_DENIED
         assert _command(companion, m.MAV_CMD_M4_ROTOR_LOSS, 2.5, 0.5).result == m.MAV_RESULT_DENIED
 

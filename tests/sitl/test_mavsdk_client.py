@@ -44,6 +44,7 @@ async def _fly_with_mavsdk(port: int):
         position = await _first(telemetry.subscribe_position())
         failure = FailureAsync(system)
         await failure.inject(FailureUnit.SYSTEM_MOTOR, FailureType.OFF, 4)     # raises unless ACCEPTED
+        await asyncio.sleep(0.5)          # the rotor spins down through its motor lag
         return attitude, position
 
 
@@ -70,5 +71,5 @@ def test_mavsdk_sees_an_autopilot_and_injects_a_motor_failure(tmp_path):
         if msg.get_type() == "COMMAND_ACK" and msg.command == 420:
             acks.append(msg.result)
         if msg.get_type() == "M4_THRUSTER_STATUS" and acks:
-            motor_off = motor_off or msg.thrust_limit_n[3] == 0.0
+            motor_off = motor_off or msg.thrust_n[3] < 0.1
     assert acks and set(acks) == {0} and motor_off, "the failure was acknowledged but rotor 4 still has thrust"

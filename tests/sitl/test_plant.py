@@ -186,7 +186,8 @@ def test_rotor_loss_caps_delivered_thrust_relative_to_hover_and_can_be_restored(
     s = plant.state()
     cap = 0.5 * AF.hover_thrust_per_rotor_n
     assert s.thrust_limit_n == pytest.approx([AF.thrust_max_n] * 3 + [cap])
-    assert s.thrust_cmd_n == pytest.approx([AF.thrust_max_n] * 3 + [cap])
+    assert s.thrust_cmd_n == pytest.approx(full)                 # the ESC command does not know the fault
+    assert s.thrust_rated_max_n == pytest.approx(full)
     assert s.thrust_n == pytest.approx([AF.thrust_max_n] * 3 + [cap], rel=1e-6)
     plant.set_rotor_loss(4, 1.0)
     plant.step(0.5)
@@ -202,6 +203,7 @@ def test_thrust_max_option_caps_every_rotor():
     s = plant.state()
     assert s.thrust_cmd_n == pytest.approx(np.full(ROTOR_COUNT, AF.thrust_max_tight_n))
     assert s.thrust_limit_n == pytest.approx(np.full(ROTOR_COUNT, AF.thrust_max_tight_n))
+    assert s.thrust_rated_max_n == pytest.approx(np.full(ROTOR_COUNT, AF.thrust_max_tight_n))
 
 
 def test_mass_and_inertia_scales_apply_to_the_plant_and_it_still_starts_hovering():
