@@ -1,6 +1,6 @@
 """`m4-sitl`: the simulator's command line.
 
-    m4-sitl serve [--scenario SCENARIO] [--mavlink URL]... [--realtime] [--viewer] [--tlog PATH]
+    m4-sitl serve [--scenario SCENARIO] [--mavlink URL]... [--realtime] [--viewer] [--tlog PATH] [--truth-log PATH]
                   [--signing-key FILE] [--seed N] [--duration S] [--lockstep-timeout S]
     m4-sitl list
 
@@ -65,6 +65,7 @@ def _add_serve(sub) -> None:
     p.add_argument("--viewer", action="store_true", help="show MuJoCo's passive viewer")
     p.add_argument("--tlog", type=Path, metavar="PATH", help="write every packet, both directions, as a tlog")
     p.add_argument("--signing-key", type=Path, metavar="FILE", help="MAVLink 2 signing key (64 hex digits or 32 bytes)")
+    p.add_argument("--truth-log", type=Path, metavar="PATH", help="write the plant's true state at 100 Hz (.npz)")
     p.add_argument("--seed", type=_seed, default=0, help="sensor noise seed (default 0)")
     p.add_argument("--duration", type=_positive, metavar="S", help="stop after S simulated seconds (default: never)")
     p.add_argument("--lockstep-timeout", type=_positive, default=5.0, metavar="S",
@@ -79,7 +80,8 @@ def _serve(args) -> int:
 
     options = ServeOptions(scenario=scenario, mavlink_urls=tuple(args.mavlink or (DEFAULT_URL,)),
                            realtime=args.realtime, viewer=args.viewer, tlog_path=args.tlog, signing_key=key,
-                           seed=args.seed, duration_s=args.duration, lockstep_timeout_s=args.lockstep_timeout)
+                           seed=args.seed, duration_s=args.duration, lockstep_timeout_s=args.lockstep_timeout,
+                           truth_log_path=args.truth_log)
     try:
         server = Server(options)
     except ServeError as e:

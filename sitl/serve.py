@@ -24,6 +24,7 @@ from companion.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID
 from companion.mavlink.link import UdpLink, wait_readable
 from companion.mavlink.tlog import TlogWriter
 from companion.scenario import Scenario
+from sitl.truth import TruthRecorder
 from sitl.vehicle import Vehicle
 
 RESEND_S = 1.0
@@ -43,6 +44,7 @@ class ServeOptions:
     seed: int = 0
     duration_s: float | None = None            # None: until interrupted
     lockstep_timeout_s: float = 5.0
+    truth_log_path: Path | None = None         # the plant's true state (sitl.truth), written on close
 
 
 class ServeError(RuntimeError):
@@ -63,6 +65,9 @@ class Server:
         self._viewer = None
         self._viewer_synced = 0.0
         self._stop = False
+        self.truth = TruthRecorder() if options.truth_log_path else None
+        if self.truth is not None:
+            self.vehicle.observers.append(self.truth.observe)
         self.links: list[UdpLink] = []
         try:
             self.tlog = TlogWriter(options.tlog_path) if options.tlog_path else None
@@ -197,5 +202,8 @@ class Server:
             link.close()
         if self.tlog is not None:
             self.tlog.close()
+        if self.truth is not None:
+            self.truth.save(self.options.truth_log_path)
+            self.truth = None
         if self._viewer is not None:
             self._viewer.close()

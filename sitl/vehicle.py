@@ -34,6 +34,7 @@ class Vehicle:
         self.fc = FlightController(airframe, self.plant, lockstep=lockstep)
         self.now_ms = 0
         self._faults = sorted(((round(f.at_s * 1000), f) for f in scenario.faults), key=lambda x: x[0])
+        self.observers: list[Callable[[int, Plant], None]] = []     # called at every simulated instant
 
     def start(self, send: Send) -> None:
         """The FC wakes up at t = 0 (failsafe HOLD until setpoints come) and sends its first frame."""
@@ -58,6 +59,8 @@ class Vehicle:
             self.fc.tick(self.now_ms)
         send(self.fc.take_outbox())
         send(self.fc.telemetry(self.now_ms, frame=frame))
+        for observe in self.observers:
+            observe(self.now_ms, self.plant)
 
     def handle(self, msgs: Iterable[mavlink.MAVLink_message], send: Send) -> None:
         for msg in msgs:

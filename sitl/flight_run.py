@@ -1,0 +1,167 @@
+"""One flight: the SITL and the companion as two processes talking MAVLink 2 over loopback UDP.
+
+`run_flight` writes into the flight's folder:
+- scenario.toml: the scenario file flown, byte for byte;
+- companion.toml: the companion's configuration for this flight (controller variant, link,
+  feed); the companion reads the scenario's [mission] from scenario.toml;
+- flight.tlog (every packet both ways), truth.npz (the plant's true state, sitl.truth),
+  feed.jsonl (the companion's Zenoh feed), sitl.log and companion.log (their stderr).
+
+Order: the feed recorder listens, the companion starts and builds its NMPC ("ready" in its
+log), then the SITL starts, flies the scenario's duration and exits; the companion is then
+stopped with SIGTERM. Each flight takes its own free loopback ports, so flights can run side
+by side. Anything that keeps the flight from starting raises FlightError with one line.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from companion.airframe import load_airframe
+from companion.scenario import Scenario
+from sitl.feed_recorder import FeedRecorder
+
+CONTROLLERS = ("nmpc", "fixed-posture")
+VEHICLE = "m4"
+COMPANION_READY = "ready:"
+COMPANION_START_TIMEOUT_S = 300.0     # a first start compiles the NMPC
+STOP_TIMEOUT_S = 10.0
+POLL_S = 0.2
+
+
+class FlightError(RuntimeError):
+    """The flight could not start or its processes failed (one line, for the user)."""
+
+
+@dataclass(frozen=True)
+class FlightOptions:
+    controller: str = "nmpc"              # "fixed-posture": the NMPC with every hip pinned at nominal
+    seed: int = 0                         # the SITL's sensor noise
+    realtime: bool = False
+    viewer: bool = False
+    port: int | None = None               # loopback UDP port of the companion's MAVLink link; None: a free one
+    record_feed: bool = True
+    rate_hz: float = 10.0                 # the companion's control rate
+
+
+class FlightFiles:
+    """Where a flight's files are, in its folder."""
+
+    def __init__(self, out_dir: Path):
+        self.out_dir = Path(out_dir)
+        self.scenario = self.out_dir / "scenario.toml"
+        self.companion_config = self.out_dir / "companion.toml"
+        self.tlog = self.out_dir / "flight.tlog"
+        self.truth = self.out_dir / "truth.npz"
+        self.feed = self.out_dir / "feed.jsonl"
+        self.sitl_log = self.out_dir / "sitl.log"
+        self.companion_log = self.out_dir / "companion.log"
+        self.metrics = self.out_dir / "metrics.json"
+
+
+def free_port(kind: int = socket.SOCK_DGRAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def check_port_free(port: int) -> None:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError as e:
+            raise FlightError(f"UDP port {port} on 127.0.0.1 is not free: {e.strerror}") from None
+
+
+def companion_config_text(options: FlightOptions, mavlink_port: int, feed_port: int | None) -> str:
+    lines = ["# The companion's configuration for this flight (written by m4-sitl fly).",
+             "[control]", f"rate_hz = {options.rate_hz:g}", "", "[link]",
+             f'fc_url = "udpin:127.0.0.1:{mavlink_port}"', ""]
+    if options.controller == "fixed-posture":
+        nominal_deg = math.degrees(load_airframe().nominal_hip_rad)
+        lines += ["[nmpc]", "# the fixed-posture variant: every hip pinned at the nominal angle",
+                  f"fixed_hip_deg = {nominal_deg:.12g}", ""]
+    if feed_port is not None:
+        lines += ["[feed]", f'vehicle = "{VEHICLE}"', 'mode = "peer"', f'connect = "tcp/127.0.0.1:{feed_port}"',
+                  "max_rate_hz = 0.0", ""]
+    return "\n".join(lines)
+
+
+def _last_line(path: Path) -> str:
+    lines = [ln for ln in path.read_text(errors="replace").splitlines() if ln.strip()] if path.exists() else []
+    return lines[-1] if lines else "(no output)"
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(STOP_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def run_flight(scenario: Scenario, scenario_text: str, out_dir: Path, options: FlightOptions = FlightOptions(),
+               progress: Callable[[float], None] | None = None) -> FlightFiles:
+    """Fly `scenario` (its file's text: `scenario_text`); `progress(t_s)` is called with the
+    newest simulated time the feed has shown, about every POLL_S wall seconds."""
+    if options.controller not in CONTROLLERS:
+        raise FlightError(f"unknown controller {options.controller!r}; choose from {', '.join(CONTROLLERS)}")
+    if options.port is not None:
+        check_port_free(options.port)
+    files = FlightFiles(Path(out_dir))
+    files.out_dir.mkdir(parents=True, exist_ok=True)
+    files.scenario.write_text(scenario_text)
+    port = options.port or free_port()
+    with contextlib.ExitStack() as stack:
+        recorder = None
+        feed_port = None
+        if options.record_feed:
+            feed_port = free_port(socket.SOCK_STREAM)
+            recorder = FeedRecorder(files.feed, f"tcp/127.0.0.1:{feed_port}", VEHICLE)
+            stack.callback(recorder.close)
+        files.companion_config.write_text(companion_config_text(options, port, feed_port))
+        companion = _start(stack, [sys.executable, "-m", "companion.cli", "run", "--config",
+                                   str(files.companion_config), "--mission", str(files.scenario)], files.companion_log)
+        _await_ready(companion, files.companion_log)
+        cmd = [sys.executable, "-m", "sitl.cli", "serve", "--scenario", str(files.scenario),
+               "--mavlink", f"udpout:127.0.0.1:{port}", "--duration", f"{scenario.duration_s:g}",
+               "--tlog", str(files.tlog), "--truth-log", str(files.truth), "--seed", str(options.seed)]
+        cmd += ["--realtime"] * options.realtime + ["--viewer"] * options.viewer
+        sitl = _start(stack, cmd, files.sitl_log)
+        while sitl.poll() is None:
+            time.sleep(POLL_S)
+            if progress is not None and recorder is not None and recorder.latest_t_s is not None:
+                progress(recorder.latest_t_s)
+        if sitl.returncode != 0:
+            raise FlightError(f"the SITL stopped with exit code {sitl.returncode}: {_last_line(files.sitl_log)}")
+        if companion.poll() is not None:
+            raise FlightError(f"the companion stopped during the flight: {_last_line(files.companion_log)}")
+    return files
+
+
+def _start(stack: contextlib.ExitStack, cmd: list[str], log_path: Path) -> subprocess.Popen:
+    log = stack.enter_context(log_path.open("w"))
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=log, stdin=subprocess.DEVNULL)
+    stack.callback(_stop, proc)
+    return proc
+
+
+def _await_ready(proc: subprocess.Popen, log_path: Path) -> None:
+    deadline = time.monotonic() + COMPANION_START_TIMEOUT_S
+    while COMPANION_READY not in log_path.read_text(errors="replace"):
+        if proc.poll() is not None:
+            raise FlightError(f"the companion did not start: {_last_line(log_path)}")
+        if time.monotonic() > deadline:
+            raise FlightError(f"the companion was not ready within {COMPANION_START_TIMEOUT_S:g} s")
+        time.sleep(0.05)

@@ -1,0 +1,215 @@
+"""The metrics of one flight (metrics.json), from its records: pure functions of arrays.
+
+Definitions (times in the scenario's clock, positions of the centre of mass, NED):
+- airborne window: from t = 0 to the first ground contact after the landing started (the
+  touchdown), or to the end of the record when there is none.
+- crashed: a ground contact before the landing started (any contact when the mission has
+  no landing), or the robot upside down (tilt > 90 deg) while airborne.
+- reference: the companion's mission reference (companion.core.reference) rebuilt offline
+  from the true start position, with the hold placed where the companion confirmed the
+  first fault (when the mission holds on a fault).
+- altitude_loss_m: largest drop of the centre of mass below the reference's altitude over
+  the airborne window after the first fault (the whole window when nothing fails).
+- max_tilt_deg_after_fault: largest angle between body z and the vertical over the same span.
+- tilt_recovered_s: time after the first fault from which the tilt stays within
+  TILT_RECOVERED_DEG to the end of the airborne window (None: it never does).
+- yaw_rate_final_rad_s: mean body yaw rate over the last YAW_FINAL_WINDOW_S before the
+  landing starts (or the end of the airborne window); time_to_yaw_saturation_s: from the
+  first fault until |yaw rate| first reaches YAW_SATURATION_FRACTION of its final value
+  (None when the final rate is below YAW_SPIN_MIN_RAD_S: the robot does not spin).
+- faults[i].detected_at_s: the first instant in [at_s, next fault's at_s) at which the
+  companion's fault status is confirmed with a thrust bound on the named rotor that reflects
+  this loss ((1 - loss) x hover thrust + DETECTION_MARGIN x hover thrust at most).
+- realtime_factor: simulated seconds per wall second of the plant process, from its first
+  answered control instant to the end.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from companion.airframe import Airframe
+from companion.core.reference import MissionReference
+from companion.scenario import Scenario
+from sitl.records import FaultStatusLog, NmpcLog
+from sitl.truth import Truth
+
+CONFIRMED = 2
+TILT_RECOVERED_DEG = 10.0
+TILT_UPSIDE_DOWN_DEG = 90.0
+YAW_FINAL_WINDOW_S = 1.0
+YAW_SATURATION_FRACTION = 0.9
+YAW_SPIN_MIN_RAD_S = 1.0
+DETECTION_MARGIN = 0.25
+COMPLETE_TOLERANCE_S = 0.05
+AT_REST_SPEED_M_S = 0.2
+# Survival: what every built-in scenario must achieve.
+ALTITUDE_LOSS_MAX_M = 0.5
+TOUCHDOWN_SPEED_MAX_M_S = 1.0
+
+
+def tilt_deg(euler_rad: np.ndarray) -> np.ndarray:
+    """Angle between body z and the vertical for ZYX Euler angles (n, 3)."""
+    e = np.asarray(euler_rad, dtype=float).reshape(-1, 3)
+    return np.degrees(np.arccos(np.clip(np.cos(e[:, 0]) * np.cos(e[:, 1]), -1.0, 1.0)))
+
+
+def touchdown_index(time_s: np.ndarray, on_ground: np.ndarray, land_s: float | None) -> int | None:
+    """First contact at or after the start of the landing (None: no landing or no contact)."""
+    if land_s is None:
+        return None
+    hits = np.flatnonzero(on_ground & (time_s >= land_s))
+    return int(hits[0]) if hits.size else None
+
+
+def crashed(time_s: np.ndarray, on_ground: np.ndarray, tilt: np.ndarray, land_s: float | None,
+            airborne_end: int) -> bool:
+    early = on_ground if land_s is None else on_ground & (time_s < land_s)
+    return bool(np.any(early) or np.any(tilt[:airborne_end + 1] > TILT_UPSIDE_DOWN_DEG))
+
+
+def touchdown_speed_m_s(vel_ned_m_s: np.ndarray, touchdown: int | None) -> float | None:
+    """Downward speed at the last sample before the first contact of the landing."""
+    if touchdown is None:
+        return None
+    return float(vel_ned_m_s[max(touchdown - 1, 0), 2])
+
+
+def reference_positions(scenario: Scenario, af: Airframe, time_s: np.ndarray, com_ned_m: np.ndarray,
+                        hold_detected_s: float | None) -> np.ndarray:
+    """(n, 3) the mission reference at each sample."""
+    ref = MissionReference(scenario.mission, com_ned_m[0], af, t0_s=float(time_s[0]))
+    if hold_detected_s is not None:
+        k = int(np.searchsorted(time_s, hold_detected_s))
+        ref.fault_detected(hold_detected_s, com_ned_m[min(k, len(time_s) - 1)])
+    return np.array([ref.state(t)[0] for t in time_s])
+
+
+def altitude_loss_m(time_s: np.ndarray, com_z_ned_m: np.ndarray, ref_z_ned_m: np.ndarray, from_s: float,
+                    airborne_end: int) -> float:
+    span = slice(int(np.searchsorted(time_s, from_s)), airborne_end + 1)
+    drop = com_z_ned_m[span] - ref_z_ned_m[span]            # NED: positive is below the reference
+    return float(max(np.max(drop, initial=0.0), 0.0))
+
+
+def tilt_recovered_s(time_s: np.ndarray, tilt: np.ndarray, from_s: float, airborne_end: int) -> float | None:
+    span = np.arange(int(np.searchsorted(time_s, from_s)), airborne_end + 1)
+    if span.size == 0 or tilt[span[-1]] > TILT_RECOVERED_DEG:
+        return None
+    above = span[tilt[span] > TILT_RECOVERED_DEG]
+    return 0.0 if above.size == 0 else float(time_s[above[-1] + 1] - from_s)
+
+
+def yaw_rate_final(time_s: np.ndarray, yaw_rate: np.ndarray, until_s: float) -> float:
+    keep = (time_s <= until_s) & (time_s > until_s - YAW_FINAL_WINDOW_S)
+    return float(np.mean(yaw_rate[keep])) if np.any(keep) else 0.0
+
+
+def time_to_yaw_saturation(time_s: np.ndarray, yaw_rate: np.ndarray, from_s: float, final: float) -> float | None:
+    if abs(final) < YAW_SPIN_MIN_RAD_S:
+        return None
+    hits = np.flatnonzero((time_s >= from_s) & (np.abs(yaw_rate) >= YAW_SATURATION_FRACTION * abs(final)))
+    return float(time_s[hits[0]] - from_s) if hits.size else None
+
+
+def detections(scenario: Scenario, status: FaultStatusLog, hover_thrust_n: float) -> list[dict]:
+    out = []
+    ends = [f.at_s for f in scenario.faults[1:]] + [math.inf]
+    for fault, end_s in zip(scenario.faults, ends):
+        detected_at, detected_rotor = None, None
+        bound_n = (1.0 - fault.loss + DETECTION_MARGIN) * hover_thrust_n
+        for k in np.flatnonzero((status.state == CONFIRMED) & (status.time_s >= fault.at_s) & (status.time_s < end_s)):
+            rotor = int(status.rotor[k])
+            if 1 <= rotor <= status.thrust_max_estimate_n.shape[1] and status.thrust_max_estimate_n[k, rotor - 1] <= bound_n:
+                detected_at, detected_rotor = float(status.time_s[k]), rotor
+                break
+        out.append({"at_s": fault.at_s, "rotor": fault.rotor, "loss": fault.loss,
+                    "detected_at_s": detected_at, "detected_rotor": detected_rotor})
+    return out
+
+
+def first_confirmation_s(status: FaultStatusLog) -> float | None:
+    hits = np.flatnonzero(status.state == CONFIRMED)
+    return float(status.time_s[hits[0]]) if hits.size else None
+
+
+def nmpc_summary(nmpc: NmpcLog) -> dict:
+    n = len(nmpc.time_s)
+    if n == 0:
+        return {"rate_hz": None, "solve_ms_median": None, "solve_ms_p99": None, "solve_failures": None}
+    span = nmpc.time_s[-1] - nmpc.time_s[0]
+    return {"rate_hz": (n - 1) / span if span > 0 else None,
+            "solve_ms_median": float(np.median(nmpc.solve_ms)),
+            "solve_ms_p99": float(np.percentile(nmpc.solve_ms, 99)),
+            "solve_failures": int(np.count_nonzero(~nmpc.ok))}
+
+
+def realtime_factor(time_s: np.ndarray, wall_s: np.ndarray) -> float | None:
+    if len(time_s) < 3 or wall_s[-1] <= wall_s[1]:
+        return None
+    return float((time_s[-1] - time_s[1]) / (wall_s[-1] - wall_s[1]))
+
+
+def _rounded(value):
+    if isinstance(value, float):
+        return round(value, 4)
+    if isinstance(value, dict):
+        return {k: _rounded(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_rounded(v) for v in value]
+    return value
+
+
+def flight_metrics(scenario: Scenario, controller: str, af: Airframe, truth: Truth, status: FaultStatusLog,
+                   nmpc: NmpcLog) -> dict:
+    """Every key of metrics.json (interfaces.md) and the survival checks."""
+    t, com = truth.time_s, truth.com_ned_m
+    tilt = tilt_deg(truth.euler_rad)
+    land_s = scenario.mission.land.at_s if scenario.mission.land is not None else None
+    touchdown = touchdown_index(t, truth.on_ground, land_s)
+    end = touchdown if touchdown is not None else len(t) - 1
+    fault_s = scenario.faults[0].at_s if scenario.faults else float(t[0])
+    hold_s = first_confirmation_s(status) if scenario.faults else None
+    ref = reference_positions(scenario, af, t, com, hold_s)
+    yaw_until = min(land_s, float(t[end])) if land_s is not None else float(t[end])
+    yaw_final = yaw_rate_final(t, truth.rates_frd_rad_s[:, 2], yaw_until)
+    after = slice(int(np.searchsorted(t, fault_s)), end + 1)
+    airborne = slice(0, end + 1)
+    at_rest = bool(truth.on_ground[-1] and np.linalg.norm(truth.vel_ned_m_s[-1]) < AT_REST_SPEED_M_S)
+    m = {
+        "scenario": scenario.name,
+        "controller": controller,
+        "completed": bool(t[-1] >= scenario.duration_s - COMPLETE_TOLERANCE_S),
+        "crashed": crashed(t, truth.on_ground, tilt, land_s, end),
+        "duration_s": float(t[-1]),
+        "faults": detections(scenario, status, af.hover_thrust_per_rotor_n),
+        "altitude_loss_m": altitude_loss_m(t, com[:, 2], ref[:, 2], fault_s, end),
+        "max_tilt_deg_after_fault": float(np.max(tilt[after])),
+        "tilt_recovered_s": tilt_recovered_s(t, tilt, fault_s, end),
+        "position_rmse_m": float(np.sqrt(np.mean(np.sum((com[airborne] - ref[airborne]) ** 2, axis=1)))),
+        "yaw_rate_final_rad_s": yaw_final,
+        "time_to_yaw_saturation_s": time_to_yaw_saturation(t, truth.rates_frd_rad_s[:, 2], fault_s, yaw_final),
+        "max_thrust_n": float(np.max(truth.thrust_n[after])),
+        "landed": touchdown is not None and at_rest,
+        "touchdown_speed_m_s": touchdown_speed_m_s(truth.vel_ned_m_s, touchdown),
+        "nmpc": nmpc_summary(nmpc),
+        "realtime_factor": realtime_factor(t, truth.wall_s),
+    }
+    m["checks"] = survival_checks(m, land_s is not None)
+    m["survived"] = all(m["checks"].values())
+    return _rounded(m)
+
+
+def survival_checks(m: dict, lands: bool) -> dict[str, bool]:
+    checks = {
+        "completed": m["completed"],
+        "no_ground_contact_before_landing": not m["crashed"],
+        "altitude_loss_within_0.5_m": m["altitude_loss_m"] <= ALTITUDE_LOSS_MAX_M,
+        "tilt_back_within_10_deg": m["tilt_recovered_s"] is not None,
+    }
+    if lands:
+        checks["soft_landing"] = bool(m["landed"] and m["touchdown_speed_m_s"] is not None
+                                      and m["touchdown_speed_m_s"] <= TOUCHDOWN_SPEED_MAX_M_S)
+    return checks

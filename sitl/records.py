@@ -1,0 +1,126 @@
+"""What a flight leaves behind, read back into arrays: the tlog, the feed and the truth.
+
+- `read_tlog`: the companion's M4_FAULT_STATUS and M4_SETPOINT messages and every STATUSTEXT
+  (both directions are in the tlog; the flight controller's own streams are not needed here,
+  the truth log has the real state).
+- `read_feed`: the companion's Zenoh feed as recorded by `sitl.feed_recorder` (one JSON object
+  a line: {"key": ..., "payload": {...}}); the NMPC diagnostics as arrays.
+- `load_truth` (sitl.truth): the plant's true state.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from companion.airframe import ROTOR_COUNT
+from companion.mavlink import COMPANION_COMPONENT_ID, mavutil
+
+
+@dataclass(frozen=True)
+class FaultStatusLog:
+    """The companion's M4_FAULT_STATUS messages, in order."""
+
+    time_s: np.ndarray                 # (n,) the telemetry instant each answers
+    rotor: np.ndarray                  # (n,) 0 none, 1..4
+    state: np.ndarray                  # (n,) 0 healthy, 1 suspect, 2 confirmed
+    thrust_max_estimate_n: np.ndarray  # (n, 4)
+    detected_s: np.ndarray             # (n,) detected_time_boot_ms in seconds (NaN while healthy)
+
+    @classmethod
+    def empty(cls) -> FaultStatusLog:
+        return cls(np.zeros(0), np.zeros(0, int), np.zeros(0, int), np.zeros((0, ROTOR_COUNT)), np.zeros(0))
+
+
+@dataclass(frozen=True)
+class SetpointLog:
+    time_s: np.ndarray                 # (n,)
+    thrust_n: np.ndarray               # (n, 4)
+    hip_angle_rad: np.ndarray          # (n, 4)
+    thrust_cut: np.ndarray             # (n,) bool
+
+
+@dataclass(frozen=True)
+class TlogRecord:
+    faults: FaultStatusLog
+    setpoints: SetpointLog
+    statustexts: list[tuple[int, int, str]]    # (source component, severity, text)
+
+
+@dataclass(frozen=True)
+class NmpcLog:
+    time_s: np.ndarray                 # (n,) telemetry instant of each solve
+    solve_ms: np.ndarray               # (n,)
+    ok: np.ndarray                     # (n,) bool
+
+    @classmethod
+    def empty(cls) -> NmpcLog:
+        return cls(np.zeros(0), np.zeros(0), np.zeros(0, bool))
+
+
+def read_tlog(path: str | Path) -> TlogRecord:
+    log = mavutil.mavlink_connection(str(path))
+    faults, setpoints, texts = [], [], []
+    try:
+        while (msg := log.recv_match(type=["M4_FAULT_STATUS", "M4_SETPOINT", "STATUSTEXT"], blocking=False)):
+            kind = msg.get_type()
+            if kind == "STATUSTEXT":
+                texts.append((msg.get_srcComponent(), msg.severity, msg.text))
+            elif msg.get_srcComponent() != COMPANION_COMPONENT_ID:
+                continue
+            elif kind == "M4_FAULT_STATUS":
+                faults.append(msg)
+            else:
+                setpoints.append(msg)
+    finally:
+        log.close()
+    return TlogRecord(_fault_log(faults), _setpoint_log(setpoints), texts)
+
+
+def _fault_log(msgs) -> FaultStatusLog:
+    if not msgs:
+        return FaultStatusLog.empty()
+    return FaultStatusLog(
+        time_s=np.array([m.time_boot_ms for m in msgs]) / 1000.0,
+        rotor=np.array([m.rotor for m in msgs]),
+        state=np.array([m.state for m in msgs]),
+        thrust_max_estimate_n=np.array([m.thrust_max_estimate_n for m in msgs], dtype=float),
+        detected_s=np.array([m.detected_time_boot_ms / 1000.0 if m.state else np.nan for m in msgs]),
+    )
+
+
+def _setpoint_log(msgs) -> SetpointLog:
+    return SetpointLog(
+        time_s=np.array([m.time_boot_ms for m in msgs], dtype=float) / 1000.0,
+        thrust_n=np.array([m.thrust_n for m in msgs], dtype=float).reshape(-1, ROTOR_COUNT),
+        hip_angle_rad=np.array([m.hip_angle_rad for m in msgs], dtype=float).reshape(-1, ROTOR_COUNT),
+        thrust_cut=np.array([bool(m.flags & 1) for m in msgs], dtype=bool),
+    )
+
+
+def read_feed(path: str | Path) -> dict[str, list[dict]]:
+    """The recorded feed's payloads by topic (the last chunk of the key), in arrival order.
+    A missing file is an empty feed; a line cut short (the recorder stopped mid-write) is skipped."""
+    topics: dict[str, list[dict]] = {}
+    path = Path(path)
+    if not path.exists():
+        return topics
+    for line in path.read_text().splitlines():
+        try:
+            entry = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        topics.setdefault(entry["key"].rsplit("/", 1)[-1], []).append(entry["payload"])
+    return topics
+
+
+def nmpc_log(feed: dict[str, list[dict]]) -> NmpcLog:
+    rows = [p for p in feed.get("nmpc", []) if p.get("t_s") is not None and p.get("solve_ms") is not None]
+    if not rows:
+        return NmpcLog.empty()
+    return NmpcLog(time_s=np.array([p["t_s"] for p in rows], dtype=float),
+                   solve_ms=np.array([p["solve_ms"] for p in rows], dtype=float),
+                   ok=np.array([bool(p["ok"]) for p in rows], dtype=bool))

@@ -1,0 +1,67 @@
+"""The plant's true state sampled on the simulated clock, saved as .npz for the flight metrics.
+
+`m4-sitl serve --truth-log PATH` attaches a TruthRecorder to the vehicle: it samples the
+plant every `period_ms` of simulated time (and at t = 0) with the wall clock beside it, and
+writes the arrays on close. `load_truth` reads them back as a Truth of numpy arrays; every
+array's first axis is the sample.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+import numpy as np
+
+from sitl.plant import Plant
+
+DEFAULT_PERIOD_MS = 10
+
+
+@dataclass(frozen=True)
+class Truth:
+    time_s: np.ndarray             # (n,) simulated
+    wall_s: np.ndarray             # (n,) monotonic wall clock of the SITL process
+    pos_ned_m: np.ndarray          # (n, 3) hull centre
+    com_ned_m: np.ndarray          # (n, 3) centre of mass of the whole robot
+    vel_ned_m_s: np.ndarray        # (n, 3) hull centre
+    euler_rad: np.ndarray          # (n, 3) roll, pitch, yaw (ZYX)
+    rates_frd_rad_s: np.ndarray    # (n, 3)
+    hip_rad: np.ndarray            # (n, 4)
+    thrust_cmd_n: np.ndarray       # (n, 4)
+    thrust_n: np.ndarray           # (n, 4) delivered
+    thrust_limit_n: np.ndarray     # (n, 4)
+    on_ground: np.ndarray          # (n,) bool: any contact with the floor
+
+
+class TruthRecorder:
+    def __init__(self, period_ms: int = DEFAULT_PERIOD_MS):
+        self.period_ms = period_ms
+        self._next_ms = 0
+        self._rows: dict[str, list] = {f.name: [] for f in fields(Truth)}
+
+    def observe(self, now_ms: int, plant: Plant) -> None:
+        """Called at every simulated instant; samples when the next grid point is reached."""
+        if now_ms < self._next_ms:
+            return
+        self._next_ms = (now_ms // self.period_ms + 1) * self.period_ms
+        s = plant.state()
+        rows = self._rows
+        rows["time_s"].append(now_ms / 1000.0)
+        rows["wall_s"].append(time.monotonic())
+        for name in ("pos_ned_m", "com_ned_m", "vel_ned_m_s", "euler_rad", "rates_frd_rad_s", "hip_rad",
+                     "thrust_cmd_n", "thrust_n", "thrust_limit_n", "on_ground"):
+            rows[name].append(getattr(s, name))
+
+    def truth(self) -> Truth:
+        return Truth(**{name: np.array(values) for name, values in self._rows.items()})
+
+    def save(self, path: str | Path) -> None:
+        t = self.truth()
+        np.savez_compressed(Path(path), **{f.name: getattr(t, f.name) for f in fields(Truth)})
+
+
+def load_truth(path: str | Path) -> Truth:
+    with np.load(Path(path)) as data:
+        return Truth(**{f.name: data[f.name] for f in fields(Truth)})
