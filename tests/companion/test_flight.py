@@ -1,0 +1,98 @@
+"""End to end: `m4-sitl serve` (a subprocess, lockstep, hover-rotor-loss) and the companion app
+(in this process) over MAVLink 2 on 127.0.0.1. Rotor 4 stops at t = 1 s; the companion must
+detect it, say so with STATUSTEXT CRITICAL "thrust loss rotor 4" and keep the robot in the
+air. The figures are taken from the tlog the SITL writes (both directions); `pytest -s`
+prints them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+import subprocess
+import sys
+import threading
+
+import numpy as np
+import pytest
+
+from companion.airframe import load_airframe
+from companion.app import close_app, open_app
+from companion.config import parse_config
+from companion.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, mavlink, mavutil
+from sitl import scenarios
+
+pytestmark = pytest.mark.flight
+
+SCENARIO = "hover-rotor-loss"
+SECONDS = 4.0
+RATE_HZ = 50.0
+
+
+def _fly(tmp_path):
+    config = parse_config({"control": {"rate_hz": RATE_HZ}, "link": {"fc_url": "udpin:127.0.0.1:0"}}, "test")
+    config = dataclasses.replace(config, mission=scenarios.resolve(SCENARIO).mission)
+    app = open_app(config)
+    thread = threading.Thread(target=app.run, daemon=True)
+    thread.start()
+    tlog = tmp_path / "flight.tlog"
+    cmd = [sys.executable, "-m", "sitl.cli", "serve", "--scenario", SCENARIO, "--duration", str(SECONDS),
+           "--mavlink", f"udpout:127.0.0.1:{app.fc.link.local_port}", "--tlog", str(tlog)]
+    try:
+        done = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    finally:
+        app.stop()
+        thread.join(5.0)
+        close_app(app)
+    assert done.returncode == 0, done.stderr
+    return app, tlog, done.stderr
+
+
+def _messages(tlog):
+    conn = mavutil.mavlink_connection(str(tlog), dialect="m4")
+    out = []
+    while (msg := conn.recv_match()) is not None:
+        out.append(msg)
+    return out
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory):
+    return _fly(tmp_path_factory.mktemp("flight"))
+
+
+def test_rotor_loss_in_hover_is_announced_and_the_robot_stays_in_the_air(flight):
+    app, tlog, sitl_log = flight
+    msgs = _messages(tlog)
+    fc = [m for m in msgs if m.get_srcComponent() == FC_COMPONENT_ID]
+    ours = [m for m in msgs if m.get_srcComponent() == COMPANION_COMPONENT_ID]
+    fault_ms = 1000
+
+    alt = {m.time_boot_ms: -m.z for m in fc if m.get_type() == "LOCAL_POSITION_NED"}
+    tilt = {m.time_boot_ms: math.degrees(max(abs(m.roll), abs(m.pitch))) for m in fc if m.get_type() == "ATTITUDE"}
+    loss_m = alt[0] - min(a for t, a in alt.items() if t >= fault_ms)
+    max_tilt = max(a for t, a in tilt.items() if t >= fault_ms)
+    end_ms = max(alt)
+
+    critical = [m for m in ours if m.get_type() == "STATUSTEXT" and m.severity <= mavlink.MAV_SEVERITY_CRITICAL]
+    status = [m for m in ours if m.get_type() == "M4_FAULT_STATUS" and m.state == mavlink.M4_FAULT_STATE_CONFIRMED]
+    setpoints = [m for m in ours if m.get_type() == "M4_SETPOINT"]
+    speed = re.search(r"\(([\d.]+)x\)", sitl_log)
+    detected_ms = status[0].detected_time_boot_ms if status else None
+    print(f"\n{SCENARIO} at {RATE_HZ:g} Hz: altitude loss {loss_m:.2f} m, max tilt after the fault {max_tilt:.1f} deg, "
+          f"detected after {None if detected_ms is None else detected_ms - fault_ms} ms, altitude at "
+          f"{end_ms / 1000:g} s {alt[end_ms]:.2f} m, {len(setpoints)} setpoints, slowest solve "
+          f"{app.counters.solve_ms_max:.1f} ms, lockstep {speed.group(1) if speed else '?'} simulated s per wall s")
+
+    assert [m.text for m in critical] == ["thrust loss rotor 4"]
+    assert status and {m.rotor for m in status} == {4}
+    assert fault_ms < detected_ms <= fault_ms + 300
+    assert status[-1].thrust_max_estimate_n[3] < 0.1 * load_airframe().hover_thrust_per_rotor_n
+    assert len(setpoints) >= SECONDS * RATE_HZ
+    values = np.array([[*m.thrust_n, *m.hip_angle_rad, *m.hip_rate_rad_s] for m in setpoints])
+    assert np.all(np.isfinite(values))
+    assert loss_m < 0.6                    # from 2 m: it never comes near the ground
+    assert max_tilt < 60.0
+    assert abs(alt[end_ms] - 2.0) < 0.2    # back at its altitude
+    assert app.counters.link_losses <= 1   # the one at the end, when the SITL stops
