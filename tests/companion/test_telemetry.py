@@ -1,0 +1,163 @@
+"""The telemetry assembler: ordering per stream, NaN, reboots, and the centre of mass in the ROM state."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from companion.airframe import load_airframe
+from companion.core import rom
+from companion.mavlink import mavlink
+from companion.telemetry import (ATTITUDE, LOCAL_POSITION, THRUSTER_STATUS, TelemetryAssembler,
+                                 com_offset_rate_frd_m_s, euler_from_quat_wxyz, rom_state)
+
+AF = load_airframe()
+NAN4 = [math.nan] * 4
+
+
+def attitude(t_ms, roll=0.0, pitch=0.0, yaw=0.0, rates=(0.0, 0.0, 0.0)):
+    return mavlink.MAVLink_attitude_message(t_ms, roll, pitch, yaw, *rates)
+
+
+def position(t_ms, ned=(0.0, 0.0, -2.0), vel=(0.0, 0.0, 0.0)):
+    return mavlink.MAVLink_local_position_ned_message(t_ms, *ned, *vel)
+
+
+def joints(t_ms, hip=None, rate=(0.0,) * 4):
+    return mavlink.MAVLink_m4_joint_state_message(t_ms, list(hip or [AF.nominal_hip_rad] * 4), list(rate))
+
+
+def thrusters(t_ms, delivered=NAN4):
+    hover = [AF.hover_thrust_per_rotor_n] * 4
+    return mavlink.MAVLink_m4_thruster_status_message(t_ms, hover, list(delivered), NAN4)
+
+
+def frame(t_ms, **kw):
+    return [attitude(t_ms), position(t_ms, **kw), joints(t_ms), thrusters(t_ms)]
+
+
+def feed(asm, msgs, now_s=0.0):
+    return [asm.add(m, now_s) for m in msgs]
+
+
+def test_no_snapshot_until_attitude_position_joints_and_thrusters_have_come():
+    asm = TelemetryAssembler()
+    feed(asm, frame(0)[:3])
+    assert asm.snapshot() is None
+    feed(asm, [thrusters(0)])
+    assert asm.snapshot() is not None
+
+
+def test_duplicates_and_older_stamps_are_dropped_and_counted():
+    asm = TelemetryAssembler()
+    feed(asm, frame(100, ned=(1.0, 2.0, -3.0)))
+    accepted = feed(asm, [position(100, ned=(9.0, 9.0, -9.0)), position(60, ned=(8.0, 8.0, -8.0))], now_s=0.01)
+    assert accepted == [False, False]
+    assert asm.counters.stale == 2
+    assert np.allclose(asm.snapshot().pos_ned_m, [1.0, 2.0, -3.0])
+
+
+def test_each_stream_keeps_its_own_newest_sample_out_of_order_arrivals_included():
+    asm = TelemetryAssembler()
+    feed(asm, frame(100))
+    feed(asm, [attitude(140, roll=0.1), attitude(120, roll=0.2), position(120, ned=(1.0, 0.0, -2.0))])
+    snap = asm.snapshot()
+    assert snap.euler_rad[0] == pytest.approx(0.1)
+    assert snap.times_ms[ATTITUDE] == 140 and snap.times_ms[LOCAL_POSITION] == 120
+    assert snap.time_ms == 140
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_non_finite_fields_are_rejected_and_counted(bad):
+    asm = TelemetryAssembler()
+    feed(asm, frame(0))
+    assert not asm.add(position(20, ned=(bad, 0.0, -2.0)), 0.0)
+    assert not asm.add(attitude(20, pitch=bad), 0.0)
+    assert not asm.add(joints(20, rate=(0.0, bad, 0.0, 0.0)), 0.0)
+    assert asm.counters.nonfinite == 3
+    assert np.all(np.isfinite(rom_state(asm.snapshot(), AF)))
+
+
+def test_a_quaternion_that_is_not_a_unit_one_is_rejected():
+    asm = TelemetryAssembler()
+    bad = mavlink.MAVLink_attitude_quaternion_message(0, 2.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, [0.0] * 4)
+    assert not asm.add(bad, 0.0)
+    assert asm.counters.nonfinite == 1
+
+
+def test_thruster_nan_means_unknown_and_is_kept():
+    asm = TelemetryAssembler()
+    feed(asm, frame(0))
+    assert np.all(np.isnan(asm.snapshot().thrust_n))
+
+
+def test_time_going_backwards_without_a_silence_is_dropped():
+    asm = TelemetryAssembler(reboot_gap_s=0.3)
+    feed(asm, frame(5000), now_s=10.0)
+    assert feed(asm, frame(20), now_s=10.1) == [False] * 4
+    assert asm.counters.reboots == 0 and asm.snapshot().time_ms == 5000
+
+
+def test_a_reboot_after_a_silence_starts_every_stream_over():
+    asm = TelemetryAssembler(reboot_gap_s=0.3)
+    feed(asm, frame(5000), now_s=10.0)
+    assert asm.add(attitude(20), 11.0)
+    assert asm.counters.reboots == 1
+    assert asm.snapshot() is None               # the old boot's position, joints and thrusters are gone
+    feed(asm, frame(40)[1:], now_s=11.02)
+    assert asm.snapshot().time_ms == 40
+
+
+def test_quaternion_gives_the_same_euler_angles_as_the_rotation():
+    euler = np.array([0.3, -0.4, 2.5])
+    rot = rom.rotation_ned_from_frd(euler)
+    w = math.sqrt(1.0 + np.trace(rot)) / 2.0
+    q = [w, (rot[2, 1] - rot[1, 2]) / (4 * w), (rot[0, 2] - rot[2, 0]) / (4 * w), (rot[1, 0] - rot[0, 1]) / (4 * w)]
+    assert np.allclose(euler_from_quat_wxyz(q), euler)
+
+
+def test_attitude_from_the_quaternion_when_attitude_is_missing():
+    asm = TelemetryAssembler()
+    half = math.radians(30.0) / 2
+    q = mavlink.MAVLink_attitude_quaternion_message(0, math.cos(half), math.sin(half), 0.0, 0.0, 0.1, 0.0, 0.0,
+                                                    [0.0] * 4)
+    feed(asm, [q, *frame(0)[1:]])
+    assert np.allclose(asm.snapshot().euler_rad, [math.radians(30.0), 0.0, 0.0])
+
+
+def test_rom_position_is_the_centre_of_mass_rotated_into_ned():
+    hip = np.radians([80.0, 10.0, 60.0, 30.0])
+    euler = np.array([0.2, -0.1, 1.0])
+    asm = TelemetryAssembler()
+    feed(asm, [attitude(0, *euler), position(0, ned=(1.0, 2.0, -3.0)), joints(0, hip=list(hip)), thrusters(0)])
+    x = rom_state(asm.snapshot(), AF)
+    r_ned = rom.rotation_ned_from_frd(euler) @ AF.com_offset_frd_m(hip)
+    assert np.linalg.norm(r_ned) > 0.005                       # the offset is not negligible here
+    assert np.allclose(x[rom.P], np.array([1.0, 2.0, -3.0]) + r_ned)
+    assert np.allclose(x[rom.HIP], hip) and np.allclose(x[rom.EULER], euler)
+
+
+def test_rom_velocity_adds_omega_cross_r_and_the_legs_motion():
+    hip = np.radians([80.0, 10.0, 60.0, 30.0])
+    rates = np.array([0.0, 0.0, 5.0])
+    hip_rate = np.array([1.0, -2.0, 0.5, 0.0])
+    asm = TelemetryAssembler()
+    feed(asm, [attitude(0, rates=tuple(rates)), position(0), joints(0, hip=list(hip), rate=tuple(hip_rate)),
+               thrusters(0)])
+    x = rom_state(asm.snapshot(), AF)
+    r = AF.com_offset_frd_m(hip)
+    dt = 1e-6
+    r_dot = (AF.com_offset_frd_m(hip + hip_rate * dt) - AF.com_offset_frd_m(hip - hip_rate * dt)) / (2 * dt)
+    assert np.allclose(com_offset_rate_frd_m_s(AF, hip, hip_rate), r_dot, atol=1e-8)
+    assert np.allclose(x[rom.V], np.cross(rates, r) + r_dot)
+
+
+def test_ages_follow_the_companion_clock_per_stream():
+    asm = TelemetryAssembler()
+    asm.add(attitude(0), 1.0)
+    asm.add(thrusters(0), 1.2)
+    assert asm.age_s(ATTITUDE, 1.5) == pytest.approx(0.5)
+    assert asm.age_s(THRUSTER_STATUS, 1.5) == pytest.approx(0.3)
+    assert asm.age_s(LOCAL_POSITION, 1.5) is None
