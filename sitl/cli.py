@@ -3,6 +3,8 @@
     m4-sitl serve [--scenario SCENARIO] [--mavlink URL]... [--realtime] [--viewer] [--tlog PATH] [--truth-log PATH]
                   [--signing-key FILE] [--seed N] [--duration S] [--lockstep-timeout S]
     m4-sitl list
+    m4-sitl fly SCENARIO [--out DIR] [--controller nmpc|fixed-posture] [--seed N] [--port N] [--rate-hz HZ]
+                [--realtime] [--viewer]
 
 A subcommand is one `_add_<name>(subparsers)` function that sets `func`, registered in
 `SUBCOMMANDS`. Bad input (unknown scenario, malformed file, bad URL, port in use) prints one
@@ -108,7 +110,37 @@ def _list(args) -> int:
     return 0
 
 
-SUBCOMMANDS = [_add_serve, _add_list]
+def _add_fly(sub) -> None:
+    from sitl.flight_run import CONTROLLERS
+
+    p = sub.add_parser("fly", help="fly a scenario: the plant and the companion over loopback MAVLink; metrics, figures")
+    p.add_argument("scenario", metavar="SCENARIO", help="built-in name (m4-sitl list) or scenario file")
+    p.add_argument("--out", type=Path, metavar="DIR", help="output folder (default runs/<scenario>-<timestamp>)")
+    p.add_argument("--controller", choices=CONTROLLERS, default="nmpc", help="nmpc (default) or fixed-posture")
+    p.add_argument("--seed", type=_seed, default=0, help="sensor noise seed (default 0)")
+    p.add_argument("--port", type=int, metavar="N", help="loopback UDP port of the MAVLink link (default: a free one)")
+    p.add_argument("--rate-hz", type=_positive, default=50.0, metavar="HZ", help="the companion's control rate (default 50)")
+    p.add_argument("--realtime", action="store_true", help="pace by the wall clock (default: lockstep)")
+    p.add_argument("--viewer", action="store_true", help="show MuJoCo's passive viewer")
+    p.set_defaults(func=_fly)
+
+
+def _fly(args) -> int:
+    from sitl.fly import default_out_dir, fly, summary_line
+    from sitl.flight_run import FlightError, FlightOptions
+
+    options = FlightOptions(controller=args.controller, seed=args.seed, realtime=args.realtime, viewer=args.viewer,
+                            port=args.port, rate_hz=args.rate_hz)
+    out = args.out or default_out_dir(scenarios.resolve(args.scenario).name)
+    try:
+        metrics = fly(args.scenario, out, options)
+    except FlightError as e:
+        raise BadInput(str(e)) from None
+    print(summary_line(metrics, out))
+    return 0
+
+
+SUBCOMMANDS = [_add_serve, _add_list, _add_fly]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -50,7 +50,7 @@ class FlightOptions:
     viewer: bool = False
     port: int | None = None               # loopback UDP port of the companion's MAVLink link; None: a free one
     record_feed: bool = True
-    rate_hz: float = 10.0                 # the companion's control rate
+    rate_hz: float = 50.0                 # the companion's control rate (the NMPC's design rate)
 
 
 class FlightFiles:

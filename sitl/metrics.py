@@ -140,7 +140,7 @@ def nmpc_summary(nmpc: NmpcLog) -> dict:
     if n == 0:
         return {"rate_hz": None, "solve_ms_median": None, "solve_ms_p99": None, "solve_failures": None}
     span = nmpc.time_s[-1] - nmpc.time_s[0]
-    return {"rate_hz": (n - 1) / span if span > 0 else None,
+    return {"rate_hz": float((n - 1) / span) if span > 0 else None,
             "solve_ms_median": float(np.median(nmpc.solve_ms)),
             "solve_ms_p99": float(np.percentile(nmpc.solve_ms, 99)),
             "solve_failures": int(np.count_nonzero(~nmpc.ok))}
@@ -162,17 +162,21 @@ def _rounded(value):
     return value
 
 
-def flight_metrics(scenario: Scenario, controller: str, af: Airframe, truth: Truth, status: FaultStatusLog,
-                   nmpc: NmpcLog) -> dict:
-    """Every key of metrics.json (interfaces.md) and the survival checks."""
-    t, com = truth.time_s, truth.com_ned_m
+def reference_track(scenario: Scenario, af: Airframe, truth: Truth, status: FaultStatusLog) -> np.ndarray:
+    """(n, 3) the mission reference at each truth sample, the hold where the companion confirmed the fault."""
+    hold_s = first_confirmation_s(status) if scenario.faults else None
+    return reference_positions(scenario, af, truth.time_s, truth.com_ned_m, hold_s)
+
+
+def flight_metrics(scenario: Scenario, controller: str, af: Airframe, truth: Truth, ref_ned_m: np.ndarray,
+                   status: FaultStatusLog, nmpc: NmpcLog) -> dict:
+    """Every key of metrics.json (interfaces.md) and the survival checks; ref_ned_m: reference_track()."""
+    t, com, ref = truth.time_s, truth.com_ned_m, ref_ned_m
     tilt = tilt_deg(truth.euler_rad)
     land_s = scenario.mission.land.at_s if scenario.mission.land is not None else None
     touchdown = touchdown_index(t, truth.on_ground, land_s)
     end = touchdown if touchdown is not None else len(t) - 1
     fault_s = scenario.faults[0].at_s if scenario.faults else float(t[0])
-    hold_s = first_confirmation_s(status) if scenario.faults else None
-    ref = reference_positions(scenario, af, t, com, hold_s)
     yaw_until = min(land_s, float(t[end])) if land_s is not None else float(t[end])
     yaw_final = yaw_rate_final(t, truth.rates_frd_rad_s[:, 2], yaw_until)
     after = slice(int(np.searchsorted(t, fault_s)), end + 1)

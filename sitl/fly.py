@@ -1,0 +1,92 @@
+"""`m4-sitl fly SCENARIO`: one whole flight, then its metrics and figures.
+
+`fly()` flies (sitl.flight_run), reads the records back (sitl.records, sitl.truth), computes
+metrics.json (sitl.metrics) and draws the figures (sitl.figures) into the flight's folder
+(default runs/<scenario>-<UTC timestamp>). The model-matching scenario also gets the
+open-loop comparison of the reduced-order model with the plant (sitl.model_matching).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+from companion.airframe import Airframe, load_airframe
+from companion.scenario import Scenario, load_scenario
+from sitl import scenarios
+from sitl.flight_run import FlightFiles, FlightOptions, run_flight
+from sitl.metrics import flight_metrics, reference_track
+from sitl.records import nmpc_log, read_feed, read_tlog
+from sitl.truth import load_truth
+
+MODEL_MATCHING = "model-matching"
+
+
+def default_out_dir(name: str) -> Path:
+    return Path("runs") / f"{name}-{time.strftime('%Y%m%d-%H%M%S', time.gmtime())}"
+
+
+def _terminal_progress(name: str, duration_s: float):
+    if not sys.stderr.isatty():
+        return None
+
+    def show(t_s: float) -> None:
+        done = min(t_s / duration_s, 1.0)
+        bar = "#" * round(30 * done)
+        print(f"\rm4-sitl fly {name}: [{bar:<30}] t = {t_s:5.1f} / {duration_s:g} s", end="", file=sys.stderr,
+              flush=True)
+    return show
+
+
+def fly(scenario_arg: str, out_dir: Path | None = None, options: FlightOptions = FlightOptions(),
+        figures: bool = True, progress: bool = True) -> dict:
+    """Fly a built-in scenario or a scenario file; returns the metrics (also in metrics.json).
+    A bad scenario raises ConfigError, a flight that cannot start FlightError."""
+    path = scenarios.scenario_path(scenario_arg)
+    scenario = load_scenario(path)
+    out_dir = Path(out_dir) if out_dir is not None else default_out_dir(scenario.name)
+    show = _terminal_progress(scenario.name, scenario.duration_s) if progress else None
+    try:
+        files = run_flight(scenario, path.read_text(), out_dir, options, show)
+    finally:
+        if show is not None:
+            print(file=sys.stderr)
+    return evaluate(files, scenario, options.controller, load_airframe(), figures)
+
+
+def evaluate(files: FlightFiles, scenario: Scenario, controller: str, af: Airframe, figures: bool = True) -> dict:
+    """metrics.json and the figures of a flown flight's folder."""
+    truth = load_truth(files.truth)
+    tlog = read_tlog(files.tlog)
+    ref = reference_track(scenario, af, truth, tlog.faults)
+    metrics = flight_metrics(scenario, controller, af, truth, ref, tlog.faults, nmpc_log(read_feed(files.feed)))
+    if scenario.name == MODEL_MATCHING:
+        metrics["model_matching"] = _model_matching(files.out_dir, af, figures)
+    files.metrics.write_text(json.dumps(metrics, indent=2) + "\n")
+    if figures:
+        from sitl.figures import flight_figures
+
+        flight_figures(files.out_dir, f"{scenario.name} ({controller})", af, truth, ref, metrics["faults"])
+    return metrics
+
+
+def _model_matching(out_dir: Path, af: Airframe, figures: bool) -> dict:
+    from sitl.model_matching import SUMMARY_HORIZONS_S, compare
+
+    result = compare(af)
+    if figures:
+        from sitl.figures import model_matching_figure
+
+        model_matching_figure(out_dir / "model_matching.png", result)
+    return {f"over_{t:g}_s": {k: round(v, 4) for k, v in result.errors_until(t).items()} for t in SUMMARY_HORIZONS_S}
+
+
+def summary_line(metrics: dict, out_dir: Path) -> str:
+    m = metrics
+    verdict = "survived" if m["survived"] else "FAILED " + ", ".join(k for k, ok in m["checks"].items() if not ok)
+    loss = m["altitude_loss_m"]
+    return (f"{m['scenario']} ({m['controller']}): {verdict}; altitude loss {loss:.2f} m, max tilt "
+            f"{m['max_tilt_deg_after_fault']:.1f} deg, position RMSE {m['position_rmse_m']:.2f} m, "
+            f"{m['realtime_factor'] or 0:.1f}x real time -> {out_dir}")
