@@ -65,6 +65,7 @@ class FaultDetectorConfig:
     rates_noise_rad_s: float = 0.02       # sensor noise of the measured body rates
     force_model_error_n: float = 1.0      # force the ROM gets wrong, per axis
     torque_model_error_n_m: float = 0.05  # torque the ROM gets wrong, per axis
+    torque_model_share: float = 0.1       # share of the commanded thrust torque the ROM gets wrong
     deficit_min_n: float = 2.0            # smallest deficit that votes (14 % of hover thrust)
     chi2_min: float = 25.0                # smallest residual chi2 explained (about 5 sigma)
     unexplained_max: float = 0.3          # chi2 the best rotor may leave, as a share of what it explains
@@ -92,6 +93,7 @@ class FaultDetectorConfig:
 @dataclass(frozen=True)
 class _Evidence:
     rotor: int | None                  # 0-based rotor voted for, None: no vote
+    consistent: int | None             # 0-based rotor that alone explains a significant residual (any size)
     deficit_n: np.ndarray              # (4,) expected - delivered thrust of each rotor over the interval
     delivered_n: np.ndarray            # (4,) thrust each rotor delivered over the interval (estimate)
 
@@ -102,7 +104,8 @@ class FaultDetector:
         self._af, self._c = af, config
         self._model = ThrustResidualModel(af, ResidualNoise(
             velocity_m_s=config.velocity_noise_m_s, rates_rad_s=config.rates_noise_rad_s,
-            force_n=config.force_model_error_n, torque_n_m=config.torque_model_error_n_m))
+            force_n=config.force_model_error_n, torque_n_m=config.torque_model_error_n_m,
+            torque_share=config.torque_model_share))
         self._limit_n = np.full(ROTOR_COUNT, af.thrust_max_n)
         self._estimate_n: float | None = None
         self._prev: tuple[float, np.ndarray] | None = None
@@ -165,8 +168,10 @@ class FaultDetector:
         deficit = expected_n - delivered_n
         i = int(np.argmax(deficit))
         others = np.delete(deficit, i)
-        votes = deficit[i] >= self._c.deficit_min_n and np.all(others < self._c.deficit_min_n / 2)
-        return _Evidence(rotor=i if votes else None, deficit_n=deficit, delivered_n=delivered_n)
+        alone = bool(np.all(others < self._c.deficit_min_n / 2))
+        votes = alone and deficit[i] >= self._c.deficit_min_n
+        return _Evidence(rotor=i if votes else None, consistent=i if alone else None, deficit_n=deficit,
+                         delivered_n=delivered_n)
 
     def _model_evidence(self, time_s: float, x_prev: np.ndarray, x: np.ndarray, average_n: np.ndarray,
                         dt: float) -> _Evidence:
@@ -179,12 +184,13 @@ class FaultDetector:
         self._deficit_n = pooled.deficit_n
         i, explained, left = best_hypothesis(pooled)
         noise_chi2 = _NOISE_CHI2_MARGIN * len(CHANNELS) * len(self._window)   # what noise alone leaves
-        votes = (pooled.deficit_n[i] >= c.deficit_min_n and explained >= c.chi2_min
-                 and left <= c.unexplained_max * explained + noise_chi2)
+        consistent = explained >= c.chi2_min and left <= c.unexplained_max * explained + noise_chi2
+        votes = consistent and pooled.deficit_n[i] >= c.deficit_min_n
         if self._state is FaultState.HEALTHY and not votes:
             self._bias_per_s += min(dt / c.bias_time_constant_s, 1.0) * (raw / dt - self._bias_per_s)
-        return _Evidence(rotor=i if votes else None, deficit_n=pooled.deficit_n,
-                         delivered_n=pooled.expected_thrust_n - pooled.deficit_n)
+        return _Evidence(rotor=i if votes else None, consistent=i if consistent else None,
+                         deficit_n=pooled.deficit_size_n,
+                         delivered_n=pooled.expected_thrust_n - pooled.deficit_size_n)
 
     def _decide(self, time_s: float, evidence: _Evidence, target_n: np.ndarray) -> None:
         if self._state is FaultState.CONFIRMED:
@@ -201,12 +207,13 @@ class FaultDetector:
 
     def _refine(self, evidence: _Evidence, target_n: np.ndarray) -> None:
         """Lower the ceiling estimate towards what the rotor delivered when, commanded at its
-        ceiling, it clearly delivered less. A rotor that delivers what it is asked says only
-        that its ceiling is at least that: no update, so noise cannot ratchet the estimate."""
+        ceiling, it clearly delivered less (a significant residual that this rotor alone
+        explains). A rotor that delivers what it is asked says only that its ceiling is at
+        least that: no update, so noise and model errors cannot ratchet the estimate down."""
         i = self._rotor
         if target_n[i] < self._estimate_n - self._c.saturation_margin_n:
             return
-        if evidence.deficit_n[i] < self._c.ceiling_deficit_min_n:
+        if evidence.consistent != i or evidence.deficit_n[i] < self._c.ceiling_deficit_min_n:
             return
         observed = evidence.delivered_n[i]
         self._estimate_n = self._clip(self._estimate_n + self._c.estimate_gain * (observed - self._estimate_n))

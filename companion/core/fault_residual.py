@@ -36,7 +36,8 @@ class ResidualNoise:
     velocity_m_s: float          # sensor noise of one measured velocity component
     rates_rad_s: float           # sensor noise of one measured body rate
     force_n: float               # force the model gets wrong (drag, mass error), per axis
-    torque_n_m: float            # torque the model gets wrong (inertia, posture motion), per axis
+    torque_n_m: float            # torque the model gets wrong (leg motion, drag), per axis
+    torque_share: float          # share of the commanded thrust torque the model gets wrong (inertia, arms)
 
 
 @dataclass(frozen=True)
@@ -44,17 +45,25 @@ class IntervalFit:
     """The residual of one interval fitted by each single-rotor deficit hypothesis.
 
     Sufficient statistics, so several intervals add up: with a = B_i^T W B_i and
-    b = -B_i^T W r, the deficit is b / a and it explains b^2 / a of chi2 = r^T W r.
+    b = -B_i^T W r, the deficit is b / a and it explains b^2 / a of chi2 = r^T W r. The
+    test weights W count every model error; the sizing weights (a_size, b_size) count only
+    sensor noise and the fixed model errors, so a manoeuvre's torque does not blur the size.
     """
 
     a: np.ndarray                # (4,)
     b: np.ndarray                # (4,)
     chi2: float
+    a_size: np.ndarray           # (4,)
+    b_size: np.ndarray           # (4,)
     expected_thrust_n: np.ndarray   # (4,) interval-average thrust the model assumed
 
     @property
     def deficit_n(self) -> np.ndarray:
         return self.b / self.a
+
+    @property
+    def deficit_size_n(self) -> np.ndarray:
+        return self.b_size / self.a_size
 
 
 class ThrustResidualModel:
@@ -71,9 +80,13 @@ class ThrustResidualModel:
             k3 = f(xk + h / 2 * k2, u, d)
             k4 = f(xk + h * k3, u, d)
             xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        _, inertia = rom.mass_properties(af, x[rom.HIP])
+        com, inertia = rom.mass_properties(af, x[rom.HIP])
+        arms = rom.thruster_positions(af, x[rom.HIP]) - ca.repmat(com, 1, len(af.spin_sign))
+        thrust = u[rom.THRUST]
+        torque = ca.vertcat(-ca.dot(arms[1, :].T, thrust), ca.dot(arms[0, :].T, thrust),
+                            af.moment_coefficient_m * ca.dot(ca.DM(af.spin_sign), thrust))
         self._predict = ca.Function("m4_fault_predict", [x, u, dt],
-                                    [xk, ca.jacobian(xk, u[rom.THRUST]), ca.diag(inertia)])
+                                    [xk, ca.jacobian(xk, u[rom.THRUST]), ca.diag(inertia), torque])
 
     def motor_response(self, start_n: np.ndarray, target_n: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
         """(interval-average thrust, thrust at the end) of the first-order motor lag."""
@@ -94,28 +107,33 @@ class ThrustResidualModel:
         u = np.zeros(rom.NU)
         u[rom.THRUST] = expected_thrust_n
         u[rom.HIP_ACCEL] = (x_now[rom.HIP_RATE] - x_prev[rom.HIP_RATE]) / dt_s
-        x_pred, jac, inertia_diag = (np.asarray(v) for v in self._predict(x_prev, u, dt_s))
-        raw = x_now[CHANNELS] - x_pred[:, 0][CHANNELS]
+        x_pred, jac, inertia_diag, torque = self._predict(x_prev, u, dt_s)
+        x_pred, inertia_diag, torque = (np.asarray(v).ravel() for v in (x_pred, inertia_diag, torque))
+        jac = np.asarray(jac)
+        raw = x_now[CHANNELS] - x_pred[CHANNELS]
         r = raw - bias_per_s * dt_s
         sens = jac[CHANNELS, :]                          # (6, 4)
-        w = 1.0 / self._residual_variance(dt_s, inertia_diag[:, 0])
-        a = np.einsum("ci,c,ci->i", sens, w, sens)
-        b = -np.einsum("ci,c,c->i", sens, w, r)
-        return IntervalFit(a=a, b=b, chi2=float(r @ (w * r)), expected_thrust_n=expected_thrust_n), raw
+        w = 1.0 / self._residual_variance(dt_s, inertia_diag, torque)
+        w_size = 1.0 / self._residual_variance(dt_s, inertia_diag, np.zeros(3))
+        a, a_size = (np.einsum("ci,c,ci->i", sens, weights, sens) for weights in (w, w_size))
+        b, b_size = (-np.einsum("ci,c,c->i", sens, weights, r) for weights in (w, w_size))
+        return IntervalFit(a=a, b=b, chi2=float(r @ (w * r)), a_size=a_size, b_size=b_size,
+                           expected_thrust_n=expected_thrust_n), raw
 
-    def _residual_variance(self, dt_s: float, inertia_diag_kg_m2: np.ndarray) -> np.ndarray:
+    def _residual_variance(self, dt_s: float, inertia_diag_kg_m2: np.ndarray, torque_n_m: np.ndarray) -> np.ndarray:
         n = self._noise
         v = 2 * n.velocity_m_s**2 + (n.force_n * dt_s / self._af.total_mass_kg) ** 2
-        w = 2 * n.rates_rad_s**2 + (n.torque_n_m * dt_s / inertia_diag_kg_m2) ** 2
+        torque_error = np.hypot(n.torque_n_m, n.torque_share * torque_n_m)
+        w = 2 * n.rates_rad_s**2 + (torque_error * dt_s / inertia_diag_kg_m2) ** 2
         return np.r_[np.full(3, v), w]
 
 
 def combine(fits: list[IntervalFit]) -> IntervalFit:
     """The fit of several intervals under one constant deficit per hypothesis."""
-    a = sum(f.a for f in fits)
-    b = sum(f.b for f in fits)
-    expected = sum(f.a * f.expected_thrust_n for f in fits) / a
-    return IntervalFit(a=a, b=b, chi2=sum(f.chi2 for f in fits), expected_thrust_n=expected)
+    a_size = sum(f.a_size for f in fits)
+    expected = sum(f.a_size * f.expected_thrust_n for f in fits) / a_size
+    return IntervalFit(a=sum(f.a for f in fits), b=sum(f.b for f in fits), chi2=sum(f.chi2 for f in fits),
+                       a_size=a_size, b_size=sum(f.b_size for f in fits), expected_thrust_n=expected)
 
 
 def best_hypothesis(fit: IntervalFit) -> tuple[int, float, float]:
