@@ -5,6 +5,8 @@
     m4-sitl list
     m4-sitl fly SCENARIO [--out DIR] [--controller nmpc|fixed-posture] [--seed N] [--port N] [--rate-hz HZ]
                 [--realtime] [--viewer]
+    m4-sitl compare [--out DIR] [--jobs N] [--rate-hz HZ]
+    m4-sitl campaign [--out DIR] [--samples N | --grid] [--seed N] [--jobs N] [--rate-hz HZ]
 
 A subcommand is one `_add_<name>(subparsers)` function that sets `func`, registered in
 `SUBCOMMANDS`. Bad input (unknown scenario, malformed file, bad URL, port in use) prints one
@@ -140,7 +142,44 @@ def _fly(args) -> int:
     return 0
 
 
-SUBCOMMANDS = [_add_serve, _add_list, _add_fly]
+def _add_compare(sub) -> None:
+    from sitl.compare import DEFAULT_OUT
+
+    p = sub.add_parser("compare", help="posture manipulation vs fixed posture on the paper's scenarios: a Markdown table")
+    p.add_argument("--out", type=Path, default=DEFAULT_OUT, metavar="DIR", help=f"output folder (default {DEFAULT_OUT})")
+    p.add_argument("--jobs", type=int, metavar="N", help="flights at once (default: half the cores)")
+    p.add_argument("--rate-hz", type=_positive, default=50.0, metavar="HZ", help="the companion's control rate (default 50)")
+    p.set_defaults(func=_compare)
+
+
+def _compare(args) -> int:
+    from sitl.compare import compare
+
+    print(compare(args.out, workers=args.jobs, rate_hz=args.rate_hz), end="")
+    return 0
+
+
+def _add_campaign(sub) -> None:
+    from sitl.campaign import DEFAULT_OUT
+
+    p = sub.add_parser("campaign", help="many faulted flights in parallel: survival, altitude loss, detection")
+    p.add_argument("--out", type=Path, default=DEFAULT_OUT, metavar="DIR", help=f"output folder (default {DEFAULT_OUT})")
+    p.add_argument("--samples", type=int, default=20, metavar="N", help="random flights (default 20)")
+    p.add_argument("--grid", action="store_true", help="the full grid of rotors, losses, speeds, fault times instead")
+    p.add_argument("--seed", type=_seed, default=0, help="seed of the sample and of the sensor noise (default 0)")
+    p.add_argument("--jobs", type=int, metavar="N", help="flights at once (default: half the cores)")
+    p.add_argument("--rate-hz", type=_positive, default=50.0, metavar="HZ", help="the companion's control rate (default 50)")
+    p.set_defaults(func=_campaign)
+
+
+def _campaign(args) -> int:
+    from sitl.campaign import run_campaign
+
+    print(run_campaign(args.out, args.samples, args.seed, args.grid, args.jobs, args.rate_hz), end="")
+    return 0
+
+
+SUBCOMMANDS = [_add_serve, _add_list, _add_fly, _add_compare, _add_campaign]
 
 
 def main(argv: list[str] | None = None) -> int:

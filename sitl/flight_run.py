@@ -22,6 +22,7 @@ import socket
 import subprocess
 import sys
 import time
+import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -131,8 +132,10 @@ def run_flight(scenario: Scenario, scenario_text: str, out_dir: Path, options: F
             recorder = FeedRecorder(files.feed, f"tcp/127.0.0.1:{feed_port}", VEHICLE)
             stack.callback(recorder.close)
         files.companion_config.write_text(companion_config_text(options, port, feed_port))
-        companion = _start(stack, [sys.executable, "-m", "companion.cli", "run", "--config",
-                                   str(files.companion_config), "--mission", str(files.scenario)], files.companion_log)
+        cmd = [sys.executable, "-m", "companion.cli", "run", "--config", str(files.companion_config)]
+        if "mission" in tomllib.loads(scenario_text):          # none: hold where the flight starts
+            cmd += ["--mission", str(files.scenario)]
+        companion = _start(stack, cmd, files.companion_log)
         _await_ready(companion, files.companion_log)
         cmd = [sys.executable, "-m", "sitl.cli", "serve", "--scenario", str(files.scenario),
                "--mavlink", f"udpout:127.0.0.1:{port}", "--duration", f"{scenario.duration_s:g}",

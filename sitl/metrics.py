@@ -15,7 +15,8 @@ Definitions (times in the scenario's clock, positions of the centre of mass, NED
   TILT_RECOVERED_DEG to the end of the airborne window (None: it never does).
 - yaw_rate_final_rad_s: mean body yaw rate over the last YAW_FINAL_WINDOW_S before the
   landing starts (or the end of the airborne window); time_to_yaw_saturation_s: from the
-  first fault until |yaw rate| first reaches YAW_SATURATION_FRACTION of its final value
+  first total rotor loss (else the first fault) until |yaw rate| first reaches
+  YAW_SATURATION_FRACTION of its final value
   (None when the final rate is below YAW_SPIN_MIN_RAD_S: the robot does not spin).
 - faults[i].detected_at_s: the first instant in [at_s, next fault's at_s) at which the
   companion's fault status is confirmed with a thrust bound on the named rotor that reflects
@@ -177,6 +178,7 @@ def flight_metrics(scenario: Scenario, controller: str, af: Airframe, truth: Tru
     touchdown = touchdown_index(t, truth.on_ground, land_s)
     end = touchdown if touchdown is not None else len(t) - 1
     fault_s = scenario.faults[0].at_s if scenario.faults else float(t[0])
+    spin_s = next((f.at_s for f in scenario.faults if f.loss >= 1.0), fault_s)
     yaw_until = min(land_s, float(t[end])) if land_s is not None else float(t[end])
     yaw_final = yaw_rate_final(t, truth.rates_frd_rad_s[:, 2], yaw_until)
     after = slice(int(np.searchsorted(t, fault_s)), end + 1)
@@ -194,7 +196,7 @@ def flight_metrics(scenario: Scenario, controller: str, af: Airframe, truth: Tru
         "tilt_recovered_s": tilt_recovered_s(t, tilt, fault_s, end),
         "position_rmse_m": float(np.sqrt(np.mean(np.sum((com[airborne] - ref[airborne]) ** 2, axis=1)))),
         "yaw_rate_final_rad_s": yaw_final,
-        "time_to_yaw_saturation_s": time_to_yaw_saturation(t, truth.rates_frd_rad_s[:, 2], fault_s, yaw_final),
+        "time_to_yaw_saturation_s": time_to_yaw_saturation(t, truth.rates_frd_rad_s[:, 2], spin_s, yaw_final),
         "max_thrust_n": float(np.max(truth.thrust_n[after])),
         "landed": touchdown is not None and at_rest,
         "touchdown_speed_m_s": touchdown_speed_m_s(truth.vel_ned_m_s, touchdown),
