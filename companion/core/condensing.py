@@ -96,13 +96,7 @@ class TrackingCost:
                      u_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Hessian and gradient of the cost in dU, with dX = Gamma dU (x0 is fixed)."""
         wg = self._qw2 * gamma
-        hess = self._r_hess.copy()
-        for j in range(us.shape[0]):
-            # Gamma is block lower-triangular: column block j lives in state rows j+1..N only.
-            cols = slice(j * NU, (j + 1) * NU)
-            block = gamma[j * NX:, :(j + 1) * NU].T @ wg[j * NX:, cols]
-            hess[:(j + 1) * NU, cols] += block
-            hess[cols, :j * NU] += block[:j * NU].T
+        hess = gamma.T @ wg + self._r_hess
         grad = wg.T @ (xs[1:] - x_ref[1:]).ravel() + self._rw2 * (us - u_ref).ravel()
         return hess, grad
 
