@@ -33,8 +33,14 @@ import numpy as np
 
 from companion.airframe import ROTOR_COUNT, Airframe
 from companion.core import rom
-from companion.core.fault_residual import (CHANNELS, IntervalFit, ResidualNoise, ThrustResidualModel,
-                                           best_hypothesis, combine)
+from companion.core.fault_residual import (
+    CHANNELS,
+    IntervalFit,
+    ResidualNoise,
+    ThrustResidualModel,
+    best_hypothesis,
+    combine,
+)
 
 # A residual of pure noise has a chi2 of about one per channel and interval; the best rotor may
 # leave this many times that unexplained on top of its share.

@@ -117,7 +117,7 @@ class _Plan:
         i = max(bisect.bisect_right(self._starts, t_s) - 1, 0)
         return self.pieces[i].state(t_s)
 
-    def replaced_from(self, t_s: float, pieces: list) -> "_Plan":
+    def replaced_from(self, t_s: float, pieces: list) -> _Plan:
         return _Plan([p for p in self.pieces if p.t0_s < t_s] + pieces)
 
 

@@ -10,6 +10,7 @@ measurements, and the detector reads the same measurements at every control inst
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 
 import numpy as np
@@ -220,20 +221,19 @@ FAULT_FREE_FLIGHTS = (
 )
 
 
-@pytest.mark.parametrize("noise", [False, True], ids=["exact", "noisy"])
-def test_agile_fault_free_flight_raises_no_alarm(noise):
+def test_agile_fault_free_flight_raises_no_alarm():
     rows, alarms = [], 0
     for name, ref_fn, wave, plant in FAULT_FREE_FLIGHTS:
-        for seed in range(3 if noise else 1):
-            statuses, t_end = fly(PdController(ref_fn(), wave), 30.0, noise=noise, seed=seed, plant=plant)
-            assert t_end > 29.9, f"the test controller lost the vehicle in {name}"
+        for seed in range(2):
+            statuses, t_end = fly(PdController(ref_fn(), wave), 25.0, noise=True, seed=seed, plant=plant)
+            assert t_end > 24.9, f"the test controller lost the vehicle in {name}"
             states = [s.state for _, s in statuses]
-            suspects = sum(1 for a, b in zip(states, states[1:]) if a is FaultState.HEALTHY and b is FaultState.SUSPECT)
+            suspects = sum(1 for a, b in itertools.pairwise(states) if a is FaultState.HEALTHY and b is FaultState.SUSPECT)
             alarms += states[-1] is FaultState.CONFIRMED
             largest = max(s.deficit_n.max() for _, s in statuses)
             rows.append(f"  {name}, seed {seed}: {suspects} suspect episodes, final state {states[-1].name}, "
                         f"largest deficit seen {largest:.2f} N")
-    print(f"\nfault-free 30 s flights ({'with' if noise else 'without'} sensor noise):\n" + "\n".join(rows))
+    print("\nfault-free 25 s flights with sensor noise, PD controller:\n" + "\n".join(rows))
     assert alarms == 0
 
 
@@ -264,7 +264,7 @@ def test_with_the_nmpc_in_the_loop_every_rotor_loss_is_isolated_sized_and_handed
     rows, failures = [], []
     for name, rotor, loss in CASES:
         at_s, ref_fn, limit_s = (1.03, hover_reference, 0.3) if name == "hover" else (3.03, forward_reference, 0.5)
-        statuses, t_end = fly(NmpcController(nmpc, ref_fn()), at_s + 3.0, fault=(at_s, rotor, loss), noise=True,
+        statuses, t_end = fly(NmpcController(nmpc, ref_fn()), at_s + 2.0, fault=(at_s, rotor, loss), noise=True,
                               seed=rotor, stop_tilt_deg=85.0)
         confirmed = first_confirmed(statuses)
         if confirmed is None or confirmed.rotor != rotor:
@@ -274,9 +274,9 @@ def test_with_the_nmpc_in_the_loop_every_rotor_loss_is_isolated_sized_and_handed
         true_max = (1 - loss) * HOVER_N
         est_at = confirmed.thrust_max_estimate_n[rotor - 1] - true_max
         est_end = statuses[-1][1].thrust_max_estimate_n[rotor - 1] - true_max
-        survived = t_end >= at_s + 3.0 - 0.02
+        survived = t_end >= at_s + 2.0 - 0.02
         rows.append(f"  {name:6s} rotor {rotor} loss {loss:4.2f}: rotor {confirmed.rotor} after {latency:.2f} s, "
-                    f"estimate error {est_at:+.2f} N at detection, {est_end:+.2f} N 3 s later; "
+                    f"estimate error {est_at:+.2f} N at detection, {est_end:+.2f} N 2 s later; "
                     f"{'flew on' if survived else f'tilted past 85 deg at {t_end - at_s:.2f} s'}")
         if latency > (limit_s if loss == 1.0 else 0.5):
             failures.append(f"{name} rotor {rotor} loss {loss}: latency {latency:.2f} s")
@@ -288,15 +288,15 @@ def test_with_the_nmpc_in_the_loop_every_rotor_loss_is_isolated_sized_and_handed
 
 def test_with_the_nmpc_in_the_loop_agile_fault_free_flight_raises_no_alarm(nmpc):
     rows, alarms = [], 0
-    for seed in range(3):
-        statuses, t_end = fly(NmpcController(nmpc, agile_reference()), 30.0, noise=True, seed=seed)
-        assert t_end > 29.9, "the NMPC lost the vehicle in fault-free flight"
+    for seed in range(2):
+        statuses, t_end = fly(NmpcController(nmpc, agile_reference()), 25.0, noise=True, seed=seed)
+        assert t_end > 24.9, "the NMPC lost the vehicle in fault-free flight"
         states = [s.state for _, s in statuses]
         alarms += states[-1] is FaultState.CONFIRMED
-        suspects = sum(1 for a, b in zip(states, states[1:]) if a is FaultState.HEALTHY and b is FaultState.SUSPECT)
+        suspects = sum(1 for a, b in itertools.pairwise(states) if a is FaultState.HEALTHY and b is FaultState.SUSPECT)
         rows.append(f"  seed {seed}: {suspects} suspect episodes, final {states[-1].name}, "
                     f"largest deficit seen {max(s.deficit_n.max() for _, s in statuses):.2f} N")
-    print("\nNMPC in the loop, agile fault-free 30 s flights with sensor noise:\n" + "\n".join(rows))
+    print("\nNMPC in the loop, agile fault-free 25 s flights with sensor noise:\n" + "\n".join(rows))
     assert alarms == 0
 
 
@@ -349,10 +349,10 @@ def test_at_50_hz_telemetry_the_detector_keeps_its_latency_and_stays_quiet(nmpc)
                         + (f"after {c.detected_at_s - at_s:.2f} s, estimate error {err:+.2f} N" if ok else "MISSED"))
             if not ok or c.detected_at_s - at_s > 0.3 or abs(err) > 0.1 * HOVER_N:
                 failures.append(rows[-1])
-    statuses, _ = fly(PdController(agile_reference()), 30.0, noise=True, control_dt_s=0.02)
+    statuses, _ = fly(PdController(agile_reference()), 15.0, noise=True, control_dt_s=0.02)
     states = [s.state for _, s in statuses]
-    suspects = sum(1 for a, b in zip(states, states[1:]) if a is FaultState.HEALTHY and b is FaultState.SUSPECT)
-    rows.append(f"  agile fault-free 30 s: {suspects} suspect episodes, final {states[-1].name}")
+    suspects = sum(1 for a, b in itertools.pairwise(states) if a is FaultState.HEALTHY and b is FaultState.SUSPECT)
+    rows.append(f"  agile fault-free 15 s: {suspects} suspect episodes, final {states[-1].name}")
     print("\n50 Hz telemetry and control, PD controller, sensor noise:\n" + "\n".join(rows))
     assert states[-1] is FaultState.HEALTHY
     assert not failures, "\n".join(failures)
@@ -371,9 +371,9 @@ def test_with_per_thruster_telemetry_the_deficit_is_read_directly(nmpc):
                         + (f"after {c.detected_at_s - at_s:.2f} s, estimate error {err:+.2f} N" if ok else "MISSED"))
             if not ok or c.detected_at_s - at_s > 0.3 or abs(err) > 0.1 * HOVER_N:
                 failures.append(rows[-1])
-    statuses, _ = fly(NmpcController(nmpc, agile_reference()), 30.0, noise=True, report_delivered=True)
+    statuses, _ = fly(NmpcController(nmpc, agile_reference()), 15.0, noise=True, report_delivered=True)
     states = [s.state for _, s in statuses]
-    rows.append(f"  agile fault-free 30 s: final {states[-1].name}, "
+    rows.append(f"  agile fault-free 15 s: final {states[-1].name}, "
                 f"{sum(1 for st in states if st is FaultState.SUSPECT)} suspect frames")
     print("\nper-thruster thrust telemetry (0.3 N noise), NMPC in the loop:\n" + "\n".join(rows))
     assert states[-1] is FaultState.HEALTHY

@@ -5,7 +5,11 @@ import pytest
 
 from companion.airframe import load_airframe
 from companion.core import rom
-from companion.core.reference import MissionReference, ReferenceConfig, ground_com_height_m
+from companion.core.reference import (
+    MissionReference,
+    ReferenceConfig,
+    ground_com_height_m,
+)
 from companion.core.touchdown import TouchdownConfig, TouchdownDetector
 from companion.scenario import Landing, Mission, Waypoint
 
@@ -26,7 +30,7 @@ def sample(ref, t_end, dt=0.01):
 
 def test_long_leg_cruises_at_the_leg_speed_along_the_leg():
     ref = MissionReference(mission(((12.0, 0.0, -2.0), 3.0, 1.0)), START, AF)
-    t, p, v = sample(ref, 8.0)
+    _t, p, v = sample(ref, 8.0)
     speed = np.linalg.norm(v, axis=1)
     assert speed.max() == pytest.approx(3.0, abs=1e-9)
     cruise = speed > 3.0 - 1e-9
@@ -38,7 +42,7 @@ def test_long_leg_cruises_at_the_leg_speed_along_the_leg():
 
 def test_short_leg_peaks_below_the_leg_speed_with_bounded_acceleration():
     ref = MissionReference(mission(((1.0, 0.0, -2.0), 5.0, 0.0)), START, AF)
-    t, p, v = sample(ref, 3.0)
+    _t, _p, v = sample(ref, 3.0)
     assert np.linalg.norm(v, axis=1).max() <= math.sqrt(A_MAX * 1.0) + 1e-9
     assert ref.state(math.sqrt(1.0 / A_MAX))[1][0] == pytest.approx(math.sqrt(A_MAX * 1.0))   # peak mid-leg
     assert np.abs(np.diff(v, axis=0) / 0.01).max() <= A_MAX + 1e-6
@@ -46,7 +50,7 @@ def test_short_leg_peaks_below_the_leg_speed_with_bounded_acceleration():
 
 def test_holds_each_waypoint_for_its_hold_time_then_flies_the_next_leg():
     ref = MissionReference(mission(((2.0, 0.0, -2.0), 2.0, 1.5), ((2.0, 2.0, -3.0), 2.0, 0.0)), START, AF)
-    t, p, v = sample(ref, 10.0)
+    _t, p, v = sample(ref, 10.0)
     at_first = np.all(np.isclose(p, [2.0, 0.0, -2.0]), axis=1) & (np.linalg.norm(v, axis=1) == 0)
     assert at_first.sum() * 0.01 == pytest.approx(1.5, abs=0.02)
     assert np.allclose(p[-1], [2.0, 2.0, -3.0]) and np.allclose(v[-1], 0.0)
@@ -63,7 +67,7 @@ def test_reference_is_continuous_and_acceleration_limited_over_a_whole_mission()
                 land=Landing(at_s=20.0, descent_speed_m_s=0.5))
     ref = MissionReference(m, START, AF)
     dt = 0.005
-    t, p, v = sample(ref, 30.0, dt)
+    _t, p, v = sample(ref, 30.0, dt)
     assert np.abs(np.diff(p, axis=0)).max() <= 3.0 * dt + 1e-9          # no position jump
     assert np.linalg.norm(np.diff(v, axis=0), axis=1).max() <= A_MAX * dt + 1e-9  # no velocity jump
     assert np.allclose(np.diff(p, axis=0), 0.5 * (v[1:] + v[:-1]) * dt, atol=A_MAX * dt**2)  # v is dp/dt
@@ -105,7 +109,7 @@ def test_continue_on_fault_keeps_the_mission():
 def test_landing_descends_at_the_descent_speed_to_the_standing_height():
     ref = MissionReference(mission(((2.0, 0.0, -2.0), 2.0, 0.0), land=Landing(at_s=5.0, descent_speed_m_s=0.5)),
                            START, AF)
-    t, p, v = sample(ref, 15.0)
+    _t, p, v = sample(ref, 15.0)
     assert not ref.landing_started(4.99) and ref.landing_started(5.0)
     assert v[:, 2].max() == pytest.approx(0.5)
     cruise = np.isclose(v[:, 2], 0.5)
