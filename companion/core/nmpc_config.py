@@ -66,7 +66,9 @@ class NmpcConfig:
     """horizon stages of dt_s seconds; fixed_hip_rad pins every hip (the fixed-posture variant).
 
     control_period_s: how often the controller is re-solved (None: every dt_s); the warm start
-    is the previous plan shifted by control_period_s / dt_s stages.
+    is the previous plan shifted by control_period_s / dt_s stages, and when it is shorter than
+    dt_s the hip bounds are also enforced at its end (the only stretch of a plan ever flown).
+    max_iterations=1 makes it a real-time iteration (one QP per solve).
     """
 
     horizon: int = 5
