@@ -126,6 +126,8 @@ def _settings(t: Table, cls: type, **given: Any):
             value = t.boolean(key, d)
         elif isinstance(d, int):
             value = t.integer(key, d, lo=0)
+        elif isinstance(d, str):
+            value = t.string(key, d)
         elif isinstance(d, tuple):
             value = t.vector(key, len(d), list(d), lo=0.0)
         elif isinstance(d, float) or d is None:

@@ -11,11 +11,14 @@ explains). The evidence of the last window_s is pooled before voting.
     healthy --vote i--> suspect(i) --votes for i during confirm_s--> confirmed(i)
     suspect(i) --no vote--> healthy;  suspect(i) --vote j--> suspect(j)
 
-Confirmed is final (one rotor fault per flight). From confirmation on, the rotor's ceiling is
-estimated as the thrust it delivered while commanded at or above it (commanded - deficit),
-lowered whenever it clearly delivers less than that, and handed out in thrust_max_estimate_n: a partial loss is a
-ceiling the rotor never exceeds, a total loss a ceiling near 0. The NMPC keeps its cost and
-model and only sees a tighter bound (no controller switch).
+Confirmed is final (one rotor fault per flight). At confirmation the rotor's ceiling is
+estimated as the thrust it delivered over the window (commanded - deficit); afterwards it
+is lowered whenever the rotor, commanded at its ceiling, clearly delivers less (a
+significant residual it alone explains), never raised by noise. It is handed out in
+thrust_max_estimate_n: a partial loss is a ceiling the rotor never exceeds, a total loss a
+ceiling near 0. The NMPC keeps its cost and model and only sees a tighter bound (no
+controller switch). While healthy, the residual the model always shows (mass, drag, trim)
+is learnt slowly and removed.
 
 Time and frames: time_s is the telemetry time; the state is the ROM state of the measured
 robot (centre of mass, see companion.core.rom); thrust_cmd_n is the command in force during
