@@ -1,0 +1,47 @@
+"""`m4-sitl fly` on bad input: one line on stderr naming what is wrong, exit code 2, nothing flown."""
+
+from __future__ import annotations
+
+import socket
+
+import pytest
+
+from sitl.cli import EXIT_BAD_INPUT, main
+
+
+def _fails_with(capsys, args, *needles):
+    assert main(args) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("m4-sitl: error:")
+    for needle in needles:
+        assert needle in err
+
+
+def test_an_unknown_scenario_is_named(capsys, tmp_path):
+    _fails_with(capsys, ["fly", "no-such-scenario", "--out", str(tmp_path)], "unknown scenario 'no-such-scenario'")
+
+
+def test_a_malformed_scenario_file_names_the_bad_key(capsys, tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('name = "bad"\nduration_s = 5.0\n[start]\nned_m = [0.0, 0.0, -2.0]\naltitude = 3\n')
+    _fails_with(capsys, ["fly", str(bad), "--out", str(tmp_path / "out")], "altitude")
+    bad.write_text('name = "bad"\nduration_s = [\n')
+    _fails_with(capsys, ["fly", str(bad), "--out", str(tmp_path / "out")], "bad.toml")
+
+
+def test_a_port_in_use_is_refused_before_anything_starts(capsys, tmp_path):
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as busy:
+        busy.bind(("127.0.0.1", 0))
+        port = busy.getsockname()[1]
+        _fails_with(capsys, ["fly", "hover-rotor-loss", "--port", str(port), "--out", str(tmp_path / "out")],
+                    f"UDP port {port}", "not free")
+    assert not (tmp_path / "out").exists()
+
+
+def test_an_unknown_controller_is_refused(capsys, tmp_path):
+    _fails_with(capsys, ["fly", "hover-rotor-loss", "--controller", "pid", "--out", str(tmp_path)], "pid")
+
+
+@pytest.mark.parametrize("command", ["compare", "campaign"])
+def test_compare_and_campaign_refuse_unknown_options(capsys, command):
+    _fails_with(capsys, [command, "--bogus"], "--bogus")

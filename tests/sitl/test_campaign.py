@@ -1,0 +1,68 @@
+"""The campaign's sample, scenario files and summaries, and the comparison table (no flights)."""
+
+from __future__ import annotations
+
+import tomllib
+
+from companion.scenario import parse_scenario
+from sitl import campaign
+from sitl.compare import markdown_table
+
+
+def test_the_grid_covers_every_rotor_loss_level_speed_and_fault_time_once():
+    cases = campaign.grid_cases()
+    keys = {(c.rotor, c.loss, c.speed_m_s, c.at_s) for c in cases}
+    assert len(keys) == len(cases) == 4 * len(campaign.LOSS_LEVELS) * len(campaign.GRID_SPEEDS_M_S) \
+        * len(campaign.GRID_FAULT_TIMES_S)
+    assert {c.rotor for c in cases} == {1, 2, 3, 4}
+
+
+def test_random_cases_are_reproducible_and_within_the_campaign_ranges():
+    cases = campaign.random_cases(40, seed=3)
+    assert cases == campaign.random_cases(40, seed=3) != campaign.random_cases(40, seed=4)
+    assert all(0.0 <= c.speed_m_s <= campaign.MAX_SPEED_M_S for c in cases)
+    assert any(c.speed_m_s == 0.0 for c in cases) and any(c.speed_m_s > 0.0 for c in cases)
+    assert any(c.sensor_noise for c in cases) and not all(c.sensor_noise for c in cases)
+
+
+def test_each_case_is_a_valid_scenario_flying_at_its_speed_when_the_fault_comes():
+    case = campaign.Case("c", rotor=2, loss=1.0, at_s=2.0, speed_m_s=3.0, heading_deg=90.0, mass_scale=1.02,
+                         sensor_noise=True)
+    s = parse_scenario(tomllib.loads(case.scenario_toml()), "c.toml")
+    assert s.duration_s == case.duration_s and s.faults[0].rotor == 2 and s.faults[0].at_s == 2.0
+    assert s.plant.mass_scale == 1.02 and s.plant.sensor_noise
+    wp = s.mission.waypoints[0]
+    assert wp.speed_m_s == 3.0 and abs(wp.ned_m[0]) < 1e-3 and wp.ned_m[1] > 3.0 * case.duration_s   # due east
+    hover = parse_scenario(tomllib.loads(campaign.Case("h", 1, 0.33, 1.5, 0.0).scenario_toml()), "h.toml")
+    assert hover.mission.waypoints == ()
+
+
+def _row(loss, speed, survived, latency, isolated=True, error=""):
+    case = campaign.Case("x", rotor=4, loss=loss, at_s=1.0, speed_m_s=speed)
+    if error:
+        return campaign.result_row(case, {"error": error})
+    metrics = {"survived": survived, "crashed": not survived, "altitude_loss_m": 0.2, "max_tilt_deg_after_fault": 30.0,
+               "faults": [{"at_s": 1.0, "detected_at_s": 1.0 + latency, "detected_rotor": 4 if isolated else 1}]}
+    return campaign.result_row(case, metrics)
+
+
+def test_summary_counts_survival_detection_and_isolation_per_group_and_the_target():
+    rows = [_row(1.0, 0.0, True, 0.1), _row(1.0, 2.0, False, 0.2, isolated=False), _row(0.33, 0.0, True, 0.3),
+            _row(1.0, 3.0, False, 0.0, error="the companion did not start")]
+    assert rows[1]["detection_latency_s"] == 0.2 and not rows[1]["rotor_isolated"]
+    text = campaign.summary_markdown(rows)
+    assert "| loss 1, hover | 1 | 1/1 (100 %)" in text
+    assert "| loss 1, forward flight | 2 | 0/2 (0 %)" in text
+    assert "| **all** | 4 | 2/4 (50 %)" in text
+    assert "up to 3 m/s: 1/3 survived" in text
+
+
+def test_comparison_table_has_one_row_per_flight_and_shows_errors():
+    flown = {"scenario": "s", "controller": "nmpc", "survived": False, "altitude_loss_m": 1.234,
+             "max_tilt_deg_after_fault": 80.2, "time_to_yaw_saturation_s": None, "yaw_rate_final_rad_s": 12.34,
+             "max_thrust_n": 24.0, "position_rmse_m": 0.5}
+    table = markdown_table([flown, {"scenario": "s", "controller": "fixed-posture", "error": "port in use"}])
+    lines = table.strip().splitlines()
+    assert len(lines) == 4
+    assert lines[2].startswith("| s | nmpc | **no** | 1.23 | 80 | - | 12.3 | 24.0 | 0.50 |")
+    assert "not flown: port in use" in lines[3]
