@@ -110,7 +110,8 @@ class StateRows:
     """
 
     first: np.ndarray       # (m,) flat index into states 1..N of the first entry
-    second: np.ndarray      # (m,) flat index of the second entry, or -1
+    paired: np.ndarray      # (m,) bool: the row sums a second entry
+    second: np.ndarray      # (number of paired rows,) flat index of that second entry
     lo: np.ndarray
     hi: np.ndarray
 
@@ -124,27 +125,23 @@ class StateRows:
                 second.append(k * NX + idx[1] if len(idx) > 1 else -1)
                 lo.append(low)
                 hi.append(high)
-        return StateRows(np.array(first, dtype=int), np.array(second, dtype=int), np.array(lo), np.array(hi))
+        second_all = np.array(second, dtype=int)
+        return StateRows(np.array(first, dtype=int), second_all >= 0, second_all[second_all >= 0], np.array(lo),
+                         np.array(hi))
 
     @property
     def count(self) -> int:
         return self.first.size
 
-    def _pair(self) -> tuple[np.ndarray, np.ndarray]:
-        two = self.second >= 0
-        return two, self.second[two]
-
     def values(self, xs: np.ndarray) -> np.ndarray:
         flat = xs[1:].ravel()
-        c = flat[self.first].copy()
-        two, idx = self._pair()
-        c[two] += flat[idx]
+        c = flat[self.first]
+        c[self.paired] += flat[self.second]
         return c
 
     def jacobian(self, gamma: np.ndarray) -> np.ndarray:
         rows = gamma[self.first]
-        two, idx = self._pair()
-        rows[two] += gamma[idx]
+        rows[self.paired] += gamma[self.second]
         return rows
 
     def violation(self, xs: np.ndarray) -> float:
