@@ -67,18 +67,18 @@ class Case:
         return "\n".join(lines)
 
 
-def grid_cases() -> list[Case]:
-    combos = itertools.product(range(1, 5), LOSS_LEVELS, GRID_SPEEDS_M_S, GRID_FAULT_TIMES_S)
+def grid_cases(losses: tuple[float, ...] = LOSS_LEVELS) -> list[Case]:
+    combos = itertools.product(range(1, 5), losses, GRID_SPEEDS_M_S, GRID_FAULT_TIMES_S)
     return [Case(f"grid-{i:03d}", rotor, loss, at_s, speed) for i, (rotor, loss, speed, at_s) in enumerate(combos)]
 
 
-def random_cases(n: int, seed: int = 0) -> list[Case]:
+def random_cases(n: int, seed: int = 0, losses: tuple[float, ...] = LOSS_LEVELS) -> list[Case]:
     rng = np.random.default_rng(seed)
     cases = []
     for i in range(n):
         hover = rng.random() < 0.5
         cases.append(Case(
-            name=f"sample-{i:03d}", rotor=int(rng.integers(1, 5)), loss=float(rng.choice(LOSS_LEVELS)),
+            name=f"sample-{i:03d}", rotor=int(rng.integers(1, 5)), loss=float(rng.choice(losses)),
             at_s=round(float(rng.uniform(*FAULT_TIME_RANGE_S)), 2),
             speed_m_s=0.0 if hover else round(float(rng.uniform(0.5, MAX_SPEED_M_S)), 2),
             heading_deg=round(float(rng.uniform(-180.0, 180.0)), 1),
@@ -122,7 +122,7 @@ def summary_markdown(rows: list[dict]) -> str:
     head = ("| group | flights | survived | altitude loss median / max (m) | detected | "
             "detection latency median / max (s) | rotor isolated |\n|---|---|---|---|---|---|---|\n")
     lines = []
-    for loss in LOSS_LEVELS:
+    for loss in sorted({r["loss"] for r in rows}):
         for label, moving in (("hover", False), ("forward flight", True)):
             group = [r for r in rows if r["loss"] == loss and (r["speed_m_s"] > 0) == moving]
             if group:
@@ -136,9 +136,10 @@ def summary_markdown(rows: list[dict]) -> str:
 
 
 def run_campaign(out_dir: Path = DEFAULT_OUT, samples: int = 20, seed: int = 0, grid: bool = False,
-                 workers: int | None = None, rate_hz: float = FlightOptions.rate_hz) -> str:
+                 workers: int | None = None, rate_hz: float = FlightOptions.rate_hz,
+                 losses: tuple[float, ...] = LOSS_LEVELS) -> str:
     out_dir = Path(out_dir)
-    cases = grid_cases() if grid else random_cases(samples, seed)
+    cases = grid_cases(losses) if grid else random_cases(samples, seed, losses)
     (out_dir / "scenarios").mkdir(parents=True, exist_ok=True)
     jobs = []
     for case in cases:

@@ -6,7 +6,7 @@
     m4-sitl fly SCENARIO [--out DIR] [--controller nmpc|fixed-posture] [--seed N] [--port N] [--rate-hz HZ]
                 [--realtime] [--viewer]
     m4-sitl compare [--out DIR] [--jobs N] [--rate-hz HZ]
-    m4-sitl campaign [--out DIR] [--samples N | --grid] [--seed N] [--jobs N] [--rate-hz HZ]
+    m4-sitl campaign [--out DIR] [--samples N | --grid] [--loss X]... [--seed N] [--jobs N] [--rate-hz HZ]
 
 A subcommand is one `_add_<name>(subparsers)` function that sets `func`, registered in
 `SUBCOMMANDS`. Bad input (unknown scenario, malformed file, bad URL, port in use) prints one
@@ -56,6 +56,16 @@ def _seed(text: str) -> int:
         raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return value
+
+
+def _loss(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0.0 < value <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be in (0, 1], got {text}")
     return value
 
 
@@ -166,6 +176,8 @@ def _add_campaign(sub) -> None:
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, metavar="DIR", help=f"output folder (default {DEFAULT_OUT})")
     p.add_argument("--samples", type=int, default=20, metavar="N", help="random flights (default 20)")
     p.add_argument("--grid", action="store_true", help="the full grid of rotors, losses, speeds, fault times instead")
+    p.add_argument("--loss", type=_loss, action="append", metavar="X",
+                   help="only this loss of effectiveness (0..1; repeat for more; default 0.33, 0.66 and 1)")
     p.add_argument("--seed", type=_seed, default=0, help="seed of the sample and of the sensor noise (default 0)")
     p.add_argument("--jobs", type=int, metavar="N", help="flights at once (default: half the cores)")
     p.add_argument("--rate-hz", type=_positive, default=50.0, metavar="HZ", help="the companion's control rate (default 50)")
@@ -173,9 +185,10 @@ def _add_campaign(sub) -> None:
 
 
 def _campaign(args) -> int:
-    from sitl.campaign import run_campaign
+    from sitl.campaign import LOSS_LEVELS, run_campaign
 
-    print(run_campaign(args.out, args.samples, args.seed, args.grid, args.jobs, args.rate_hz), end="")
+    losses = tuple(args.loss) if args.loss else LOSS_LEVELS
+    print(run_campaign(args.out, args.samples, args.seed, args.grid, args.jobs, args.rate_hz, losses), end="")
     return 0
 
 
