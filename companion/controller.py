@@ -42,6 +42,8 @@ from companion.core.touchdown import TouchdownDetector
 
 _CONSECUTIVE_TOLERANCE = 0.5     # steps closer than (1 +- this) periods count as consecutive
 HIP_RESYNC_RAD = 0.2             # hip goal this far from the measured joint: restart it there
+_HIP_MARGIN_RAD = 0.5            # measured hips beyond the joint range by more than this are broken
+_PLAUSIBLE = ((rom.P, 1e5), (rom.EULER, 2 * np.pi), (rom.V, 100.0), (rom.RATES, 100.0), (rom.HIP_RATE, 100.0))
 
 
 @dataclass(frozen=True)
@@ -62,6 +64,17 @@ class ControlStep:
     fault: FaultStatus
     fault_confirmed_now: bool     # the step at which the fault was confirmed (announce it)
     disturbance: np.ndarray       # (6,) estimate handed to the NMPC
+
+
+def plausible_state(af: Airframe, x) -> bool:
+    """Finite and physically possible (a state outside this is a broken measurement: the
+    controller falls back instead of planning from it)."""
+    x = np.asarray(x, dtype=float)
+    if not np.all(np.isfinite(x)):
+        return False
+    hip = x[rom.HIP]
+    hip_ok = np.all(hip >= af.hip_min_rad - _HIP_MARGIN_RAD) and np.all(hip <= af.hip_max_rad + _HIP_MARGIN_RAD)
+    return bool(hip_ok and all(np.all(np.abs(x[part]) <= limit) for part, limit in _PLAUSIBLE))
 
 
 def thrust_bounds(af: Airframe, thrust_max_n) -> np.ndarray:
@@ -119,8 +132,12 @@ class Controller:
     def step(self, time_s: float, x_measured, thrust_delivered_n=None, thrust_limit_n=None) -> ControlStep:
         """The setpoint answering the telemetry instant time_s for the measured ROM state."""
         af = self.af
-        x = self._with_hip_goal(np.asarray(x_measured, dtype=float).reshape(rom.NX))
-        finite = bool(np.all(np.isfinite(x)))
+        x = np.asarray(x_measured, dtype=float).reshape(rom.NX)
+        thrust_delivered_n = self._thrust_telemetry(thrust_delivered_n)
+        thrust_limit_n = self._thrust_telemetry(thrust_limit_n)
+        finite = plausible_state(af, x)
+        if finite:
+            x = self._with_hip_goal(x)
         if self.reference is None and finite:
             self.reference = MissionReference(self.config.mission, x[rom.P], af, self.config.reference, t0_s=time_s)
             self.touchdown = TouchdownDetector(self.reference.ground_com_z_ned_m, self.config.touchdown)
@@ -143,6 +160,14 @@ class Controller:
         return ControlStep(time_s, sp, x, x_ref, res, fault, confirmed_now, d)
 
     # ------------------------------------------------------------------------------------------
+    def _thrust_telemetry(self, thrust_n) -> np.ndarray | None:
+        """Per-rotor thrusts from the FC with what cannot be a thrust (non-finite, negative,
+        beyond twice the airframe's maximum) as NaN: unknown."""
+        if thrust_n is None:
+            return None
+        t = np.asarray(thrust_n, dtype=float).reshape(ROTOR_COUNT)
+        return np.where(np.isfinite(t) & (t >= 0.0) & (t <= 2.0 * self.af.thrust_max_n), t, np.nan)
+
     def _consecutive(self, time_s: float) -> bool:
         if self._prev is None:
             return False

@@ -1,0 +1,179 @@
+"""The companion's control step: safe setpoints whatever comes in, hover, fault bound, hips, thrust cut."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from companion.airframe import ROTOR_COUNT, load_airframe
+from companion.config import parse_config
+from companion.controller import Controller, Setpoint, safe_setpoint, thrust_bounds
+from companion.core import rom
+from companion.core.fault_detector import FaultState
+from companion.core.nmpc import Nmpc
+from companion.scenario import Landing, Mission
+
+AF = load_airframe()
+CONFIG = parse_config({"control": {"rate_hz": 50.0}}, "test")
+PERIOD = CONFIG.control_period_s
+HOVER_N = AF.hover_thrust_per_rotor_n
+_NMPC = None
+
+
+def controller(**changes) -> Controller:
+    """A fresh controller sharing one NMPC (its warm start dropped)."""
+    global _NMPC
+    if _NMPC is None:
+        _NMPC = Nmpc(AF, CONFIG.nmpc)
+    _NMPC.reset()
+    return Controller(dataclasses.replace(CONFIG, **changes), nmpc=_NMPC)
+
+
+def assert_safe(sp: Setpoint, thrust_max_n) -> None:
+    values = np.r_[sp.thrust_n, sp.hip_angle_rad, sp.hip_rate_rad_s]
+    assert values.shape == (12,) and np.all(np.isfinite(values))
+    bound = thrust_bounds(AF, thrust_max_n)
+    assert np.all(sp.thrust_n >= (0.0 if sp.thrust_cut else AF.thrust_min_n))
+    assert np.all(sp.thrust_n <= bound + 1e-9)
+    assert np.all(sp.hip_angle_rad >= AF.hip_min_rad) and np.all(sp.hip_angle_rad <= AF.hip_max_rad)
+    for a, b in AF.same_side_pairs:
+        assert sp.hip_angle_rad[a] + sp.hip_angle_rad[b] <= AF.same_side_sum_max_rad + 1e-9
+    assert np.all(np.abs(sp.hip_rate_rad_s) <= AF.hip_rate_max_rad_s)
+
+
+anything = st.floats(allow_nan=True, allow_infinity=True)
+four = st.lists(anything, min_size=4, max_size=4)
+
+
+@settings(max_examples=500, deadline=None)
+@given(thrust=four, hip=four, rate=four, thrust_max=four, measured=st.none() | four, cut=st.booleans())
+def test_safe_setpoint_is_finite_and_within_every_bound_whatever_goes_in(thrust, hip, rate, thrust_max, measured,
+                                                                          cut):
+    sp = safe_setpoint(AF, thrust, hip, rate, thrust_max, measured, thrust_cut=cut)
+    assert_safe(sp, thrust_max)
+    if cut:
+        assert np.all(sp.thrust_n == 0.0)
+
+
+def _state(draw_values):
+    """A ROM state near hover with some entries replaced (NaN, inf, wild values)."""
+    x = rom.hover_state(AF)
+    for i, v in draw_values:
+        x[i] = v
+    return x
+
+
+replacements = st.lists(st.tuples(st.integers(0, rom.NX - 1),
+                                  st.floats(allow_nan=True, allow_infinity=True) | st.floats(-3.0, 3.0)),
+                        max_size=6)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(steps=st.lists(st.tuples(replacements, four, four), min_size=1, max_size=5))
+def test_every_control_step_gives_a_finite_setpoint_within_bounds(steps):
+    c = controller()
+    for k, (changes, delivered, limits) in enumerate(steps):
+        out = c.step(k * PERIOD, _state(changes), delivered, limits)
+        assert_safe(out.setpoint, out.fault.thrust_max_estimate_n)
+
+
+def test_hover_at_rest_gives_hover_thrust_and_still_legs():
+    c = controller()
+    for k in range(5):
+        out = c.step(k * PERIOD, rom.hover_state(AF), [HOVER_N] * 4, [AF.thrust_max_n] * 4)
+    sp = out.setpoint
+    assert np.allclose(sp.thrust_n, HOVER_N, atol=0.2)
+    assert np.allclose(sp.hip_angle_rad, AF.nominal_hip_rad, atol=math.radians(1.0))
+    assert np.allclose(sp.hip_rate_rad_s, 0.0, atol=0.05)
+    assert not sp.thrust_cut and out.nmpc.ok
+
+
+def test_hip_goal_is_a_continuous_trajectory_from_setpoint_to_setpoint():
+    c = controller()
+    x = rom.hover_state(AF)
+    x[rom.P] += (0.5, 0.0, 0.0)          # an offset the legs help with
+    x[rom.EULER] = (0.2, -0.1, 0.0)
+    previous = None
+    for k in range(6):
+        sp = c.step(k * PERIOD, x).setpoint
+        if previous is not None:
+            assert np.allclose(sp.hip_angle_rad, previous.hip_angle_rad + previous.hip_rate_rad_s * PERIOD)
+        previous = sp
+
+
+def test_a_rotor_delivering_nothing_is_confirmed_once_and_bounds_the_nmpc():
+    """The ROM as plant with the motors' first-order lag, rotor 4 delivering nothing from
+    t = 0.1 s; the FC reports what each rotor delivers."""
+    c = controller()
+    plant = rom.build_rom(AF, PERIOD, substeps=4).step
+    decay = math.exp(-PERIOD / AF.motor_time_constant_s)
+    x, delivered = rom.hover_state(AF), np.full(4, HOVER_N)
+    announced, out = [], None
+    for k in range(25):
+        if out is not None:
+            sp = out.setpoint
+            target = sp.thrust_n * np.array([1.0, 1.0, 1.0, 0.0 if k * PERIOD > 0.1 else 1.0])
+            average = target + (delivered - target) * AF.motor_time_constant_s / PERIOD * (1 - decay)
+            delivered = target + (delivered - target) * decay
+            x = np.array(plant(x, np.r_[average, np.zeros(4)], np.zeros(rom.ND))).ravel()
+            x[rom.HIP], x[rom.HIP_RATE] = sp.hip_angle_rad + sp.hip_rate_rad_s * PERIOD, sp.hip_rate_rad_s
+        out = c.step(k * PERIOD, x, delivered, [AF.thrust_max_n] * 4)
+        announced += [k * PERIOD] if out.fault_confirmed_now else []
+    assert len(announced) == 1 and announced[0] <= 0.1 + 0.2
+    assert out.fault.state is FaultState.CONFIRMED and out.fault.rotor == 4
+    assert out.fault.message == "thrust loss rotor 4"
+    assert out.setpoint.thrust_n[3] <= out.fault.thrust_max_estimate_n[3] < 1.0
+
+
+def test_one_rotor_limit_dropping_at_the_fc_is_not_taken_as_known():
+    """The FC's per-rotor limit counts only as a common cap: a lowered single limit is what
+    the detector must find, so the bound stays at the cap until it does."""
+    c = controller()
+    out = c.step(0.0, rom.hover_state(AF), [HOVER_N] * 4, [AF.thrust_max_n] * 3 + [0.0])
+    out = c.step(PERIOD, rom.hover_state(AF), [HOVER_N] * 4, [AF.thrust_max_n] * 3 + [0.0])
+    assert np.allclose(out.fault.thrust_max_estimate_n, AF.thrust_max_n)
+    capped = c.step(2 * PERIOD, rom.hover_state(AF), [HOVER_N] * 4, [24.0] * 4)
+    assert np.allclose(capped.fault.thrust_max_estimate_n, 24.0)
+
+
+def test_thrust_is_cut_after_touchdown_during_the_landing():
+    c = controller(mission=Mission(land=Landing(at_s=0.0, descent_speed_m_s=0.5)))
+    c.step(0.0, rom.hover_state(AF, p_ned_m=(0.0, 0.0, -1.0)))
+    ground = rom.hover_state(AF, p_ned_m=(0.0, 0.0, c.reference.ground_com_z_ned_m))
+    outs = [c.step(k * PERIOD, ground) for k in range(1, 30)]
+    cut = [o.setpoint.thrust_cut for o in outs]
+    assert not cut[0] and cut[-1]
+    first = cut.index(True)
+    assert all(cut[first:])
+    assert (first + 1) * PERIOD >= CONFIG.touchdown.dwell_s - 1e-9
+    assert np.all(outs[-1].setpoint.thrust_n == 0.0)
+
+
+def test_resume_restarts_the_hip_goal_at_the_measured_joints():
+    c = controller()
+    x = rom.hover_state(AF)
+    x[rom.P] += (0.5, 0.3, 0.0)
+    for k in range(3):
+        c.step(k * PERIOD, x)
+    moved = x.copy()
+    moved[rom.HIP] = np.radians([30.0, 60.0, 35.0, 55.0])
+    c.resume()
+    sp = c.step(10.0, moved).setpoint
+    assert np.allclose(sp.hip_angle_rad, moved[rom.HIP])
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf])
+def test_an_unusable_state_gives_hover_thrust_and_held_legs(bad):
+    c = controller()
+    x = rom.hover_state(AF)
+    x[rom.V.start] = bad
+    out = c.step(0.0, x)
+    assert out.nmpc is None
+    assert np.allclose(out.setpoint.thrust_n, HOVER_N)
+    assert np.allclose(out.setpoint.hip_rate_rad_s, 0.0)
+    assert_safe(out.setpoint, [AF.thrust_max_n] * ROTOR_COUNT)
