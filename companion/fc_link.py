@@ -1,9 +1,10 @@
 """The companion's side of the MAVLink link to its flight controller (system 1, component 191).
 
 - Lock-on: only the flight controller's system and component are heard (others are dropped
-  and counted as foreign); the first address that sends the FC's HEARTBEAT is the FC, and
-  from then on a udpin link hears and answers only that address (a stray sender, even with
-  the FC's ids, can neither feed us nor redirect our replies). Nothing is sent before.
+  and counted as foreign); the first address that sends the FC's HEARTBEAT (signed, when a
+  signing key is set) is the FC, and from then on a udpin link hears and answers only that
+  address (a stray sender, even with the FC's ids, can neither feed us nor redirect our
+  replies). Nothing is sent before.
 - Heartbeat at 1 Hz as MAV_TYPE_ONBOARD_CONTROLLER.
 - Message intervals: the telemetry frame's streams are asked for at the control period with
   MAV_CMD_SET_MESSAGE_INTERVAL, one command at a time, each resent until acknowledged.
@@ -57,6 +58,7 @@ class FcLink:
         self._sent_at_s: float | None = None
         self._attempts = 0
         self.intervals_acked = 0
+        self._signing = link.mav.signing.secret_key is not None
 
     @property
     def locked(self) -> bool:
@@ -72,7 +74,7 @@ class FcLink:
                     self._foreign += 1
                     continue
                 if not self.locked:
-                    if msg.get_msgId() != mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+                    if msg.get_msgId() != mavlink.MAVLINK_MSG_ID_HEARTBEAT or (self._signing and not msg.get_signed()):
                         continue
                     self.fc_address = sender
                     self.link.lock_peer(sender)

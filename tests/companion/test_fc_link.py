@@ -1,0 +1,166 @@
+"""The companion's link to its FC over loopback UDP: lock-on, strays, signing, interval requests."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from companion.controller import Setpoint
+from companion.fc_link import FcLink
+from companion.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from companion.mavlink.link import UdpLink
+from companion.telemetry import STREAMS
+
+KEY = bytes(range(32))
+SETPOINT = Setpoint(thrust_n=np.full(4, 14.7), hip_angle_rad=np.full(4, 0.8), hip_rate_rad_s=np.zeros(4))
+
+
+def heartbeat():
+    return mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_GENERIC, 0, 0, 4, 3)
+
+
+def position(t_ms, x=0.0):
+    return mavlink.MAVLink_local_position_ned_message(t_ms, x, 0.0, -2.0, 0.0, 0.0, 0.0)
+
+
+def drain(receive, want: int = 1, timeout_s: float = 2.0) -> list:
+    """What `receive()` returns until `want` messages came or timeout_s passed."""
+    got, deadline = [], time.monotonic() + timeout_s
+    while len(got) < want and time.monotonic() < deadline:
+        got += receive()
+        time.sleep(0.005)
+    return got
+
+
+@pytest.fixture
+def links(request):
+    """(companion FcLink, FC link, stray link): the FC and the stray both claim system 1 component 1."""
+    key_of = getattr(request, "param", {})
+    companion = FcLink(UdpLink("udpin:127.0.0.1:0", FC_SYSTEM_ID, COMPANION_COMPONENT_ID, key=key_of.get("companion")))
+    url = f"udpout:127.0.0.1:{companion.link.local_port}"
+    fc = UdpLink(url, FC_SYSTEM_ID, FC_COMPONENT_ID, key=key_of.get("fc"))
+    stray = UdpLink(url, FC_SYSTEM_ID, FC_COMPONENT_ID, key=key_of.get("stray"))
+    yield companion, fc, stray
+    for link in (companion.link, fc, stray):
+        link.close()
+
+
+def test_nothing_is_heard_or_sent_before_the_fc_heartbeat(links):
+    companion, fc, _ = links
+    fc.send(position(10))
+    time.sleep(0.05)
+    assert companion.receive() == [] and not companion.locked
+    companion.tick(0.0)
+    fc.send(heartbeat())
+    assert [m.get_type() for m in drain(companion.receive)] == ["HEARTBEAT"]
+    assert companion.locked
+
+
+def test_a_stray_sender_with_the_fc_ids_is_ignored_and_cannot_redirect_our_replies(links):
+    companion, fc, stray = links
+    fc.send(heartbeat())
+    drain(companion.receive)
+    for t_ms in (20, 40):
+        stray.send(heartbeat())
+        stray.send(position(t_ms, x=99.0))
+    fc.send(position(60, x=1.0))
+    got = drain(companion.receive)
+    assert [(m.get_type(), m.x) for m in got] == [("LOCAL_POSITION_NED", 1.0)]
+    assert companion.health().foreign == 4
+    companion.send_setpoint(60, 20, SETPOINT)
+    assert [m.get_type() for m in drain(fc.receive)] == ["M4_SETPOINT"]
+    time.sleep(0.05)
+    assert stray.receive() == []
+
+
+def test_other_systems_and_components_are_dropped_and_counted(links):
+    companion, fc, _ = links
+    other = UdpLink(f"udpout:127.0.0.1:{companion.link.local_port}", 7, FC_COMPONENT_ID)
+    gimbal = UdpLink(f"udpout:127.0.0.1:{companion.link.local_port}", FC_SYSTEM_ID, 154)
+    try:
+        other.send(heartbeat())
+        gimbal.send(heartbeat())
+        time.sleep(0.05)
+        assert companion.receive() == [] and not companion.locked
+        assert companion.health().foreign == 2
+    finally:
+        other.close()
+        gimbal.close()
+
+
+@pytest.mark.parametrize("links", [{"companion": KEY, "fc": KEY}], indirect=True)
+def test_with_a_key_unsigned_and_badly_signed_traffic_is_dropped_and_counted(links):
+    companion, fc, _ = links
+    liar = UdpLink(f"udpout:127.0.0.1:{companion.link.local_port}", FC_SYSTEM_ID, FC_COMPONENT_ID,
+                   key=bytes(32))
+    unsigned = UdpLink(f"udpout:127.0.0.1:{companion.link.local_port}", FC_SYSTEM_ID, FC_COMPONENT_ID)
+    try:
+        unsigned.send(heartbeat())          # unsigned heartbeats pass signing, but do not lock us on
+        time.sleep(0.05)
+        companion.receive()
+        assert not companion.locked
+        fc.send(heartbeat())
+        drain(companion.receive)
+        assert companion.locked and companion.fc_address[1] == fc.local_port
+        liar.send(position(20, x=5.0))      # another key, and from another address
+        fc.mav.signing.sign_outgoing = False
+        fc.send(position(40, x=6.0))        # the FC's own address, unsigned
+        fc.mav.signing.sign_outgoing = True
+        fc.send(position(60, x=7.0))
+        got = drain(companion.receive)
+        assert [m.x for m in got] == [7.0]
+        health = companion.health()
+        assert health.bad_signature == 1 and health.foreign >= 1
+    finally:
+        liar.close()
+        unsigned.close()
+
+
+@pytest.mark.parametrize("links", [{"companion": KEY, "fc": KEY}], indirect=True)
+def test_our_setpoints_are_signed_with_the_key(links):
+    companion, fc, _ = links
+    fc.send(heartbeat())
+    drain(companion.receive)
+    companion.send_setpoint(0, 20, SETPOINT)
+    got = drain(fc.receive)
+    assert [m.get_type() for m in got] == ["M4_SETPOINT"] and got[0].get_signed()
+    assert fc.signing_counters().signed_ok >= 1
+
+
+def test_heartbeat_once_a_second_as_an_onboard_controller(links):
+    companion, fc, _ = links
+    fc.send(heartbeat())
+    drain(companion.receive)
+    for now in (0.0, 0.5, 0.99, 1.0, 1.5):
+        companion.tick(now)
+    beats = [m for m in drain(fc.receive, want=20, timeout_s=0.3) if m.get_type() == "HEARTBEAT"]
+    assert len(beats) == 2
+    assert {(m.get_srcComponent(), m.type) for m in beats} == {(COMPANION_COMPONENT_ID,
+                                                                 mavlink.MAV_TYPE_ONBOARD_CONTROLLER)}
+
+
+def test_message_intervals_are_requested_one_at_a_time_until_acked(links):
+    companion, fc, _ = links
+    fc.send(heartbeat())
+    drain(companion.receive)
+    companion.request_intervals(0.02)
+    asked = []
+    now = 0.0
+    for _ in range(40):
+        companion.tick(now)
+        for m in drain(fc.receive, timeout_s=0.1):
+            if m.get_type() != "COMMAND_LONG":
+                continue
+            asked.append((int(m.param1), m.param2))
+            if len(asked) != 2:             # the second request goes unanswered once: resent
+                fc.send(mavlink.MAVLink_command_ack_message(m.command, mavlink.MAV_RESULT_ACCEPTED, 0, 0, 1, 191))
+        drain(companion.receive, want=1, timeout_s=0.05)
+        now += 0.3
+        if companion.health().intervals_pending == 0:
+            break
+    ids = [i for i, _ in asked]
+    assert ids[:3] == [STREAMS[0], STREAMS[1], STREAMS[1]]
+    assert sorted(set(ids)) == sorted(STREAMS) and {us for _, us in asked} == {20000.0}
+    assert companion.health().intervals_acked == len(STREAMS)
