@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import re
 import signal
 import socket
 import subprocess
@@ -37,6 +38,7 @@ COMPANION_READY = "ready:"
 COMPANION_START_TIMEOUT_S = 300.0     # a first start compiles the NMPC
 STOP_TIMEOUT_S = 10.0
 POLL_S = 0.2
+_PREFIX = re.compile(r"^m4-[a-z]+: (error: )?")
 
 
 class FlightError(RuntimeError):
@@ -98,8 +100,9 @@ def companion_config_text(options: FlightOptions, mavlink_port: int, feed_port: 
 
 
 def _last_line(path: Path) -> str:
+    """The last thing a process said, without its own "m4-...: error:" prefix."""
     lines = [ln for ln in path.read_text(errors="replace").splitlines() if ln.strip()] if path.exists() else []
-    return lines[-1] if lines else "(no output)"
+    return _PREFIX.sub("", lines[-1]) if lines else "(no output)"
 
 
 def _stop(proc: subprocess.Popen) -> None:

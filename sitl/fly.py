@@ -9,9 +9,10 @@ open-loop comparison of the reduced-order model with the plant (sitl.model_match
 from __future__ import annotations
 
 import json
-import sys
 import time
 from pathlib import Path
+
+from tqdm import tqdm
 
 from companion.airframe import Airframe, load_airframe
 from companion.scenario import Scenario, load_scenario
@@ -28,18 +29,6 @@ def default_out_dir(name: str) -> Path:
     return Path("runs") / f"{name}-{time.strftime('%Y%m%d-%H%M%S', time.gmtime())}"
 
 
-def _terminal_progress(name: str, duration_s: float):
-    if not sys.stderr.isatty():
-        return None
-
-    def show(t_s: float) -> None:
-        done = min(t_s / duration_s, 1.0)
-        bar = "#" * round(30 * done)
-        print(f"\rm4-sitl fly {name}: [{bar:<30}] t = {t_s:5.1f} / {duration_s:g} s", end="", file=sys.stderr,
-              flush=True)
-    return show
-
-
 def fly(scenario_arg: str, out_dir: Path | None = None, options: FlightOptions = FlightOptions(),
         figures: bool = True, progress: bool = True) -> dict:
     """Fly a built-in scenario or a scenario file; returns the metrics (also in metrics.json).
@@ -47,12 +36,10 @@ def fly(scenario_arg: str, out_dir: Path | None = None, options: FlightOptions =
     path = scenarios.scenario_path(scenario_arg)
     scenario = load_scenario(path)
     out_dir = Path(out_dir) if out_dir is not None else default_out_dir(scenario.name)
-    show = _terminal_progress(scenario.name, scenario.duration_s) if progress else None
-    try:
-        files = run_flight(scenario, path.read_text(), out_dir, options, show)
-    finally:
-        if show is not None:
-            print(file=sys.stderr)
+    # A progress bar in simulated seconds, on a terminal only (disable=None: off when not a TTY).
+    with tqdm(total=scenario.duration_s, desc=f"fly {scenario.name}", unit="s", disable=None if progress else True,
+              bar_format="{desc}: {bar} {n:.1f}/{total:g} s simulated [{elapsed}]") as bar:
+        files = run_flight(scenario, path.read_text(), out_dir, options, lambda t_s: bar.update(t_s - bar.n))
     return evaluate(files, scenario, options.controller, load_airframe(), figures)
 
 
