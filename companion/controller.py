@@ -103,7 +103,20 @@ def safe_setpoint(af: Airframe, thrust_n, hip_rad, hip_rate_rad_s, thrust_max_n,
             hip[list(pair)] = np.maximum(hip[list(pair)] - excess / 2, af.hip_min_rad)
     rate = np.asarray(hip_rate_rad_s, dtype=float).reshape(ROTOR_COUNT)
     rate = np.clip(np.where(np.isfinite(rate), rate, 0.0), -af.hip_rate_max_rad_s, af.hip_rate_max_rad_s)
-    return Setpoint(thrust_n=thrust, hip_angle_rad=hip, hip_rate_rad_s=rate, thrust_cut=thrust_cut)
+    return Setpoint(thrust_n=_float32_within(thrust, 0.0 if thrust_cut else af.thrust_min_n, bound),
+                    hip_angle_rad=_float32_within(hip, af.hip_min_rad, hip),
+                    hip_rate_rad_s=_float32_within(rate, -af.hip_rate_max_rad_s, af.hip_rate_max_rad_s),
+                    thrust_cut=thrust_cut)
+
+
+def _float32_within(values: np.ndarray, lo, hi) -> np.ndarray:
+    """Values that stay within [lo, hi] as the float32 MAVLink carries (rounding to the nearest
+    float32 may step past a bound such as pi/2); the hips pass hi = themselves, so they never
+    round up and a pair's sum stays within its bound."""
+    v32 = values.astype(np.float32)
+    v32 = np.where(v32.astype(float) > hi, np.nextafter(v32, np.float32(-np.inf)), v32)
+    v32 = np.where(v32.astype(float) < lo, np.nextafter(v32, np.float32(np.inf)), v32)
+    return v32.astype(float)
 
 
 class Controller:

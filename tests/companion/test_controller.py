@@ -35,8 +35,10 @@ def controller(**changes) -> Controller:
 
 
 def assert_safe(sp: Setpoint, thrust_max_n) -> None:
+    """Finite and within every bound, also as the float32 values MAVLink carries."""
     values = np.r_[sp.thrust_n, sp.hip_angle_rad, sp.hip_rate_rad_s]
     assert values.shape == (12,) and np.all(np.isfinite(values))
+    assert np.array_equal(values.astype(np.float32).astype(float), values)
     bound = thrust_bounds(AF, thrust_max_n)
     assert np.all(sp.thrust_n >= (0.0 if sp.thrust_cut else AF.thrust_min_n))
     assert np.all(sp.thrust_n <= bound + 1e-9)

@@ -1,0 +1,268 @@
+"""The run loop on a scripted link and a fake clock: link loss and return, and a fuzzed byte
+stream of more than 100,000 frames through the whole receive path (parse, lock-on, telemetry,
+control) without an exception and without a bad setpoint leaving."""
+
+from __future__ import annotations
+
+import math
+import random
+import struct
+from collections import deque
+
+import numpy as np
+import pytest
+
+from companion.airframe import load_airframe
+from companion.app import CompanionApp
+from companion.config import parse_config
+from companion.controller import Controller
+from companion.fc_link import FcLink
+from companion.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
+from companion.mavlink.link import UdpLink
+
+AF = load_airframe()
+CONFIG = parse_config({"control": {"rate_hz": 50.0}, "link": {"fc_url": "udpin:127.0.0.1:0"}}, "test")
+FC_ADDRESS = ("127.0.0.1", 9)            # never written to: the link below captures what it sends
+FUZZ_FRAMES = 100_000
+
+
+class ScriptedLink(UdpLink):
+    """A udpin link whose datagrams come from a queue and whose packets go to a list."""
+
+    def __init__(self):
+        super().__init__("udpin:127.0.0.1:0", FC_SYSTEM_ID, COMPANION_COMPONENT_ID)
+        self.inbox: deque[tuple[bytes, tuple[str, int]]] = deque()
+        self.sent: list[bytes] = []
+
+    def write(self, packet: bytes) -> None:
+        self.sent.append(bytes(packet))
+
+    def receive_from(self):
+        out = []
+        while self.inbox:
+            data, sender = self.inbox.popleft()
+            out.append((sender, self.ingest(data, sender)))
+        return out
+
+    def sent_messages(self) -> list:
+        parser = new_mav(None, 255, 0)
+        return [m for p in self.sent for m in parser.parse_buffer(p) or ()]
+
+
+class Clock:
+    def __init__(self):
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+class FakeFc:
+    """Packs what a flight controller would send: heartbeat and telemetry frames."""
+
+    def __init__(self, link: ScriptedLink):
+        self.link = link
+        self.mav = new_mav(None, FC_SYSTEM_ID, FC_COMPONENT_ID)
+
+    def send(self, *msgs) -> None:
+        for msg in msgs:
+            self.link.inbox.append((msg.pack(self.mav), FC_ADDRESS))
+
+    def heartbeat(self) -> None:
+        self.send(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, 0, 0, 0, 4, 3))
+
+    def frame(self, t_ms: int) -> None:
+        hover = [AF.hover_thrust_per_rotor_n] * 4
+        self.send(mavlink.MAVLink_attitude_message(t_ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+                  mavlink.MAVLink_local_position_ned_message(t_ms, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0),
+                  mavlink.MAVLink_m4_joint_state_message(t_ms, [AF.nominal_hip_rad] * 4, [0.0] * 4),
+                  mavlink.MAVLink_m4_thruster_status_message(t_ms, hover, hover, [AF.thrust_max_n] * 4))
+
+
+@pytest.fixture(scope="module")
+def controller():
+    return Controller(CONFIG)
+
+
+@pytest.fixture
+def rig(controller):
+    controller.resume()
+    link, clock = ScriptedLink(), Clock()
+    app = CompanionApp(CONFIG, FcLink(link), controller, clock=clock)
+    yield app, FakeFc(link), link, clock
+    link.close()
+
+
+def setpoint_times(link: ScriptedLink) -> list[int]:
+    return [m.time_boot_ms for m in link.sent_messages() if m.get_type() == "M4_SETPOINT"]
+
+
+def fly(app, fc, clock, t0_ms: int, frames: int, period_ms: int = 20) -> None:
+    for k in range(frames):
+        fc.frame(t0_ms + k * period_ms)
+        app.poll()
+        clock.now += period_ms / 1000.0
+
+
+def test_each_frame_is_answered_with_its_instant_and_the_control_period(rig):
+    app, fc, link, clock = rig
+    fc.heartbeat()
+    fly(app, fc, clock, 0, 10)
+    assert setpoint_times(link) == list(range(0, 200, 20))
+    assert {m.period_ms for m in link.sent_messages() if m.get_type() == "M4_SETPOINT"} == {20}
+
+
+def test_frames_between_our_instants_are_not_answered(rig):
+    """Telemetry faster than the control rate (a real FC's own stream rate): every 20 ms
+    instant is answered, the 10 ms ones between are not."""
+    app, fc, link, clock = rig
+    fc.heartbeat()
+    fly(app, fc, clock, 0, 10, period_ms=10)
+    assert setpoint_times(link) == list(range(0, 100, 20))
+
+
+def test_telemetry_loss_is_noticed_within_0_3_s_setpoints_stop_and_control_resumes(rig, monkeypatch):
+    app, fc, link, clock = rig
+    resumes = []
+    monkeypatch.setattr(app.controller, "resume", lambda: resumes.append(clock.now))
+    fc.heartbeat()
+    fly(app, fc, clock, 0, 10)
+    last_frame_s = clock.now - 0.02
+    answered = len(setpoint_times(link))
+    while app.connected:
+        clock.now += 0.01
+        app.poll()
+    assert 0.3 <= clock.now - last_frame_s <= 0.31
+    assert app.counters.link_losses == 1
+    texts = [m.text for m in link.sent_messages() if m.get_type() == "STATUSTEXT"]
+    assert texts[-1] == "companion: telemetry lost, setpoints stopped"
+    clock.now += 1.0
+    app.poll()
+    assert len(setpoint_times(link)) == answered               # nothing went out while lost
+    fly(app, fc, clock, 2000, 5)                               # the FC's clock moved on 1.8 s
+    assert app.connected and len(resumes) == 1
+    assert setpoint_times(link)[answered:] == [2000, 2020, 2040, 2060, 2080]
+    severities = {m.severity for m in link.sent_messages() if m.get_type() == "STATUSTEXT"}
+    assert severities.isdisjoint({mavlink.MAV_SEVERITY_EMERGENCY, mavlink.MAV_SEVERITY_ALERT,
+                                  mavlink.MAV_SEVERITY_CRITICAL})
+
+
+def test_a_short_wall_clock_gap_in_lockstep_does_not_reset_the_controller(rig, monkeypatch):
+    """In lockstep the FC's clock waits for us: after a slow wall-clock moment the next frame is
+    the very next instant, and nothing the controller holds is stale."""
+    app, fc, link, clock = rig
+    resumes = []
+    monkeypatch.setattr(app.controller, "resume", lambda: resumes.append(clock.now))
+    fc.heartbeat()
+    fly(app, fc, clock, 0, 5)
+    clock.now += 0.5
+    app.poll()
+    assert not app.connected
+    fly(app, fc, clock, 100, 3)
+    assert app.connected and resumes == []
+    assert setpoint_times(link) == list(range(0, 160, 20))
+
+
+# -------------------------------------------------------------------------------------------------
+def _frame(msg_id: int, payload: bytes, seq: int, sysid: int, compid: int) -> bytes:
+    header = struct.pack("<BBBBBBBHB", 0xFD, len(payload), 0, 0, seq & 0xFF, sysid, compid, msg_id & 0xFFFF,
+                         msg_id >> 16)
+    crc_extra = mavlink.mavlink_map[msg_id].crc_extra if msg_id in mavlink.mavlink_map else 0
+    crc = mavlink.x25crc(header[1:] + payload)
+    crc.accumulate(struct.pack("B", crc_extra))
+    return header + payload + struct.pack("<H", crc.crc)
+
+
+class Fuzzer:
+    """Datagrams of one MAVLink frame each (or garbage), counted by kind."""
+
+    TELEMETRY = [mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION,
+                 mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mavlink.MAVLINK_MSG_ID_M4_JOINT_STATE,
+                 mavlink.MAVLINK_MSG_ID_M4_THRUSTER_STATUS, mavlink.MAVLINK_MSG_ID_HEARTBEAT,
+                 mavlink.MAVLINK_MSG_ID_COMMAND_ACK, mavlink.MAVLINK_MSG_ID_STATUSTEXT]
+
+    def __init__(self, seed: int):
+        self.rng = random.Random(seed)
+        self.known = sorted(mavlink.mavlink_map)
+        self.counts = {"garbage": 0, "bad_crc": 0, "unknown_id": 0, "random_fields": 0, "plausible": 0}
+        self.seq = 0
+        self.t_ms = 0
+
+    def _ids(self) -> tuple[int, int]:
+        return (FC_SYSTEM_ID, FC_COMPONENT_ID) if self.rng.random() < 0.9 else (self.rng.randrange(256),
+                                                                              self.rng.randrange(256))
+
+    def _random_payload(self, msg_id: int) -> bytes:
+        size = mavlink.mavlink_map[msg_id].unpacker.size
+        return bytes(self.rng.randrange(256) for _ in range(self.rng.randint(1, size)))
+
+    def _plausible(self, msg_id: int) -> bytes:
+        """A telemetry message with sane values, NaN/inf sprinkled in, time jumping around."""
+        r = self.rng
+        self.t_ms = max(0, self.t_ms + r.choice([20, 20, 20, 0, -20, -5000, 7]))
+        f = [r.choice([r.uniform(-1, 1), r.uniform(-1, 1), r.uniform(-1, 1), math.nan, math.inf, 1e30])
+             for _ in range(16)]
+        build = {
+            mavlink.MAVLINK_MSG_ID_ATTITUDE: lambda: mavlink.MAVLink_attitude_message(self.t_ms, *f[:6]),
+            mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
+                lambda: mavlink.MAVLink_local_position_ned_message(self.t_ms, *f[:6]),
+            mavlink.MAVLINK_MSG_ID_M4_JOINT_STATE:
+                lambda: mavlink.MAVLink_m4_joint_state_message(self.t_ms, [0.8 + v for v in f[:4]], f[4:8]),
+            mavlink.MAVLINK_MSG_ID_M4_THRUSTER_STATUS:
+                lambda: mavlink.MAVLink_m4_thruster_status_message(self.t_ms, [15 + v for v in f[:4]],
+                                                                   [15 * v for v in f[4:8]], [30 * v for v in f[8:12]]),
+        }.get(msg_id, lambda: mavlink.MAVLink_attitude_quaternion_message(self.t_ms, 1.0, *f[:6], f[6:10]))
+        return build().pack(new_mav(None, *self._ids()))
+
+    def datagram(self) -> bytes:
+        r = self.rng
+        kind = r.random()
+        self.seq += 1
+        if kind < 0.2:
+            self.counts["garbage"] += 1
+            return bytes(r.randrange(256) for _ in range(r.randint(1, 300)))
+        if kind < 0.35:
+            self.counts["bad_crc"] += 1
+            data = bytearray(_frame(r.choice(self.TELEMETRY), self._random_payload(r.choice(self.TELEMETRY)),
+                                    self.seq, *self._ids()))
+            data[r.randrange(1, len(data))] ^= 1 << r.randrange(8)
+            return bytes(data)
+        if kind < 0.45:
+            self.counts["unknown_id"] += 1
+            msg_id = r.choice([i for i in (r.randrange(1 << 24) for _ in range(3)) if i not in mavlink.mavlink_map])
+            return _frame(msg_id, bytes(r.randrange(256) for _ in range(r.randint(1, 60))), self.seq, *self._ids())
+        if kind < 0.75:
+            self.counts["random_fields"] += 1
+            msg_id = r.choice(self.TELEMETRY) if r.random() < 0.7 else r.choice(self.known)
+            return _frame(msg_id, self._random_payload(msg_id), self.seq, *self._ids())
+        self.counts["plausible"] += 1
+        return self._plausible(r.choice(self.TELEMETRY[:5]))
+
+
+def test_a_fuzzed_byte_stream_never_raises_and_never_lets_a_bad_setpoint_out(rig):
+    app, fc, link, clock = rig
+    fc.heartbeat()
+    fuzz = Fuzzer(seed=4)
+    senders = [FC_ADDRESS, FC_ADDRESS, FC_ADDRESS, ("127.0.0.1", 10)]
+    for k in range(FUZZ_FRAMES):
+        link.inbox.append((fuzz.datagram(), senders[k % len(senders)]))
+        if k % 8 == 7:
+            app.poll()
+            clock.now += 0.004
+    app.poll()
+    health, telemetry = app.fc.health(), app.telemetry.counters
+    sent = link.sent_messages()
+    setpoints = [m for m in sent if m.get_type() == "M4_SETPOINT"]
+    print(f"\nfuzz: {FUZZ_FRAMES} frames {fuzz.counts}; link: bad CRC {health.bad_crc}, foreign {health.foreign}; "
+          f"telemetry: accepted {telemetry.accepted}, stale {telemetry.stale}, non-finite {telemetry.nonfinite}, "
+          f"reboots {telemetry.reboots}; {len(setpoints)} setpoints sent")
+    assert sum(fuzz.counts.values()) == FUZZ_FRAMES >= 100_000
+    assert health.bad_crc > 0.1 * FUZZ_FRAMES and health.foreign > 0.2 * FUZZ_FRAMES
+    assert telemetry.nonfinite > 0 and telemetry.stale > 0 and telemetry.accepted > 0
+    assert setpoints, "the fuzz never completed a frame: it does not reach the controller"
+    for m in setpoints:
+        values = np.array([*m.thrust_n, *m.hip_angle_rad, *m.hip_rate_rad_s])
+        assert np.all(np.isfinite(values))
+        assert np.all((np.array(m.thrust_n) >= 0) & (np.array(m.thrust_n) <= AF.thrust_max_n))
+        assert np.all((np.array(m.hip_angle_rad) >= AF.hip_min_rad) & (np.array(m.hip_angle_rad) <= AF.hip_max_rad))
+        assert np.all(np.abs(m.hip_rate_rad_s) <= AF.hip_rate_max_rad_s)
