@@ -137,7 +137,7 @@ def summary_markdown(rows: list[dict]) -> str:
 
 def run_campaign(out_dir: Path = DEFAULT_OUT, samples: int = 20, seed: int = 0, grid: bool = False,
                  workers: int | None = None, rate_hz: float = FlightOptions.rate_hz,
-                 losses: tuple[float, ...] = LOSS_LEVELS) -> str:
+                 losses: tuple[float, ...] = LOSS_LEVELS, engine: str = "local", scheduler: str | None = None) -> str:
     out_dir = Path(out_dir)
     cases = grid_cases(losses) if grid else random_cases(samples, seed, losses)
     (out_dir / "scenarios").mkdir(parents=True, exist_ok=True)
@@ -146,7 +146,7 @@ def run_campaign(out_dir: Path = DEFAULT_OUT, samples: int = 20, seed: int = 0, 
         path = out_dir / "scenarios" / f"{case.name}.toml"
         path.write_text(case.scenario_toml())
         jobs.append(FlightJob(str(path), out_dir / "flights" / case.name, FlightOptions(seed=seed, rate_hz=rate_hz)))
-    rows = [result_row(c, m) for c, m in zip(cases, fly_all(jobs, workers, "campaign"))]
+    rows = [result_row(c, m) for c, m in zip(cases, fly_all(jobs, workers, "campaign", engine, scheduler))]
     with (out_dir / "campaign.csv").open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()

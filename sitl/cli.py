@@ -7,6 +7,7 @@
                 [--realtime] [--viewer]
     m4-sitl compare [--out DIR] [--jobs N] [--rate-hz HZ]
     m4-sitl campaign [--out DIR] [--samples N | --grid] [--loss X]... [--seed N] [--jobs N] [--rate-hz HZ]
+                     [--engine local|dask] [--scheduler ADDRESS]
 
 A subcommand is one `_add_<name>(subparsers)` function that sets `func`, registered in
 `SUBCOMMANDS`. Bad input (unknown scenario, malformed file, bad URL, port in use) prints one
@@ -56,16 +57,6 @@ def _seed(text: str) -> int:
         raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return value
-
-
-def _loss(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not 0.0 < value <= 1.0:
-        raise argparse.ArgumentTypeError(f"must be in (0, 1], got {text}")
     return value
 
 
@@ -123,73 +114,21 @@ def _list(args) -> int:
 
 
 def _add_fly(sub) -> None:
-    from sitl.flight_run import CONTROLLERS
+    from sitl import flight_cli
 
-    p = sub.add_parser("fly", help="fly a scenario: the plant and the companion over loopback MAVLink; metrics, figures")
-    p.add_argument("scenario", metavar="SCENARIO", help="built-in name (m4-sitl list) or scenario file")
-    p.add_argument("--out", type=Path, metavar="DIR", help="output folder (default runs/<scenario>-<timestamp>)")
-    p.add_argument("--controller", choices=CONTROLLERS, default="nmpc", help="nmpc (default) or fixed-posture")
-    p.add_argument("--seed", type=_seed, default=0, help="sensor noise seed (default 0)")
-    p.add_argument("--port", type=int, metavar="N", help="loopback UDP port of the MAVLink link (default: a free one)")
-    p.add_argument("--rate-hz", type=_positive, default=50.0, metavar="HZ", help="the companion's control rate (default 50)")
-    p.add_argument("--realtime", action="store_true", help="pace by the wall clock (default: lockstep)")
-    p.add_argument("--viewer", action="store_true", help="show MuJoCo's passive viewer")
-    p.set_defaults(func=_fly)
-
-
-def _fly(args) -> int:
-    from sitl.fly import default_out_dir, fly, summary_line
-    from sitl.flight_run import FlightError, FlightOptions
-
-    options = FlightOptions(controller=args.controller, seed=args.seed, realtime=args.realtime, viewer=args.viewer,
-                            port=args.port, rate_hz=args.rate_hz)
-    out = args.out or default_out_dir(scenarios.resolve(args.scenario).name)
-    try:
-        metrics = fly(args.scenario, out, options)
-    except FlightError as e:
-        raise BadInput(str(e)) from None
-    print(summary_line(metrics, out))
-    return 0
+    flight_cli.add_fly(sub)
 
 
 def _add_compare(sub) -> None:
-    from sitl.compare import DEFAULT_OUT
+    from sitl import flight_cli
 
-    p = sub.add_parser("compare", help="posture manipulation vs fixed posture on the paper's scenarios: a Markdown table")
-    p.add_argument("--out", type=Path, default=DEFAULT_OUT, metavar="DIR", help=f"output folder (default {DEFAULT_OUT})")
-    p.add_argument("--jobs", type=int, metavar="N", help="flights at once (default: half the cores)")
-    p.add_argument("--rate-hz", type=_positive, default=50.0, metavar="HZ", help="the companion's control rate (default 50)")
-    p.set_defaults(func=_compare)
-
-
-def _compare(args) -> int:
-    from sitl.compare import compare
-
-    print(compare(args.out, workers=args.jobs, rate_hz=args.rate_hz), end="")
-    return 0
+    flight_cli.add_compare(sub)
 
 
 def _add_campaign(sub) -> None:
-    from sitl.campaign import DEFAULT_OUT
+    from sitl import flight_cli
 
-    p = sub.add_parser("campaign", help="many faulted flights in parallel: survival, altitude loss, detection")
-    p.add_argument("--out", type=Path, default=DEFAULT_OUT, metavar="DIR", help=f"output folder (default {DEFAULT_OUT})")
-    p.add_argument("--samples", type=int, default=20, metavar="N", help="random flights (default 20)")
-    p.add_argument("--grid", action="store_true", help="the full grid of rotors, losses, speeds, fault times instead")
-    p.add_argument("--loss", type=_loss, action="append", metavar="X",
-                   help="only this loss of effectiveness (0..1; repeat for more; default 0.33, 0.66 and 1)")
-    p.add_argument("--seed", type=_seed, default=0, help="seed of the sample and of the sensor noise (default 0)")
-    p.add_argument("--jobs", type=int, metavar="N", help="flights at once (default: half the cores)")
-    p.add_argument("--rate-hz", type=_positive, default=50.0, metavar="HZ", help="the companion's control rate (default 50)")
-    p.set_defaults(func=_campaign)
-
-
-def _campaign(args) -> int:
-    from sitl.campaign import LOSS_LEVELS, run_campaign
-
-    losses = tuple(args.loss) if args.loss else LOSS_LEVELS
-    print(run_campaign(args.out, args.samples, args.seed, args.grid, args.jobs, args.rate_hz, losses), end="")
-    return 0
+    flight_cli.add_campaign(sub)
 
 
 SUBCOMMANDS = [_add_serve, _add_list, _add_fly, _add_compare, _add_campaign]

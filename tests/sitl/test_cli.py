@@ -35,7 +35,8 @@ def test_list_prints_the_builtin_scenarios(capsys):
     (["serve", "--mavlink", "tcp:127.0.0.1:5760"], "bad MAVLink URL"),
     (["serve", "--duration", "0"], "--duration: must be > 0"),
     (["serve", "--seed", "-1"], "--seed: must be >= 0"),
-    (["fly"], "invalid choice: 'fly'"),
+    (["fly"], "required: SCENARIO"),
+    (["nope"], "invalid choice: 'nope'"),
     ([], "required: command"),
 ])
 def test_bad_arguments_give_one_error_line_and_exit_2(capsys, args, says):

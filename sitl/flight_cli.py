@@ -1,0 +1,106 @@
+"""The flight subcommands of `m4-sitl` (registered in sitl/cli.py): fly, compare, campaign.
+
+Each `add_<name>(subparsers)` declares the arguments and sets `func`; a flight that cannot
+start (FlightError) becomes the CLI's one-line bad-input error, exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from sitl import scenarios
+from sitl.cli import BadInput, _positive, _seed
+from sitl.flight_run import CONTROLLERS, FlightError, FlightOptions
+
+DEFAULT_RATE_HZ = FlightOptions.rate_hz
+
+
+def _loss(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0.0 < value <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be in (0, 1], got {text}")
+    return value
+
+
+def _rate(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--rate-hz", type=_positive, default=DEFAULT_RATE_HZ, metavar="HZ",
+                   help=f"the companion's control rate (default {DEFAULT_RATE_HZ:g})")
+
+
+def add_fly(sub) -> None:
+    p = sub.add_parser("fly", help="fly a scenario: the plant and the companion over loopback MAVLink; metrics, figures")
+    p.add_argument("scenario", metavar="SCENARIO", help="built-in name (m4-sitl list) or scenario file")
+    p.add_argument("--out", type=Path, metavar="DIR", help="output folder (default runs/<scenario>-<timestamp>)")
+    p.add_argument("--controller", choices=CONTROLLERS, default="nmpc", help="nmpc (default) or fixed-posture")
+    p.add_argument("--seed", type=_seed, default=0, help="sensor noise seed (default 0)")
+    p.add_argument("--port", type=int, metavar="N", help="loopback UDP port of the MAVLink link (default: a free one)")
+    _rate(p)
+    p.add_argument("--realtime", action="store_true", help="pace by the wall clock (default: lockstep)")
+    p.add_argument("--viewer", action="store_true", help="show MuJoCo's passive viewer")
+    p.set_defaults(func=_fly)
+
+
+def _fly(args) -> int:
+    from sitl.fly import default_out_dir, fly, summary_line
+
+    options = FlightOptions(controller=args.controller, seed=args.seed, realtime=args.realtime, viewer=args.viewer,
+                            port=args.port, rate_hz=args.rate_hz)
+    out = args.out or default_out_dir(scenarios.resolve(args.scenario).name)
+    try:
+        metrics = fly(args.scenario, out, options)
+    except FlightError as e:
+        raise BadInput(str(e)) from None
+    print(summary_line(metrics, out))
+    return 0
+
+
+def add_compare(sub) -> None:
+    from sitl.compare import DEFAULT_OUT
+
+    p = sub.add_parser("compare", help="posture manipulation vs fixed posture on the paper's scenarios: a Markdown table")
+    p.add_argument("--out", type=Path, default=DEFAULT_OUT, metavar="DIR", help=f"output folder (default {DEFAULT_OUT})")
+    p.add_argument("--jobs", type=int, metavar="N", help="flights at once (default: half the cores)")
+    _rate(p)
+    p.set_defaults(func=_compare)
+
+
+def _compare(args) -> int:
+    from sitl.compare import compare
+
+    print(compare(args.out, workers=args.jobs, rate_hz=args.rate_hz), end="")
+    return 0
+
+
+def add_campaign(sub) -> None:
+    from sitl.campaign import DEFAULT_OUT
+    from sitl.parallel import ENGINES
+
+    p = sub.add_parser("campaign", help="many faulted flights in parallel: survival, altitude loss, detection")
+    p.add_argument("--out", type=Path, default=DEFAULT_OUT, metavar="DIR", help=f"output folder (default {DEFAULT_OUT})")
+    p.add_argument("--samples", type=int, default=20, metavar="N", help="random flights (default 20)")
+    p.add_argument("--grid", action="store_true", help="the full grid of rotors, losses, speeds, fault times instead")
+    p.add_argument("--loss", type=_loss, action="append", metavar="X",
+                   help="only this loss of effectiveness (0..1; repeat for more; default 0.33, 0.66 and 1)")
+    p.add_argument("--seed", type=_seed, default=0, help="seed of the sample and of the sensor noise (default 0)")
+    p.add_argument("--jobs", type=int, metavar="N", help="flights at once (default: half the cores)")
+    _rate(p)
+    p.add_argument("--engine", choices=ENGINES, default="local", help="local processes (default) or Dask (cluster extra)")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler, e.g. tcp://HOST:8786 (default: a local cluster)")
+    p.set_defaults(func=_campaign)
+
+
+def _campaign(args) -> int:
+    from sitl.campaign import LOSS_LEVELS, run_campaign
+
+    losses = tuple(args.loss) if args.loss else LOSS_LEVELS
+    try:
+        summary = run_campaign(args.out, args.samples, args.seed, args.grid, args.jobs, args.rate_hz, losses,
+                               args.engine, args.scheduler)
+    except FlightError as e:
+        raise BadInput(str(e)) from None
+    print(summary, end="")
+    return 0
