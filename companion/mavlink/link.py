@@ -145,14 +145,8 @@ class UdpLink:
             return []
         if self.endpoint.mode == "udpin":
             self.peer = sender
-        out = []
-        for msg in self.mav.parse_buffer(data) or ():
-            if self.tlog is not None:
-                self.tlog.record(msg.get_msgbuf() if msg.get_type() != "BAD_DATA" else bytes(msg.data))
-            if msg.get_type() == "BAD_DATA":
-                self.bad_packets += 1
-            else:
-                out.append(msg)
+        out, bad = parse_bytes(self.mav, data, self.tlog)
+        self.bad_packets += bad
         return out
 
     def lock_peer(self, address: tuple[str, int] | None) -> None:
@@ -166,6 +160,19 @@ class UdpLink:
 
     def close(self) -> None:
         self.sock.close()
+
+
+def parse_bytes(mav: mavlink.MAVLink, data: bytes, tlog: TlogWriter | None) -> tuple[list, int]:
+    """(good messages, count of rejected or garbled packets) in `data`; everything to the tlog."""
+    out, bad = [], 0
+    for msg in mav.parse_buffer(data) or ():
+        if tlog is not None:
+            tlog.record(msg.get_msgbuf() if msg.get_type() != "BAD_DATA" else bytes(msg.data))
+        if msg.get_type() == "BAD_DATA":
+            bad += 1
+        else:
+            out.append(msg)
+    return out, bad
 
 
 def wait_readable(links, timeout_s: float) -> bool:
