@@ -17,7 +17,7 @@ from companion.feed.transport import config_from_endpoints, open_session
 
 class FeedRecorder:
     def __init__(self, path: str | Path, endpoint: str, vehicle: str):
-        self._file = Path(path).open("w")
+        self._file = Path(path).open("w")  # noqa: SIM115 - open while recording, closed by close()
         self._lock = threading.Lock()
         self.latest_t_s: float | None = None
         self.samples = 0

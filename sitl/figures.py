@@ -16,13 +16,13 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402  (after choosing the backend)
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from companion.airframe import ROTOR_COUNT, Airframe  # noqa: E402
-from companion.core import rom  # noqa: E402
-from sitl.model_matching import FAILED_ROTOR, MatchResult  # noqa: E402
-from sitl.truth import Truth  # noqa: E402
+from companion.airframe import ROTOR_COUNT, Airframe
+from companion.core import rom
+from sitl.model_matching import FAILED_ROTOR, MatchResult
+from sitl.truth import Truth
 
 ROTOR_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red")
 SNAPSHOT_OFFSETS_S = (-0.5, 0.0, 0.3, 0.6, 1.0, 2.0)     # around the first fault

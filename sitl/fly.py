@@ -23,13 +23,14 @@ from sitl.records import nmpc_log, read_feed, read_tlog
 from sitl.truth import load_truth
 
 MODEL_MATCHING = "model-matching"
+DEFAULT_OPTIONS = FlightOptions()      # frozen: safe as a shared default
 
 
 def default_out_dir(name: str) -> Path:
     return Path("runs") / f"{name}-{time.strftime('%Y%m%d-%H%M%S', time.gmtime())}"
 
 
-def fly(scenario_arg: str, out_dir: Path | None = None, options: FlightOptions = FlightOptions(),
+def fly(scenario_arg: str, out_dir: Path | None = None, options: FlightOptions = DEFAULT_OPTIONS,
         figures: bool = True, progress: bool = True) -> dict:
     """Fly a built-in scenario or a scenario file; returns the metrics (also in metrics.json).
     A bad scenario raises ConfigError, a flight that cannot start FlightError."""

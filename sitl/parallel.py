@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from tqdm import tqdm
@@ -27,7 +27,7 @@ ENGINES = ("local", "dask")
 class FlightJob:
     scenario: str                  # built-in name or scenario file
     out_dir: Path
-    options: FlightOptions = FlightOptions()
+    options: FlightOptions = field(default_factory=FlightOptions)
     figures: bool = False
 
 

@@ -20,10 +20,11 @@ def _truth(duration_s=4.0, z=-2.0, wall_rate=1.0, **over) -> Truth:
     t = np.arange(0.0, duration_s + DT / 2, DT)
     n = len(t)
     com = np.tile([0.0, 0.0, z], (n, 1))
-    fields = dict(time_s=t, wall_s=t / wall_rate, pos_ned_m=com.copy(), com_ned_m=com, vel_ned_m_s=np.zeros((n, 3)),
-                  euler_rad=np.zeros((n, 3)), rates_frd_rad_s=np.zeros((n, 3)), hip_rad=np.full((n, 4), 0.78),
-                  thrust_cmd_n=np.full((n, 4), HOVER_N), thrust_n=np.full((n, 4), HOVER_N),
-                  thrust_limit_n=np.full((n, 4), AF.thrust_max_n), on_ground=np.zeros(n, bool))
+    fields = {"time_s": t, "wall_s": t / wall_rate, "pos_ned_m": com.copy(), "com_ned_m": com,
+              "vel_ned_m_s": np.zeros((n, 3)), "euler_rad": np.zeros((n, 3)), "rates_frd_rad_s": np.zeros((n, 3)),
+              "hip_rad": np.full((n, 4), AF.nominal_hip_rad), "thrust_cmd_n": np.full((n, 4), HOVER_N),
+              "thrust_n": np.full((n, 4), HOVER_N), "thrust_limit_n": np.full((n, 4), AF.thrust_max_n),
+              "on_ground": np.zeros(n, bool)}
     fields.update(over)
     return Truth(**fields)
 

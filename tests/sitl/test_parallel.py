@@ -18,7 +18,7 @@ def test_results_keep_the_order_of_the_jobs_and_failures_are_rows(tmp_path, engi
     if engine == "dask":
         pytest.importorskip("distributed")
     results = fly_all(_jobs(tmp_path), workers=2, engine=engine)
-    assert [("missing-%d.toml" % i) in r["error"] for i, r in enumerate(results)] == [True] * 3
+    assert [f"missing-{i}.toml" in r["error"] for i, r in enumerate(results)] == [True] * 3
 
 
 def test_an_unknown_engine_is_refused(tmp_path):
