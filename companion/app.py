@@ -65,6 +65,9 @@ class CompanionApp:
         self._last_answered_ms: int | None = None
         self._was_locked = False
         self._stop = False
+        self._received = 0                       # messages from the FC, for the link's rate
+        self._rate_mark: tuple[float, int] | None = None
+        self._msgs_per_s = 0.0
 
     # -- the loop ----------------------------------------------------------------------------------
     def stop(self) -> None:
@@ -81,6 +84,7 @@ class CompanionApp:
         """Everything that has arrived, then the answer, the watchdog and the periodic messages."""
         msgs = self.fc.receive()
         now = self.clock()
+        self._received += len(msgs)
         if self.fc.locked and not self._was_locked:
             self._was_locked = True
             log.info("flight controller found at %s; asking for telemetry every %d ms", self.fc.fc_address,
@@ -146,10 +150,14 @@ class CompanionApp:
         self._publish_link(t)
 
     def _publish_link(self, t_s: float | None) -> None:
-        h = self.fc.health()
+        h, now = self.fc.health(), self.clock()
         last = self.telemetry.last_received_s()
-        self.feed.link(t_s, connected=self.connected, last_msg_age_s=None if last is None else self.clock() - last,
-                       msgs_per_s=0.0, bad_crc=h.bad_crc, bad_signature=h.bad_signature,
+        if self._rate_mark is None or now - self._rate_mark[0] >= 1.0:
+            if self._rate_mark is not None:
+                self._msgs_per_s = (self._received - self._rate_mark[1]) / (now - self._rate_mark[0])
+            self._rate_mark = (now, self._received)
+        self.feed.link(t_s, connected=self.connected, last_msg_age_s=None if last is None else now - last,
+                       msgs_per_s=self._msgs_per_s, bad_crc=h.bad_crc, bad_signature=h.bad_signature,
                        dropped_foreign=h.foreign)
 
     # -- link loss ---------------------------------------------------------------------------------

@@ -20,6 +20,7 @@ import pytest
 from companion.airframe import load_airframe
 from companion.app import close_app, open_app
 from companion.config import parse_config
+from companion.feed import Feed
 from companion.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, mavlink, mavutil
 from sitl import scenarios
 
@@ -34,6 +35,7 @@ def _fly(tmp_path):
     config = parse_config({"control": {"rate_hz": RATE_HZ}, "link": {"fc_url": "udpin:127.0.0.1:0"}}, "test")
     config = dataclasses.replace(config, mission=scenarios.resolve(SCENARIO).mission)
     app = open_app(config)
+    app.feed = Feed(sink := CapturingSink())
     thread = threading.Thread(target=app.run, daemon=True)
     thread.start()
     tlog = tmp_path / "flight.tlog"
@@ -46,7 +48,20 @@ def _fly(tmp_path):
         thread.join(5.0)
         close_app(app)
     assert done.returncode == 0, done.stderr
-    return app, tlog, done.stderr
+    return app, tlog, done.stderr, sink.payloads
+
+
+class CapturingSink:
+    """Stands in for Zenoh: keeps every (topic, payload) the feed publishes."""
+
+    def __init__(self):
+        self.payloads: list[tuple[str, dict]] = []
+
+    def put(self, topic: str, payload: dict) -> None:
+        self.payloads.append((topic, payload))
+
+    def close(self) -> None:
+        pass
 
 
 def _messages(tlog):
@@ -63,7 +78,7 @@ def flight(tmp_path_factory):
 
 
 def test_rotor_loss_in_hover_is_announced_and_the_robot_stays_in_the_air(flight):
-    app, tlog, sitl_log = flight
+    app, tlog, sitl_log, _ = flight
     msgs = _messages(tlog)
     fc = [m for m in msgs if m.get_srcComponent() == FC_COMPONENT_ID]
     ours = [m for m in msgs if m.get_srcComponent() == COMPANION_COMPONENT_ID]
@@ -96,3 +111,13 @@ def test_rotor_loss_in_hover_is_announced_and_the_robot_stays_in_the_air(flight)
     assert max_tilt < 60.0
     assert abs(alt[end_ms] - 2.0) < 0.2    # back at its altitude
     assert app.counters.link_losses <= 1   # the one at the end, when the SITL stops
+
+
+def test_the_feed_says_what_the_statustext_says_and_carries_every_topic(flight):
+    _, _, _, payloads = flight
+    assert {topic for topic, _ in payloads} == {"state", "setpoint", "fault", "nmpc", "link"}
+    confirmed = [p for topic, p in payloads if topic == "fault" and p["state"] == "confirmed"]
+    assert confirmed and confirmed[0]["rotor"] == 4 and confirmed[0]["message"] == "thrust loss rotor 4"
+    assert 1.0 < confirmed[0]["detected_at_s"] <= 1.3
+    nmpc = [p for topic, p in payloads if topic == "nmpc"]
+    assert len(nmpc) >= 0.9 * SECONDS * RATE_HZ       # every control step (no rate cap on this feed)
