@@ -1,0 +1,69 @@
+"""`m4-companion run`: bad input is one line and exit code 2; SIGTERM/SIGINT stop it cleanly."""
+
+from __future__ import annotations
+
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import pytest
+
+from companion.cli import main
+
+
+def run_cli(capsys, *args) -> tuple[int, list[str]]:
+    code = main(["run", *args])
+    return code, capsys.readouterr().err.strip().splitlines()
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--config", "/nonexistent/companion.toml"], "no such file"),
+    (["--fc", "udpout:127.0.0.1"], "bad MAVLink URL"),
+    (["--fc", "carrier-pigeon"], "bad MAVLink URL"),
+])
+def test_bad_input_is_one_clear_line_and_exit_2(capsys, args, says):
+    code, lines = run_cli(capsys, *args)
+    assert code == 2
+    assert len(lines) == 1 and lines[0].startswith("m4-companion: error:") and says in lines[0]
+
+
+def test_a_config_with_an_unknown_key_names_it(capsys, tmp_path):
+    config = tmp_path / "companion.toml"
+    config.write_text("[control]\nrate_hz = 50.0\nratez = 3\n")
+    code, lines = run_cli(capsys, "--config", str(config))
+    assert code == 2 and len(lines) == 1 and "ratez" in lines[0]
+
+
+def test_a_mission_file_without_a_mission_is_refused(capsys, tmp_path):
+    mission = tmp_path / "mission.toml"
+    mission.write_text("name = 'x'\n")
+    code, lines = run_cli(capsys, "--mission", str(mission))
+    assert code == 2 and len(lines) == 1 and "[mission]" in lines[0]
+
+
+def test_a_port_in_use_is_one_clear_line_and_exit_2(capsys):
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as busy:
+        busy.bind(("127.0.0.1", 0))
+        code, lines = run_cli(capsys, "--fc", f"udpin:127.0.0.1:{busy.getsockname()[1]}")
+    assert code == 2 and len(lines) == 1 and "in use" in lines[0]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_stops_the_companion_cleanly(sig):
+    proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--fc", "udpin:127.0.0.1:0"],
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        ready = proc.stderr.readline()
+        assert "ready" in ready, ready
+        time.sleep(0.2)
+        proc.send_signal(sig)
+        code = proc.wait(timeout=10)
+        rest = proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert code == 0
+    assert "stopped after 0 setpoints" in rest and "Traceback" not in rest
