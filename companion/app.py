@@ -95,9 +95,10 @@ class CompanionApp:
             if self.telemetry.add(msg, now) and msg.get_msgId() == THRUSTER_STATUS:
                 newest = msg.time_boot_ms
         if self.telemetry.counters.reboots > reboots:
-            log.warning("the flight controller's clock went back after a silence: it rebooted")
+            log.warning("the flight controller's clock went back after a silence: it rebooted; the mission "
+                        "starts over")
             self._last_answered_ms = None
-            self.controller.resume()
+            self.controller.restart()
         if newest is not None:
             self._on_telemetry(newest)
             if self._due(newest):

@@ -142,6 +142,15 @@ class Controller:
         self._prev = None
         self._hip_goal = None
 
+    def restart(self) -> None:
+        """The flight controller rebooted: its clock, and so the mission's time, starts over.
+        Everything about the flight so far is forgotten but the NMPC itself."""
+        self.resume()
+        self.disturbance.reset()
+        self.detector = FaultDetector(self.af, self.config.fault_detector)
+        self.reference = self.touchdown = None
+        self._fault_announced = False
+
     def step(self, time_s: float, x_measured, thrust_delivered_n=None, thrust_limit_n=None) -> ControlStep:
         """The setpoint answering the telemetry instant time_s for the measured ROM state."""
         af = self.af

@@ -163,6 +163,20 @@ def test_a_short_wall_clock_gap_in_lockstep_does_not_reset_the_controller(rig, m
     assert setpoint_times(link) == list(range(0, 160, 20))
 
 
+def test_after_a_reboot_of_the_fc_the_mission_starts_over_on_its_new_clock(rig):
+    app, fc, link, clock = rig
+    fc.heartbeat()
+    fly(app, fc, clock, 5000, 3)
+    first_reference = app.controller.reference
+    clock.now += 0.5
+    app.poll()
+    fc.heartbeat()
+    fly(app, fc, clock, 0, 3)
+    assert setpoint_times(link) == [5000, 5020, 5040, 0, 20, 40]
+    assert app.telemetry.counters.reboots == 1
+    assert app.controller.reference is not first_reference
+
+
 # -------------------------------------------------------------------------------------------------
 def _frame(msg_id: int, payload: bytes, seq: int, sysid: int, compid: int) -> bytes:
     header = struct.pack("<BBBBBBBHB", 0xFD, len(payload), 0, 0, seq & 0xFF, sysid, compid, msg_id & 0xFFFF,
