@@ -8,16 +8,20 @@ bounds, disturbance) are then solved by IPOPT, warm-started from its own previou
 solution, so the speed ratio comes with the relative cost gap: speed never hides a wrong
 answer.
 
-Measured on the 2-core development machine while other jobs kept it busy (load about 2),
-300 solves, milliseconds (median / p99 / max), cost gap median / max:
+Measured on the 2-core development machine while other jobs kept it busy (load 1-3),
+300 solves, `m4-companion bench` (BLAS single-threaded), milliseconds median / p99 / max,
+relative cost gap to IPOPT median / max:
 
-    N = 5,  dt = 0.1 s                      1.3 / 2.4 / 2.7     IPOPT 36 ms   gap 1e-6 / 9e-6
-    N = 5,  dt = 0.1 s, re-solved at 50 Hz  1.3 / 3.3 / 4.9     IPOPT 39 ms   gap 1e-6 / 9e-5
-    N = 20, dt = 0.025 s                    7.8 / 19 / 41       IPOPT 190 ms  gap 1e-6 / 4e-5
+    N = 5,  dt = 0.1 s                      1.1 / 2.1 / 2.4     IPOPT 37 ms   gap 1e-6 / 9e-6
+    N = 5,  dt = 0.1 s, re-solved at 50 Hz  1.3 / 3.0 / 4.5     IPOPT 44 ms   gap 1e-6 / 9e-5
+    N = 20, dt = 0.025 s                    8.1 / 23 / 37       IPOPT 197 ms  gap 1e-6 / 4e-5
 
-The routes of shared/design/nmpc-notes.md (IPOPT, sqpmethod with qrqp or HPIPM, fatrop)
-measured 3.5-12.8 ms median at N = 5 on the same kind of machine; one SQP iteration of
-this route (max_iterations=1, a real-time iteration) takes 0.5 ms median.
+Routes not kept: those of shared/design/nmpc-notes.md (IPOPT, sqpmethod with qrqp or HPIPM,
+fatrop; 3.5-12.8 ms median at N = 5 as measured there); measured here, for the condensed QP, qpOASES
+and qrqp through CasADi (0.40 and 0.95 ms per QP against DAQP's 0.02 ms); the condensing
+itself compiled into the CasADi function (0.22 ms per call: its generated matrix products
+lose to numpy's BLAS, 0.05 ms). One SQP iteration per solve (max_iterations=1, a real-time
+iteration) takes 0.5 ms median, with a cost gap of 1e-3 median and up to 10x right after a kick.
 """
 
 from __future__ import annotations
