@@ -79,7 +79,8 @@ class BenchReport:
                   f"{self.solves} warm-started solves (setup {self.setup_s:.1f} s)")]
         lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in rows]
         lines.append(f"speed-up vs IPOPT: {self.speedup_vs_ipopt:.1f} x   SQP iterations (median): "
-                     f"{self.iterations_median:g}   fallbacks: {self.fallbacks}   IPOPT failures: {self.ipopt_failures}")
+                     f"{self.iterations_median:g}   fallbacks: {self.fallbacks}   "
+                     f"IPOPT failures: {self.ipopt_failures}")
         lines.append(f"relative cost gap to IPOPT: median {self.cost_gap_rel_median:.2e}, "
                      f"max {self.cost_gap_rel_max:.2e}")
         return "\n".join(lines)
@@ -89,7 +90,8 @@ def bench_sequence(af: Airframe, nmpc: Nmpc, solves: int, seed: int = 0):
     """The closed-loop-like sequence of `solves` control steps (one solve each)."""
     period = nmpc.config.dt_s * nmpc.config.warm_start_shift
     duration = solves * period
-    sim = SimConfig(duration_s=duration, control_period_s=period, faults=(RotorFault(duration / 2, _FAILED_ROTOR, 1.0),),
+    fault = RotorFault(duration / 2, _FAILED_ROTOR, 1.0)
+    sim = SimConfig(duration_s=duration, control_period_s=period, faults=(fault,),
                     mismatch=PlantMismatch(mass_scale=1.1, thrust_scale=0.95, wind_force_ned_n=(1.0, -0.5, 0.0)),
                     estimator_gain=0.3, kick_every_s=1.0, noise_scale=1.0, seed=seed)
     x0 = rom.hover_state(af)
