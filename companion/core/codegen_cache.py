@@ -54,7 +54,11 @@ def compiled(fn: ca.Function) -> ca.Function:
         key = hashlib.sha256(source + " ".join((cc, *COMPILER_FLAGS, ca.__version__)).encode()).hexdigest()[:16]
         lib = cache_dir() / f"{fn.name()}_{key}.so"
         if not lib.exists():
-            lib.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                lib.parent.mkdir(parents=True, exist_ok=True)
+            except OSError as e:
+                raise CodegenError(f"cannot create the cache directory {lib.parent} ({e.strerror}); "
+                                   f"set {CACHE_ENV} to a writable one") from None
             partial = lib.with_suffix(f".{os.getpid()}.tmp")
             result = subprocess.run([cc, *COMPILER_FLAGS, "-o", str(partial), str(Path(tmp, src_name)), "-lm"],
                                     capture_output=True, text=True, check=False)

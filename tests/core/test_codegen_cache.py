@@ -45,3 +45,11 @@ def test_a_missing_compiler_is_reported_clearly(tmp_path, monkeypatch):
     monkeypatch.setattr(codegen_cache.shutil, "which", lambda name: None)
     with pytest.raises(codegen_cache.CodegenError, match="no C compiler"):
         codegen_cache.compiled(square_plus(1.0))
+
+
+def test_an_unwritable_cache_directory_is_reported_by_name(tmp_path, monkeypatch):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    monkeypatch.setenv(codegen_cache.CACHE_ENV, str(blocker / "cache"))
+    with pytest.raises(codegen_cache.CodegenError, match=codegen_cache.CACHE_ENV):
+        codegen_cache.compiled(square_plus(3.0))
