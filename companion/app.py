@@ -23,8 +23,6 @@ import logging
 import time
 from dataclasses import dataclass
 
-import numpy as np
-
 from companion.config import CompanionConfig
 from companion.controller import ControlStep, Controller
 from companion.core import rom
@@ -34,7 +32,7 @@ from companion.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from companion.mavlink.connect import open_link
 from companion.mavlink.link import wait_readable
 from companion.mavlink.signing import load_key
-from companion.telemetry import THRUSTER_STATUS, TelemetryAssembler, rom_state
+from companion.telemetry import THRUSTER_STATUS, TelemetryAssembler, VehicleSnapshot, rom_state
 
 log = logging.getLogger("m4-companion")
 
@@ -61,7 +59,6 @@ class CompanionApp:
         self.telemetry = TelemetryAssembler(reboot_gap_s=config.link.telemetry_timeout_s)
         self.counters = LoopCounters()
         self.connected = False
-        self.last_step: ControlStep | None = None
         self._last_answered_ms: int | None = None
         self._was_locked = False
         self._stop = False
@@ -121,24 +118,23 @@ class CompanionApp:
         self.fc.send_setpoint(t_ms, self.period_ms, step.setpoint)
         self.fc.send_fault_status(t_ms, step.fault)
         self._last_answered_ms = t_ms
-        self.last_step = step
         self.counters.answered += 1
         if step.nmpc is not None:
             self.counters.solve_ms_max = max(self.counters.solve_ms_max, step.nmpc.solve_ms)
         if step.fault_confirmed_now:
             self._announce_fault(step)
-        self._publish(step, snap.thrust_n)
+        self._publish(step, snap)
 
     def _announce_fault(self, step: ControlStep) -> None:
         text = step.fault.message
         self.fc.statustext(mavlink.MAV_SEVERITY_CRITICAL, text)
-        log.error("t=%.3f s: %s (thrust bound now %s N)", step.time_s, text,
-                  np.round(step.fault.thrust_max_estimate_n, 2))
+        bounds = ", ".join(f"{b:.1f}" for b in step.fault.thrust_max_estimate_n)
+        log.error("t=%.3f s: %s (thrust bounds now %s N)", step.time_s, text, bounds)
 
-    def _publish(self, step: ControlStep, thrust_n) -> None:
+    def _publish(self, step: ControlStep, snap: VehicleSnapshot) -> None:
         x, t, f, sp = step.state, step.time_s, step.fault, step.setpoint
         self.feed.state(t, pos_ned_m=x[rom.P], vel_ned_m_s=x[rom.V], euler_rad=x[rom.EULER],
-                        rates_frd_rad_s=x[rom.RATES], hip_rad=x[rom.HIP], thrust_n=thrust_n)
+                        rates_frd_rad_s=x[rom.RATES], hip_rad=snap.hip_rad, thrust_n=snap.thrust_n)
         self.feed.setpoint(t, thrust_n=sp.thrust_n, hip_rad=sp.hip_angle_rad, hip_rate_rad_s=sp.hip_rate_rad_s,
                            thrust_cut=sp.thrust_cut)
         self.feed.fault(t, state=int(f.state), rotor=f.rotor, thrust_max_estimate_n=f.thrust_max_estimate_n,
