@@ -58,7 +58,7 @@ class Setpoint:
 class ControlStep:
     time_s: float
     setpoint: Setpoint
-    state: np.ndarray             # (20,) the measured ROM state used
+    state: np.ndarray             # (20,) the ROM state planned from: measured, the hips their goal
     reference: np.ndarray | None  # (N+1, 20); None before a reference could start
     nmpc: NmpcResult | None       # None when no solve ran (thrust cut, no reference)
     fault: FaultStatus
@@ -157,17 +157,17 @@ class Controller:
         x = np.asarray(x_measured, dtype=float).reshape(rom.NX)
         thrust_delivered_n = self._thrust_telemetry(thrust_delivered_n)
         thrust_limit_n = self._thrust_telemetry(thrust_limit_n)
-        finite = plausible_state(af, x)
-        if finite:
+        usable = plausible_state(af, x)
+        if usable:
             x = self._with_hip_goal(x)
-        if self.reference is None and finite:
+        if self.reference is None and usable:
             self.reference = MissionReference(self.config.mission, x[rom.P], af, self.config.reference, t0_s=time_s)
             self.touchdown = TouchdownDetector(self.reference.ground_com_z_ned_m, self.config.touchdown)
-        fault, confirmed_now = self._detect(time_s, x, finite, thrust_delivered_n, thrust_limit_n)
+        fault, confirmed_now = self._detect(time_s, x, usable, thrust_delivered_n, thrust_limit_n)
         if confirmed_now:
             self.disturbance.reset()      # it held the lost rotor's effect, which the bound now models
-        d = self._estimate_disturbance(time_s, x, finite, thrust_delivered_n, fault.thrust_max_estimate_n)
-        if self.reference is None or not finite:
+        d = self._estimate_disturbance(time_s, x, usable, thrust_delivered_n, fault.thrust_max_estimate_n)
+        if self.reference is None or not usable:
             return self._fallback(time_s, x, fault, confirmed_now, d)
         if self._touched_down(time_s, x):
             sp = safe_setpoint(af, np.zeros(ROTOR_COUNT), x[rom.HIP], np.zeros(ROTOR_COUNT),
@@ -196,8 +196,8 @@ class Controller:
         dt = time_s - self._prev[0]
         return abs(dt - self.period_s) <= _CONSECUTIVE_TOLERANCE * self.period_s
 
-    def _detect(self, time_s, x, finite, delivered_n, limit_n) -> tuple[FaultStatus, bool]:
-        if not finite or self._prev is None:
+    def _detect(self, time_s, x, usable, delivered_n, limit_n) -> tuple[FaultStatus, bool]:
+        if not usable or self._prev is None:
             return self.detector.status, False
         limits = None if limit_n is None else np.asarray(limit_n, dtype=float).reshape(ROTOR_COUNT)
         cap = self.af.thrust_max_n
@@ -212,11 +212,11 @@ class Controller:
                 self.reference.fault_detected(time_s, x[rom.P])
         return status, confirmed_now
 
-    def _estimate_disturbance(self, time_s, x, finite, delivered_n, thrust_max_n) -> np.ndarray:
+    def _estimate_disturbance(self, time_s, x, usable, delivered_n, thrust_max_n) -> np.ndarray:
         """Updated over the last period with the thrust the rotors delivered (as the FC reports it;
         else our command within the current bounds), so a lost rotor is not mistaken for a
         disturbance."""
-        if not (finite and self._consecutive(time_s)):
+        if not (usable and self._consecutive(time_s)):
             return self.disturbance.estimate.copy()
         u = self._prev[2].copy()
         delivered = None if delivered_n is None else np.asarray(delivered_n, dtype=float).reshape(ROTOR_COUNT)
