@@ -119,6 +119,11 @@ class Nmpc:
 
     def solve(self, x0, x_ref, thrust_max_n, disturbance=None) -> NmpcResult:
         """One receding-horizon step from state x0 (20,) along x_ref (N+1, 20)."""
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):   # every result is checked
+            return self._solve(x0, x_ref, thrust_max_n, disturbance)
+
+    # ----------------------------------------------------------------- internals
+    def _solve(self, x0, x_ref, thrust_max_n, disturbance) -> NmpcResult:
         t0 = time.perf_counter()
         n = self.config.horizon
         lo, hi = self.input_bounds(thrust_max_n)
@@ -134,7 +139,6 @@ class Nmpc:
         ref, u_ref = self.targets(x0, x_ref, d)
         return self._sqp(x0, ref, u_ref, d, lo, hi, t0)
 
-    # ----------------------------------------------------------------- internals
     def _merit(self, x0, xs, us, ref, u_ref):
         violation = self.rows.violation(xs)
         if self.first_rows is not None:

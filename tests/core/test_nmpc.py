@@ -4,6 +4,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from companion.airframe import load_airframe
 from companion.core import nmpc as nmpc_module
@@ -57,6 +59,23 @@ def test_commands_stay_within_the_bounds_from_rough_states(nmpc):
         res = nmpc.solve(perturbed(rng), hover_ref(), thrust_max)
         assert res.ok and not res.fallback
         assert_within(nmpc, res, thrust_max)
+
+
+ANY_FLOAT = st.floats(allow_nan=True, allow_infinity=True, width=64)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(state_noise=st.lists(st.one_of(st.floats(-3, 3), ANY_FLOAT), min_size=rom.NX, max_size=rom.NX),
+       thrust_max=st.lists(st.one_of(st.floats(-5, 40), ANY_FLOAT), min_size=4, max_size=4),
+       disturbance=st.lists(st.one_of(st.floats(-20, 20), ANY_FLOAT), min_size=6, max_size=6))
+def test_whatever_it_is_given_the_command_is_finite_and_within_the_bounds(nmpc, state_noise, thrust_max,
+                                                                             disturbance):
+    x0 = rom.hover_state(AF) + np.array(state_noise)
+    res = nmpc.solve(x0, hover_ref(), thrust_max, disturbance)
+    lo, hi = nmpc.input_bounds(thrust_max)
+    assert np.all(np.isfinite(res.u)) and np.all(res.u >= lo) and np.all(res.u <= hi)
+    assert np.all(np.isfinite(res.u_pred))
+    assert res.fallback == (not res.ok)
 
 
 def test_a_lost_rotor_is_only_a_lower_bound_and_gets_no_thrust(nmpc):
