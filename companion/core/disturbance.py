@@ -52,9 +52,12 @@ class DisturbanceEstimator:
         x_prev, u_applied, x_new = (np.asarray(v, dtype=float).ravel() for v in (x_prev, u_applied, x_new))
         if not all(np.all(np.isfinite(v)) for v in (x_prev, u_applied, x_new)):
             return self.estimate.copy()
-        predicted, sensitivity = self._predict(x_prev, u_applied, self.estimate)
-        innovation = x_new[_MEASURED] - np.asarray(predicted).ravel()
-        correction = np.linalg.lstsq(np.asarray(sensitivity), innovation, rcond=None)[0]
+        with np.errstate(over="ignore", invalid="ignore"):
+            predicted, sensitivity = (np.asarray(v) for v in self._predict(x_prev, u_applied, self.estimate))
+            innovation = x_new[_MEASURED] - predicted.ravel()
+            if not (np.all(np.isfinite(innovation)) and np.all(np.isfinite(sensitivity))):
+                return self.estimate.copy()           # a state too wild for the model to step
+            correction = np.linalg.lstsq(sensitivity, innovation, rcond=None)[0]
         if np.all(np.isfinite(correction)):
             self.estimate = np.clip(self.estimate + self.gain * correction, -self.bound, self.bound)
         return self.estimate.copy()

@@ -77,6 +77,9 @@ def test_non_finite_measurements_leave_the_estimate_unchanged():
     bad[0] = math.nan
     assert est.update(x, rom.hover_input(AF), bad) == pytest.approx(before)
     assert np.all(np.isfinite(est.update(x, np.full(8, math.inf), x)))
+    wild = x.copy()
+    wild[rom.RATES] = 1e300
+    assert est.update(wild, rom.hover_input(AF), x) == pytest.approx(before)
     est.reset()
     assert np.all(est.estimate == 0)
 
