@@ -44,6 +44,7 @@ class LoopCounters:
     answered: int = 0             # setpoints sent
     skipped_incomplete: int = 0   # frames without the full picture yet (e.g. no joint state)
     link_losses: int = 0
+    control_errors: int = 0       # control steps that raised (a defect; the FC's failsafe covers)
     solve_ms_max: float = 0.0
 
 
@@ -113,8 +114,14 @@ class CompanionApp:
         if snap is None:
             self.counters.skipped_incomplete += 1
             return
-        x = rom_state(snap, self.config.airframe)
-        step = self.controller.step(t_ms / 1000.0, x, snap.thrust_n, snap.thrust_limit_n)
+        try:
+            step = self.controller.step(t_ms / 1000.0, rom_state(snap, self.config.airframe), snap.thrust_n,
+                                        snap.thrust_limit_n)
+        except Exception:           # a defect, not bad input: say it, send nothing, let the FC's failsafe fly
+            self.counters.control_errors += 1
+            log.exception("control step at t=%.3f s failed; no setpoint for this instant", t_ms / 1000.0)
+            self.controller.resume()
+            return
         self.fc.send_setpoint(t_ms, self.period_ms, step.setpoint)
         self.fc.send_fault_status(t_ms, step.fault)
         self._last_answered_ms = t_ms

@@ -163,6 +163,19 @@ def test_a_short_wall_clock_gap_in_lockstep_does_not_reset_the_controller(rig, m
     assert setpoint_times(link) == list(range(0, 160, 20))
 
 
+def test_a_control_step_that_raises_sends_nothing_and_the_loop_goes_on(rig, monkeypatch):
+    app, fc, link, clock = rig
+    fc.heartbeat()
+    fly(app, fc, clock, 0, 2)
+    real_step = app.controller.step
+    monkeypatch.setattr(app.controller, "step", lambda *a: 1 / 0)
+    fly(app, fc, clock, 40, 2)
+    monkeypatch.setattr(app.controller, "step", real_step)
+    fly(app, fc, clock, 80, 2)
+    assert setpoint_times(link) == [0, 20, 80, 100]
+    assert app.counters.control_errors == 2
+
+
 def test_after_a_reboot_of_the_fc_the_mission_starts_over_on_its_new_clock(rig):
     app, fc, link, clock = rig
     fc.heartbeat()
