@@ -236,7 +236,9 @@ class Controller:
         hip = x_measured[rom.HIP]
         goal = self._hip_goal
         if goal is None or not np.all(np.isfinite(goal[0])) or np.max(np.abs(goal[0] - hip)) > HIP_RESYNC_RAD:
-            goal = self._hip_goal = (np.clip(hip, self.af.hip_min_rad, self.af.hip_max_rad), np.zeros(ROTOR_COUNT))
+            fixed = self.nmpc.config.fixed_hip_rad        # the fixed-posture variant: the legs go there
+            start = np.clip(hip, self.af.hip_min_rad, self.af.hip_max_rad) if fixed is None else np.full(4, fixed)
+            goal = self._hip_goal = (start, np.zeros(ROTOR_COUNT))
         x = x_measured.copy()
         x[rom.HIP], x[rom.HIP_RATE] = goal
         return x

@@ -169,6 +169,17 @@ def test_resume_restarts_the_hip_goal_at_the_measured_joints():
     assert np.allclose(sp.hip_angle_rad, moved[rom.HIP])
 
 
+def test_the_fixed_posture_variant_holds_its_angle_from_anywhere():
+    fixed = math.radians(30.0)
+    nmpc = Nmpc(AF, dataclasses.replace(CONFIG.nmpc, fixed_hip_rad=fixed))
+    c = Controller(CONFIG, nmpc=nmpc)
+    x = rom.hover_state(AF)
+    x[rom.HIP] = np.radians([40.0, 35.0, 25.0, 38.0])
+    for k in range(3):
+        sp = c.step(k * PERIOD, x).setpoint
+        assert np.allclose(sp.hip_angle_rad, fixed, atol=1e-6) and np.allclose(sp.hip_rate_rad_s, 0.0)
+
+
 @pytest.mark.parametrize("bad", [math.nan, math.inf])
 def test_an_unusable_state_gives_hover_thrust_and_held_legs(bad):
     c = controller()
