@@ -17,6 +17,9 @@ from companion.toml_fields import ConfigError, Table, load_toml
 
 ROTOR_COUNT = 4
 REFERENCE_AIRFRAME = "m4_reference.toml"
+# Where each leg lump sits along its leg, as a fraction of the hip-to-hub length: the hip
+# block at the hip, the link's centre at mid-leg, the wheel + thruster at the hub.
+LEG_LUMP_FRACTIONS = (0.0, 0.5, 1.0)
 
 
 @dataclass(frozen=True)
@@ -75,6 +78,12 @@ class Airframe:
         return self.total_mass_kg * self.gravity_m_s2 / ROTOR_COUNT
 
     @property
+    def leg_lumps(self) -> tuple[tuple[float, float], ...]:
+        """(mass_kg, fraction of the leg length from the hip) of the hip block, link and wheel."""
+        masses = (self.leg_hip_block_mass_kg, self.leg_link_mass_kg, self.leg_wheel_mass_kg)
+        return tuple(zip(masses, LEG_LUMP_FRACTIONS))
+
+    @property
     def leg_direction_signs(self) -> np.ndarray:
         """(4, 2): signs (sx, sy) of each hip's x and y; the leg points along (sx cos q, sy sin q)."""
         return np.sign(np.array(self.hip_frd_m)[:, :2])
@@ -98,10 +107,22 @@ class Airframe:
         return out
 
     def com_offset_frd_m(self, hip_rad) -> np.ndarray:
-        """Centre of mass of the whole robot relative to the hull centre, body frame, with the
-        legs lumped at their thrusters (the reduced-order model's assumption)."""
-        r = self.thruster_positions_frd_m(hip_rad)
-        return self.leg_mass_kg * r.sum(axis=0) / self.total_mass_kg
+        """Centre of mass of the whole robot relative to the hull centre, body frame, from the
+        three lumps of every leg."""
+        hips = np.array(self.hip_frd_m)
+        reach = self.thruster_positions_frd_m(hip_rad) - hips          # hip -> hub, per leg
+        swing = sum(m * f for m, f in self.leg_lumps)                   # mass-weighted share of the reach
+        return (self.leg_mass_kg * hips.sum(axis=0) + swing * reach.sum(axis=0)) / self.total_mass_kg
+
+    def com_offset_rate_frd_m_s(self, hip_rad, hip_rate_rad_s) -> np.ndarray:
+        """d/dt of com_offset_frd_m(hip_rad) while the hips move at hip_rate_rad_s."""
+        q, qd = np.asarray(hip_rad, dtype=float), np.asarray(hip_rate_rad_s, dtype=float)
+        s = self.leg_direction_signs
+        reach_rate = np.zeros((len(q), 3))
+        reach_rate[:, 0] = -self.leg_length_m * s[:, 0] * np.sin(q) * qd
+        reach_rate[:, 1] = self.leg_length_m * s[:, 1] * np.cos(q) * qd
+        swing = sum(m * f for m, f in self.leg_lumps)
+        return swing * reach_rate.sum(axis=0) / self.total_mass_kg
 
 
 def load_airframe(path: str | Path | None = None) -> Airframe:

@@ -168,21 +168,11 @@ class TelemetryAssembler:
             thrust_cmd_n=thr["thrust_cmd_n"], thrust_n=thr["thrust_n"], thrust_limit_n=thr["thrust_limit_n"])
 
 
-def com_offset_rate_frd_m_s(af: Airframe, hip_rad, hip_rate_rad_s) -> np.ndarray:
-    """d/dt of Airframe.com_offset_frd_m(hip) for the hips moving at hip_rate_rad_s."""
-    q, qd = np.asarray(hip_rad, dtype=float), np.asarray(hip_rate_rad_s, dtype=float)
-    signs = af.leg_direction_signs
-    d_thrusters = np.zeros((ROTOR_COUNT, 3))
-    d_thrusters[:, 0] = -af.leg_length_m * signs[:, 0] * np.sin(q) * qd
-    d_thrusters[:, 1] = af.leg_length_m * signs[:, 1] * np.cos(q) * qd
-    return af.leg_mass_kg * d_thrusters.sum(axis=0) / af.total_mass_kg
-
-
 def rom_state(snap: VehicleSnapshot, af: Airframe) -> np.ndarray:
     """The NMPC's state (20) from a snapshot: centre of mass position and velocity (NED)."""
     rot = rom.rotation_ned_from_frd(snap.euler_rad)
     r_frd = af.com_offset_frd_m(snap.hip_rad)
-    r_dot_frd = com_offset_rate_frd_m_s(af, snap.hip_rad, snap.hip_rate_rad_s)
+    r_dot_frd = af.com_offset_rate_frd_m_s(snap.hip_rad, snap.hip_rate_rad_s)
     x = np.zeros(rom.NX)
     x[rom.P] = snap.pos_ned_m + rot @ r_frd
     x[rom.EULER] = snap.euler_rad

@@ -51,14 +51,14 @@ class Lump:
 
 def leg_lumps(af: Airframe, sx: float) -> tuple[Lump, Lump, Lump]:
     """Hip block (cube at the hip), link (rod from hip to hub), wheel + thruster (disk at the hub)."""
-    m_h, m_l, m_w = af.leg_hip_block_mass_kg, af.leg_link_mass_kg, af.leg_wheel_mass_kg
+    (m_h, f_h), (m_l, f_l), (m_w, f_w) = af.leg_lumps
     a, r, length = af.hip_block_size_m, af.link_radius_m, af.leg_length_m
     rw, w = af.wheel_radius_m, af.wheel_width_m
     rod_perp = m_l * (3 * r**2 + length**2) / 12
     disk_diam = m_w * (3 * rw**2 + w**2) / 12
-    return (Lump(m_h, (0.0, 0.0, 0.0), (m_h * a**2 / 6,) * 3),
-            Lump(m_l, (sx * length / 2, 0.0, 0.0), (m_l * r**2 / 2, rod_perp, rod_perp)),
-            Lump(m_w, (sx * length, 0.0, 0.0), (disk_diam, disk_diam, m_w * rw**2 / 2)))
+    return (Lump(m_h, (sx * f_h * length, 0.0, 0.0), (m_h * a**2 / 6,) * 3),
+            Lump(m_l, (sx * f_l * length, 0.0, 0.0), (m_l * r**2 / 2, rod_perp, rod_perp)),
+            Lump(m_w, (sx * f_w * length, 0.0, 0.0), (disk_diam, disk_diam, m_w * rw**2 / 2)))
 
 
 def sagittal_inertia_kg_m2(af: Airframe) -> float:

@@ -4,6 +4,10 @@ With one rotor off, the three live thrusts are fixed by hover alone (total force
 no roll or pitch moment about the centre of mass); the posture decides how large they are
 and how much yaw moment is left. This module evaluates that balance for many postures at
 once (numpy, vectorised) and searches the posture that needs the smallest largest thrust.
+
+As the figures of m4-flight-model.md do, this static analysis lumps each whole leg at its
+thruster; the reduced-order model and the plant spread it over three lumps, which moves the
+centre of mass a little less (the best posture then needs about 1 % more thrust).
 """
 
 from __future__ import annotations

@@ -11,8 +11,9 @@ Input u (8): thrust_n (4), hip_accel_rad_s2 (4).
 Disturbance d (6): force_ned_n (3), torque_frd_n_m (3), constant over the horizon; the
 offset-free estimate of what the model does not explain (mass, thrust and inertia errors, wind).
 
-The body is a 6-DoF rigid body; each leg is a point mass at its thruster, so posture moves
-the centre of mass, the thrust moment arms and the inertia. Thrust acts along -z (up) of
+The body is a 6-DoF rigid body; each leg is three point masses (hip block, link, wheel +
+thruster, as the airframe places them), so posture moves the centre of mass, the thrust moment
+arms and the inertia; the legs' motion itself exerts no force on the body in this model. Thrust acts along -z (up) of
 the body at each thruster; each rotor adds the reaction moment spin * k_m * T about body z.
 """
 
@@ -92,12 +93,14 @@ def _skew_inertia(r):
 
 def mass_properties(af: Airframe, hip):
     """(centre of mass offset FRD (3,), inertia about the centre of mass (3, 3)) for posture hip."""
-    r = thruster_positions(af, hip)
-    m_leg, m_total = af.leg_mass_kg, af.total_mass_kg
-    com = m_leg * ca.sum2(r) / m_total
+    hips = ca.DM(np.array(af.hip_frd_m).T)
+    reach = thruster_positions(af, hip) - hips                      # hip -> hub, per leg
+    lumps = [(m, hips + f * reach) for m, f in af.leg_lumps]
+    com = sum(m * ca.sum2(r) for m, r in lumps) / af.total_mass_kg
     inertia = ca.diag(ca.DM(af.body_inertia_diag_kg_m2)) + af.body_mass_kg * _skew_inertia(-com)
-    for i in range(ROTOR_COUNT):
-        inertia += m_leg * _skew_inertia(r[:, i] - com)
+    for m, r in lumps:
+        for i in range(ROTOR_COUNT):
+            inertia += m * _skew_inertia(r[:, i] - com)
     return com, inertia
 
 

@@ -11,7 +11,7 @@ from companion.airframe import load_airframe
 from companion.core import rom
 from companion.mavlink import mavlink
 from companion.telemetry import (ATTITUDE, LOCAL_POSITION, THRUSTER_STATUS, TelemetryAssembler,
-                                 com_offset_rate_frd_m_s, euler_from_quat_wxyz, rom_state)
+                                 euler_from_quat_wxyz, rom_state)
 
 AF = load_airframe()
 NAN4 = [math.nan] * 4
@@ -150,7 +150,7 @@ def test_rom_velocity_adds_omega_cross_r_and_the_legs_motion():
     r = AF.com_offset_frd_m(hip)
     dt = 1e-6
     r_dot = (AF.com_offset_frd_m(hip + hip_rate * dt) - AF.com_offset_frd_m(hip - hip_rate * dt)) / (2 * dt)
-    assert np.allclose(com_offset_rate_frd_m_s(AF, hip, hip_rate), r_dot, atol=1e-8)
+    assert np.allclose(AF.com_offset_rate_frd_m_s(hip, hip_rate), r_dot, atol=1e-8)
     assert np.allclose(x[rom.V], np.cross(rates, r) + r_dot)
 
 

@@ -83,7 +83,7 @@ def test_a_lost_rotor_is_only_a_lower_bound_and_gets_no_thrust(nmpc):
     res = nmpc.solve(rom.hover_state(AF), hover_ref(), ROTOR_4_OFF)
     assert res.ok
     assert np.all(res.u_pred[:, 3] == pytest.approx(0.0, abs=1e-9))
-    assert res.u[:3].sum() > 0.9 * AF.total_mass_kg * AF.gravity_m_s2   # the others carry the weight
+    assert res.u[:3].sum() > 0.85 * AF.total_mass_kg * AF.gravity_m_s2   # the others carry the weight
 
 
 @pytest.mark.parametrize("where", ["x0", "x_ref"])

@@ -48,21 +48,29 @@ def test_inertia_grows_when_the_legs_spread_out():
     spread = np.asarray(rom.mass_properties(AF, np.full(4, math.pi / 2))[1])
     assert spread[0, 0] > folded[0, 0]          # legs out sideways: more roll inertia
     assert spread[1, 1] < folded[1, 1]          # legs no longer along x: less pitch inertia
-    # Hand computation for the folded posture's roll inertia about the centre (com at 0).
-    r = AF.thruster_positions_frd_m(np.zeros(4))
-    ixx = AF.body_inertia_diag_kg_m2[0] + AF.leg_mass_kg * np.sum(r[:, 1] ** 2 + r[:, 2] ** 2)
+    # Hand computation for the folded posture's roll inertia about the centre (com at 0): the
+    # legs lie along x, so every lump of leg i sits at the hip's y.
+    y = np.array(AF.hip_frd_m)[:, 1]
+    ixx = AF.body_inertia_diag_kg_m2[0] + AF.leg_mass_kg * np.sum(y ** 2)
     assert folded[0, 0] == pytest.approx(ixx)
+    # And its yaw inertia: each lump at hip + f L along x.
+    hips = np.array(AF.hip_frd_m)
+    izz = AF.body_inertia_diag_kg_m2[2] + sum(
+        m * np.sum((hips[:, 0] + np.sign(hips[:, 0]) * f * AF.leg_length_m) ** 2 + y ** 2) for m, f in AF.leg_lumps)
+    assert folded[2, 2] == pytest.approx(izz)
 
 
 def test_centre_of_mass_follows_the_legs():
     q = np.radians([90, 0, 72, 0])
     com = np.asarray(rom.mass_properties(AF, q)[0]).ravel()
     assert com == pytest.approx(AF.com_offset_frd_m(q))
-    # One leg swung out alone moves the centre of mass towards that side, by m_leg/m L.
+    # One leg swung out alone moves the centre of mass towards that side: the link (its centre
+    # at mid-leg) and the wheel swing with it, the hip block stays.
     q1 = np.zeros(4)
     q1[0] = math.pi / 2
     shift = np.asarray(rom.mass_properties(AF, q1)[0]).ravel() - np.asarray(rom.mass_properties(AF, np.zeros(4))[0]).ravel()
-    L, k = AF.leg_length_m, AF.leg_mass_kg / AF.total_mass_kg
+    L = AF.leg_length_m
+    k = (AF.leg_link_mass_kg / 2 + AF.leg_wheel_mass_kg) / AF.total_mass_kg
     assert shift == pytest.approx([k * (0 - L), k * L, 0.0], abs=1e-12)
 
 

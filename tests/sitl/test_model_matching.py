@@ -15,10 +15,11 @@ def test_rom_predicts_the_plant_after_a_rotor_loss_within_sane_bounds():
     # FRD right side down is +roll and tail down (nose up) is +pitch.
     assert result.plant_euler_rad[20, 0] > 0.1 and result.rom_euler_rad[20, 0] > 0.1
     assert result.plant_euler_rad[20, 1] > 0.1 and result.rom_euler_rad[20, 1] > 0.1
-    # Close over the first 0.3 s, still useful over the NMPC's 0.5 s horizon, diverging by 1 s.
-    assert short["pos_rms_m"] < 0.03 and short["att_rms_deg"] < 5.0
-    assert horizon["pos_rms_m"] < 0.05 and horizon["att_rms_deg"] < 25.0
-    assert full["pos_max_m"] < 0.3
-    # The models do differ (motor lag, lumps along the legs, servo compliance).
+    # Close over the first 0.3 s and over the NMPC's 0.5 s horizon; the tumble amplifies what
+    # the ROM leaves out by 1 s.
+    assert short["pos_rms_m"] < 0.005 and short["att_rms_deg"] < 2.5
+    assert horizon["pos_rms_m"] < 0.01 and horizon["att_rms_deg"] < 8.0
+    assert full["pos_max_m"] < 0.1
+    # The models do differ (the legs' own inertia and reaction, servo compliance).
     assert short["att_max_deg"] > 0.5
     assert np.all(np.isfinite(result.position_error_m))
