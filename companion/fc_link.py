@@ -134,7 +134,7 @@ class FcLink:
             _floats(sp.hip_rate_rad_s), flags))
 
     def send_fault_status(self, time_ms: int, status: FaultStatus) -> None:
-        detected_ms = 0 if status.detected_at_s is None else int(round(status.detected_at_s * 1000))
+        detected_ms = 0 if status.detected_at_s is None else round(status.detected_at_s * 1000)
         estimate = np.nan_to_num(status.thrust_max_estimate_n, nan=0.0, posinf=0.0, neginf=0.0)
         self.link.send(mavlink.MAVLink_m4_fault_status_message(
             int(time_ms), status.rotor or 0, _floats(estimate), detected_ms, int(status.state)))

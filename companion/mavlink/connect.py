@@ -21,7 +21,7 @@ _SERIAL = re.compile(r"^(/dev/\S+?|COM\d+)(?:,(\d+))?$")
 def open_link(url: str, source_system: int, source_component: int, *, tlog: TlogWriter | None = None,
               key: bytes | None = None, link_id: int = 0):
     """Open the link a URL names; LinkError says what is wrong with it."""
-    kwargs = dict(tlog=tlog, key=key, link_id=link_id)
+    kwargs = {"tlog": tlog, "key": key, "link_id": link_id}
     if m := _TCP.match(url):
         port = int(m.group(3))
         if not 0 <= port <= 65535 or (m.group(1) == "tcp" and port == 0):

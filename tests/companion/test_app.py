@@ -203,10 +203,10 @@ def _frame(msg_id: int, payload: bytes, seq: int, sysid: int, compid: int) -> by
 class Fuzzer:
     """Datagrams of one MAVLink frame each (or garbage), counted by kind."""
 
-    TELEMETRY = [mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION,
+    TELEMETRY = (mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION,
                  mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mavlink.MAVLINK_MSG_ID_M4_JOINT_STATE,
                  mavlink.MAVLINK_MSG_ID_M4_THRUSTER_STATUS, mavlink.MAVLINK_MSG_ID_HEARTBEAT,
-                 mavlink.MAVLINK_MSG_ID_COMMAND_ACK, mavlink.MAVLINK_MSG_ID_STATUSTEXT]
+                 mavlink.MAVLINK_MSG_ID_COMMAND_ACK, mavlink.MAVLINK_MSG_ID_STATUSTEXT)
 
     def __init__(self, seed: int):
         self.rng = random.Random(seed)

@@ -76,7 +76,7 @@ def test_a_stray_sender_with_the_fc_ids_is_ignored_and_cannot_redirect_our_repli
 
 
 def test_other_systems_and_components_are_dropped_and_counted(links):
-    companion, fc, _ = links
+    companion, _, _ = links
     other = UdpLink(f"udpout:127.0.0.1:{companion.link.local_port}", 7, FC_COMPONENT_ID)
     gimbal = UdpLink(f"udpout:127.0.0.1:{companion.link.local_port}", FC_SYSTEM_ID, 154)
     try:
