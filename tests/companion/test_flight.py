@@ -121,3 +121,32 @@ def test_the_feed_says_what_the_statustext_says_and_carries_every_topic(flight):
     assert 1.0 < confirmed[0]["detected_at_s"] <= 1.3
     nmpc = [p for topic, p in payloads if topic == "nmpc"]
     assert len(nmpc) >= 0.9 * SECONDS * RATE_HZ       # every control step (no rate cap on this feed)
+
+
+@pytest.mark.parametrize("same_key", [True, False], ids=["same key", "another key"])
+def test_with_signing_only_the_holder_of_the_key_flies_the_robot(tmp_path, same_key):
+    fc_key, our_key = tmp_path / "fc.key", tmp_path / "companion.key"
+    fc_key.write_text("11" * 32)
+    our_key.write_text("11" * 32 if same_key else "22" * 32)
+    config = parse_config({"control": {"rate_hz": RATE_HZ},
+                           "link": {"fc_url": "udpin:127.0.0.1:0", "signing_key_file": str(our_key)}}, "test")
+    app = open_app(config)
+    thread = threading.Thread(target=app.run, daemon=True)
+    thread.start()
+    cmd = [sys.executable, "-m", "sitl.cli", "serve", "--duration", "1", "--lockstep-timeout", "1",
+           "--signing-key", str(fc_key), "--mavlink", f"udpout:127.0.0.1:{app.fc.link.local_port}"]
+    try:
+        done = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
+    finally:
+        app.stop()
+        thread.join(5.0)
+        close_app(app)
+    accepted = int(re.search(r"setpoints accepted (\d+)", done.stderr).group(1))
+    rejected = int(re.search(r"packets rejected (\d+)", done.stderr).group(1))
+    health = app.fc.health()
+    if same_key:
+        assert accepted >= RATE_HZ and rejected == 0 and health.bad_signature == 0
+    else:
+        # every FC packet, its heartbeat too, fails our signature check: we never lock on, never answer
+        assert accepted == 0 and app.counters.answered == 0 and not health.locked
+        assert health.bad_signature > 0
