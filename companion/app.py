@@ -219,7 +219,8 @@ def open_app(config: CompanionConfig) -> CompanionApp:
         if feed is not None:
             feed.close()
         raise
-    fc = FcLink(link, config.link.fc_system_id, config.link.fc_component_id)
+    listening = config.link.fc_url.partition(":")[0] in ("udpin", "udp")
+    fc = FcLink(link, config.link.fc_system_id, config.link.fc_component_id, heartbeat_before_lock=not listening)
     return CompanionApp(config, fc, controller, feed)
 
 

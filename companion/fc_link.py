@@ -4,7 +4,8 @@
   and counted as foreign); the first address that sends the FC's HEARTBEAT (signed, when a
   signing key is set) is the FC, and from then on a udpin link hears and answers only that
   address (a stray sender, even with the FC's ids, can neither feed us nor redirect our
-  replies). Nothing is sent before.
+  replies). Nothing is sent before, except on a link with a fixed peer (udpout, tcp,
+  serial: `heartbeat_before_lock`), where our heartbeat is how the FC learns of us.
 - Heartbeat at 1 Hz as MAV_TYPE_ONBOARD_CONTROLLER.
 - Message intervals: the telemetry frame's streams are asked for at the control period with
   MAV_CMD_SET_MESSAGE_INTERVAL, one command at a time, each resent until acknowledged.
@@ -48,8 +49,10 @@ def _floats(values) -> list[float]:
 
 
 class FcLink:
-    def __init__(self, link, fc_system_id: int = FC_SYSTEM_ID, fc_component_id: int = FC_COMPONENT_ID):
+    def __init__(self, link, fc_system_id: int = FC_SYSTEM_ID, fc_component_id: int = FC_COMPONENT_ID,
+                 heartbeat_before_lock: bool = False):
         self.link = link
+        self.heartbeat_before_lock = heartbeat_before_lock
         self.fc_ids = (fc_system_id, fc_component_id)
         self.fc_address = None
         self._foreign = 0
@@ -100,13 +103,13 @@ class FcLink:
 
     def tick(self, now_s: float) -> None:
         """Heartbeat when due; the pending interval request sent or resent."""
-        if not self.locked:
+        if not (self.locked or self.heartbeat_before_lock):
             return
         if now_s >= self._next_heartbeat_s:
             self.link.send(mavlink.MAVLink_heartbeat_message(
                 mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3))
             self._next_heartbeat_s = now_s + HEARTBEAT_PERIOD_S
-        if self._intervals and (self._sent_at_s is None or now_s - self._sent_at_s >= COMMAND_RETRY_S):
+        if self.locked and self._intervals and (self._sent_at_s is None or now_s - self._sent_at_s >= COMMAND_RETRY_S):
             if self._attempts >= COMMAND_ATTEMPTS:
                 self._intervals.pop(0)           # the FC does not answer this one: go on with the others
                 self._attempts = 0
@@ -121,6 +124,8 @@ class FcLink:
 
     def next_due_s(self, now_s: float) -> float:
         """When tick() has something to do next."""
+        if not (self.locked or self.heartbeat_before_lock):
+            return now_s + HEARTBEAT_PERIOD_S          # nothing to send before the FC shows up
         due = self._next_heartbeat_s
         if self._intervals:
             due = min(due, now_s if self._sent_at_s is None else self._sent_at_s + COMMAND_RETRY_S)

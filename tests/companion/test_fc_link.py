@@ -58,6 +58,26 @@ def test_nothing_is_heard_or_sent_before_the_fc_heartbeat(links):
     assert companion.locked
 
 
+def test_waiting_for_the_fc_does_not_spin(links):
+    companion, _, _ = links
+    assert companion.next_due_s(5.0) >= 5.5
+
+
+def test_on_a_link_with_a_fixed_peer_our_heartbeat_goes_first_so_the_fc_learns_of_us():
+    fc = UdpLink("udpin:127.0.0.1:0", FC_SYSTEM_ID, FC_COMPONENT_ID)
+    companion = FcLink(UdpLink(f"udpout:127.0.0.1:{fc.local_port}", FC_SYSTEM_ID, COMPANION_COMPONENT_ID),
+                       heartbeat_before_lock=True)
+    try:
+        companion.tick(0.0)
+        assert [m.get_type() for m in drain(fc.receive)] == ["HEARTBEAT"]
+        fc.send(heartbeat())                # a udpin FC answers whoever wrote: us
+        drain(companion.receive)
+        assert companion.locked
+    finally:
+        fc.close()
+        companion.link.close()
+
+
 def test_a_stray_sender_with_the_fc_ids_is_ignored_and_cannot_redirect_our_replies(links):
     companion, fc, stray = links
     fc.send(heartbeat())
