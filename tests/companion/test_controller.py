@@ -17,6 +17,7 @@ from companion.core import rom
 from companion.core.fault_detector import FaultState
 from companion.core.nmpc import Nmpc
 from companion.scenario import Landing, Mission
+from companion.telemetry import VehicleSnapshot, rom_state
 
 AF = load_airframe()
 CONFIG = parse_config({"control": {"rate_hz": 50.0}}, "test")
@@ -81,6 +82,33 @@ def test_every_control_step_gives_a_finite_setpoint_within_bounds(steps):
     c = controller()
     for k, (changes, delivered, limits) in enumerate(steps):
         out = c.step(k * PERIOD, _state(changes), delivered, limits)
+        assert_safe(out.setpoint, out.fault.thrust_max_estimate_n)
+
+
+SNAPSHOT_FIELDS = ("euler_rad", "rates_frd_rad_s", "pos_ned_m", "vel_ned_m_s", "hip_rad", "hip_rate_rad_s")
+
+
+def _snapshot(changes) -> VehicleSnapshot:
+    """A snapshot of a hovering robot with some telemetry values replaced."""
+    values = {"euler_rad": np.zeros(3), "rates_frd_rad_s": np.zeros(3), "pos_ned_m": np.array([0.0, 0.0, -2.0]),
+              "vel_ned_m_s": np.zeros(3), "hip_rad": np.full(4, AF.nominal_hip_rad), "hip_rate_rad_s": np.zeros(4)}
+    for name, i, v in changes:
+        values[name][i % values[name].size] = v
+    return VehicleSnapshot(time_ms=0, times_ms={}, thrust_cmd_n=np.full(4, HOVER_N), thrust_n=np.full(4, np.nan),
+                           thrust_limit_n=np.full(4, np.nan), **values)
+
+
+snapshot_changes = st.lists(st.tuples(st.sampled_from(SNAPSHOT_FIELDS), st.integers(0, 3),
+                                      anything | st.floats(-10.0, 10.0)), max_size=5)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(steps=st.lists(st.tuples(snapshot_changes, four), min_size=1, max_size=4))
+def test_every_snapshot_through_the_frame_conversion_gives_a_safe_setpoint(steps):
+    c = controller()
+    for k, (changes, limits) in enumerate(steps):
+        snap = _snapshot(changes)
+        out = c.step(k * PERIOD, rom_state(snap, AF), snap.thrust_n, limits)
         assert_safe(out.setpoint, out.fault.thrust_max_estimate_n)
 
 
