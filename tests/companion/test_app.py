@@ -17,6 +17,7 @@ from companion.app import CompanionApp
 from companion.config import parse_config
 from companion.controller import Controller
 from companion.fc_link import FcLink
+from companion.feed import Feed
 from companion.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
 from companion.mavlink.link import UdpLink
 
@@ -84,9 +85,20 @@ def controller():
     return Controller(CONFIG)
 
 
+class CapturingSink:
+    def __init__(self):
+        self.payloads: list[tuple[str, dict]] = []
+
+    def put(self, topic: str, payload: dict) -> None:
+        self.payloads.append((topic, payload))
+
+    def close(self) -> None:
+        pass
+
+
 @pytest.fixture
 def rig(controller):
-    controller.resume()
+    controller.restart()
     link, clock = ScriptedLink(), Clock()
     app = CompanionApp(CONFIG, FcLink(link), controller, clock=clock)
     yield app, FakeFc(link), link, clock
@@ -125,6 +137,7 @@ def test_telemetry_loss_is_noticed_within_0_3_s_setpoints_stop_and_control_resum
     app, fc, link, clock = rig
     resumes = []
     monkeypatch.setattr(app.controller, "resume", lambda: resumes.append(clock.now))
+    app.feed = Feed(sink := CapturingSink())
     fc.heartbeat()
     fly(app, fc, clock, 0, 10)
     last_frame_s = clock.now - 0.02
@@ -136,6 +149,8 @@ def test_telemetry_loss_is_noticed_within_0_3_s_setpoints_stop_and_control_resum
     assert app.counters.link_losses == 1
     texts = [m.text for m in link.sent_messages() if m.get_type() == "STATUSTEXT"]
     assert texts[-1] == "companion: telemetry lost, setpoints stopped"
+    link_topic = [p for topic, p in sink.payloads if topic == "link"]
+    assert link_topic[-1]["connected"] is False and link_topic[-1]["last_msg_age_s"] >= 0.3
     clock.now += 1.0
     app.poll()
     assert len(setpoint_times(link)) == answered               # nothing went out while lost
