@@ -8,6 +8,7 @@ import math
 import random
 import struct
 from collections import deque
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -85,17 +86,6 @@ def controller():
     return Controller(CONFIG)
 
 
-class CapturingSink:
-    def __init__(self):
-        self.payloads: list[tuple[str, dict]] = []
-
-    def put(self, topic: str, payload: dict) -> None:
-        self.payloads.append((topic, payload))
-
-    def close(self) -> None:
-        pass
-
-
 @pytest.fixture
 def rig(controller):
     controller.restart()
@@ -137,7 +127,8 @@ def test_telemetry_loss_is_noticed_within_0_3_s_setpoints_stop_and_control_resum
     app, fc, link, clock = rig
     resumes = []
     monkeypatch.setattr(app.controller, "resume", lambda: resumes.append(clock.now))
-    app.feed = Feed(sink := CapturingSink())
+    published = []
+    app.feed = Feed(SimpleNamespace(put=lambda topic, payload: published.append((topic, payload)), close=list))
     fc.heartbeat()
     fly(app, fc, clock, 0, 10)
     last_frame_s = clock.now - 0.02
@@ -149,7 +140,7 @@ def test_telemetry_loss_is_noticed_within_0_3_s_setpoints_stop_and_control_resum
     assert app.counters.link_losses == 1
     texts = [m.text for m in link.sent_messages() if m.get_type() == "STATUSTEXT"]
     assert texts[-1] == "companion: telemetry lost, setpoints stopped"
-    link_topic = [p for topic, p in sink.payloads if topic == "link"]
+    link_topic = [p for topic, p in published if topic == "link"]
     assert link_topic[-1]["connected"] is False and link_topic[-1]["last_msg_age_s"] >= 0.3
     clock.now += 1.0
     app.poll()

@@ -13,6 +13,7 @@ import re
 import subprocess
 import sys
 import threading
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -35,7 +36,8 @@ def _fly(tmp_path):
     config = parse_config({"control": {"rate_hz": RATE_HZ}, "link": {"fc_url": "udpin:127.0.0.1:0"}}, "test")
     config = dataclasses.replace(config, mission=scenarios.resolve(SCENARIO).mission)
     app = open_app(config)
-    app.feed = Feed(sink := CapturingSink())
+    published = []
+    app.feed = Feed(SimpleNamespace(put=lambda topic, payload: published.append((topic, payload)), close=list))
     thread = threading.Thread(target=app.run, daemon=True)
     thread.start()
     tlog = tmp_path / "flight.tlog"
@@ -48,20 +50,7 @@ def _fly(tmp_path):
         thread.join(5.0)
         close_app(app)
     assert done.returncode == 0, done.stderr
-    return app, tlog, done.stderr, sink.payloads
-
-
-class CapturingSink:
-    """Stands in for Zenoh: keeps every (topic, payload) the feed publishes."""
-
-    def __init__(self):
-        self.payloads: list[tuple[str, dict]] = []
-
-    def put(self, topic: str, payload: dict) -> None:
-        self.payloads.append((topic, payload))
-
-    def close(self) -> None:
-        pass
+    return app, tlog, done.stderr, published
 
 
 def _messages(tlog):
