@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import signal
 import socket
 import subprocess
@@ -11,6 +12,17 @@ import time
 import pytest
 
 from companion.cli import main
+
+
+@pytest.fixture(autouse=True)
+def _root_logging_restored():
+    """`run` sets up logging on the stderr of the moment (captured here): undo it afterwards."""
+    root = logging.getLogger()
+    handlers = list(root.handlers)
+    yield
+    for handler in root.handlers[:]:
+        if handler not in handlers:
+            root.removeHandler(handler)
 
 
 def run_cli(capsys, *args) -> tuple[int, list[str]]:
