@@ -8,11 +8,21 @@ hypothesis is a deficit of at least deficit_min_n, the residual is significant (
 explains >= chi2_min) and one rotor explains it (what it leaves is small next to what it
 explains). The evidence of the last window_s is pooled before voting.
 
+The direct path compares each rotor's delivered thrust with its command passed through the
+motor's first-order lag (airframe motor_time_constant_s), so a fast command step that the
+motor is still following is no deficit. A frame votes for rotor i when its shortfall is at
+least deficit_min_n, or at least half that and shortfall_min of the lagged command, while
+every other rotor delivers what it is asked. Delivered thrust is a measurement, not an
+inference: direct_confirm_frames consecutive votes confirm at once.
+
     healthy --vote i--> suspect(i) --votes for i during confirm_s--> confirmed(i)
+    suspect(i) --direct_confirm_frames direct votes for i in a row--> confirmed(i)
     suspect(i) --no vote--> healthy;  suspect(i) --vote j--> suspect(j)
 
 Confirmed is final (one rotor fault per flight). At confirmation the rotor's ceiling is
-estimated as the thrust it delivered over the window (commanded - deficit); afterwards it
+estimated as the thrust it delivered over the window (commanded - deficit), or on the
+direct path as the thrust its lagged response is heading to (the level it saturates at,
+from its last two delivered thrusts); afterwards it
 is lowered whenever the rotor, commanded at its ceiling, clearly delivers less (a
 significant residual it alone explains), never raised by noise. It is handed out in
 thrust_max_estimate_n: a partial loss is a ceiling the rotor never exceeds, a total loss a
@@ -80,6 +90,8 @@ class FaultDetectorConfig:
     unexplained_max: float = 0.3          # chi2 the best rotor may leave, as a share of what it explains
     window_s: float = 0.1                 # evidence pooled over this much time before voting
     confirm_s: float = 0.1                # votes for one rotor during this long confirm it
+    direct_confirm_frames: int = 2        # consecutive votes from delivered-thrust telemetry that confirm
+    shortfall_min: float = 0.3            # share of its lagged command a rotor may fall short by (direct path)
     saturation_margin_n: float = 0.5      # a rotor commanded within this of its ceiling is at its ceiling
     ceiling_deficit_min_n: float = 0.5    # a deficit this large of the lost rotor at its ceiling lowers the estimate
     estimate_gain: float = 0.3            # weight of each such observation after confirmation
@@ -95,6 +107,9 @@ class FaultDetectorConfig:
                      "bias_time_constant_s", "max_gap_s"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"FaultDetectorConfig.{name} must be > 0")
+        if self.direct_confirm_frames < 1 or self.direct_confirm_frames != int(self.direct_confirm_frames):
+            raise ValueError(f"FaultDetectorConfig.direct_confirm_frames must be an integer >= 1, "
+                             f"got {self.direct_confirm_frames}")
         if self.estimate_gain > 1:
             raise ValueError(f"FaultDetectorConfig.estimate_gain must be <= 1, got {self.estimate_gain}")
 
@@ -104,7 +119,8 @@ class _Evidence:
     rotor: int | None                  # 0-based rotor voted for, None: no vote
     consistent: int | None             # 0-based rotor that alone explains a significant residual (any size)
     deficit_n: np.ndarray              # (4,) expected - delivered thrust of each rotor over the interval
-    delivered_n: np.ndarray            # (4,) thrust each rotor delivered over the interval (estimate)
+    ceiling_n: np.ndarray              # (4,) thrust each rotor delivers (direct: the level its lag heads to)
+    direct: bool                       # from delivered-thrust telemetry
 
 
 class FaultDetector:
@@ -118,7 +134,9 @@ class FaultDetector:
         self._limit_n = np.full(ROTOR_COUNT, af.thrust_max_n)
         self._estimate_n: float | None = None
         self._prev: tuple[float, np.ndarray] | None = None
-        self._lag_n = np.zeros(ROTOR_COUNT)
+        self._lag_n = np.zeros(ROTOR_COUNT)        # thrust the motors deliver (as reported, else modelled)
+        self._cmd_lag_n = np.zeros(ROTOR_COUNT)    # the command through the motor lag: what healthy motors deliver
+        self._votes = 0                            # consecutive votes for the suspect rotor
         self._window: deque[tuple[float, IntervalFit]] = deque()
         self._bias_per_s = np.zeros(len(CHANNELS))
         self._rotor: int | None = None
@@ -160,12 +178,13 @@ class FaultDetector:
         dt = None if prev is None else time_s - prev[0]
         if dt is None or not 0 < dt <= self._c.max_gap_s:
             self._window.clear()
-            self._lag_n = target
+            self._lag_n = self._cmd_lag_n = target
             return self.status
         average_n, end_n = self._model.motor_response(self._lag_n, target, dt)
+        self._cmd_lag_n = self._model.motor_response(self._cmd_lag_n, target, dt)[1]
         if delivered is not None and np.all(np.isfinite(delivered)):
-            evidence = self._direct_evidence(end_n, delivered)
-            self._deficit_n = end_n - delivered
+            evidence = self._direct_evidence(delivered, dt)
+            self._deficit_n = evidence.deficit_n
             self._lag_n = delivered
         else:
             evidence = self._model_evidence(time_s, prev[1], x, average_n, dt)
@@ -173,14 +192,18 @@ class FaultDetector:
         self._decide(time_s, evidence, target)
         return self.status
 
-    def _direct_evidence(self, expected_n: np.ndarray, delivered_n: np.ndarray) -> _Evidence:
-        deficit = expected_n - delivered_n
+    def _direct_evidence(self, delivered_n: np.ndarray, dt: float) -> _Evidence:
+        c = self._c
+        expected = self._cmd_lag_n
+        deficit = expected - delivered_n
         i = int(np.argmax(deficit))
-        others = np.delete(deficit, i)
-        alone = bool(np.all(others < self._c.deficit_min_n / 2))
-        votes = alone and deficit[i] >= self._c.deficit_min_n
-        return _Evidence(rotor=i if votes else None, consistent=i if alone else None, deficit_n=deficit,
-                         delivered_n=delivered_n)
+        alone = bool(np.all(np.delete(deficit, i) < c.deficit_min_n / 2))
+        large = deficit[i] >= c.deficit_min_n or (deficit[i] >= c.deficit_min_n / 2
+                                                   and deficit[i] >= c.shortfall_min * expected[i])
+        decay = self._model.motor_decay(dt)       # delivered = heading + decay (previous - heading)
+        heading_n = (delivered_n - decay * self._lag_n) / (1 - decay)
+        return _Evidence(rotor=i if alone and large else None, consistent=i if alone else None, deficit_n=deficit,
+                         ceiling_n=np.minimum(heading_n, delivered_n), direct=True)
 
     def _model_evidence(self, time_s: float, x_prev: np.ndarray, x: np.ndarray, average_n: np.ndarray,
                         dt: float) -> _Evidence:
@@ -199,20 +222,23 @@ class FaultDetector:
             self._bias_per_s += min(dt / c.bias_time_constant_s, 1.0) * (raw / dt - self._bias_per_s)
         return _Evidence(rotor=i if votes else None, consistent=i if consistent else None,
                          deficit_n=pooled.deficit_size_n,
-                         delivered_n=pooled.expected_thrust_n - pooled.deficit_size_n)
+                         ceiling_n=pooled.expected_thrust_n - pooled.deficit_size_n, direct=False)
 
     def _decide(self, time_s: float, evidence: _Evidence, target_n: np.ndarray) -> None:
         if self._state is FaultState.CONFIRMED:
             self._refine(evidence, target_n)
             return
         if evidence.rotor is None:
-            self._state, self._rotor = FaultState.HEALTHY, None
+            self._state, self._rotor, self._votes = FaultState.HEALTHY, None, 0
             return
         if self._state is FaultState.HEALTHY or evidence.rotor != self._rotor:
-            self._state, self._rotor, self._suspect_since_s = FaultState.SUSPECT, evidence.rotor, time_s
-        if time_s - self._suspect_since_s >= self._c.confirm_s - 1e-9:
+            self._state, self._rotor, self._suspect_since_s, self._votes = (FaultState.SUSPECT, evidence.rotor,
+                                                                            time_s, 0)
+        self._votes += 1
+        fast = evidence.direct and self._votes >= self._c.direct_confirm_frames
+        if fast or time_s - self._suspect_since_s >= self._c.confirm_s - 1e-9:
             self._state, self._detected_at_s = FaultState.CONFIRMED, time_s
-            self._estimate_n = self._clip(evidence.delivered_n[self._rotor])
+            self._estimate_n = self._clip(evidence.ceiling_n[self._rotor])
 
     def _refine(self, evidence: _Evidence, target_n: np.ndarray) -> None:
         """Lower the ceiling estimate towards what the rotor delivered when, commanded at its
@@ -224,7 +250,7 @@ class FaultDetector:
             return
         if evidence.consistent != i or evidence.deficit_n[i] < self._c.ceiling_deficit_min_n:
             return
-        observed = evidence.delivered_n[i]
+        observed = evidence.ceiling_n[i]
         self._estimate_n = self._clip(self._estimate_n + self._c.estimate_gain * (observed - self._estimate_n))
 
     def _clip(self, thrust_n: float) -> float:

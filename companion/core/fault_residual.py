@@ -88,13 +88,17 @@ class ThrustResidualModel:
         self._predict = ca.Function("m4_fault_predict", [x, u, dt],
                                     [xk, ca.jacobian(xk, u[rom.THRUST]), ca.diag(inertia), torque])
 
+    def motor_decay(self, dt_s: float) -> float:
+        """Share of a thrust step the first-order motor lag has still to go after dt_s (0: no lag)."""
+        tau = self._af.motor_time_constant_s
+        return math.exp(-dt_s / tau) if tau > 0 else 0.0
+
     def motor_response(self, start_n: np.ndarray, target_n: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
         """(interval-average thrust, thrust at the end) of the first-order motor lag."""
-        tau = self._af.motor_time_constant_s
-        if tau <= 0:
+        decay = self.motor_decay(dt_s)
+        if decay == 0:
             return target_n.copy(), target_n.copy()
-        decay = math.exp(-dt_s / tau)
-        return (target_n + (start_n - target_n) * tau / dt_s * (1 - decay),
+        return (target_n + (start_n - target_n) * self._af.motor_time_constant_s / dt_s * (1 - decay),
                 target_n + (start_n - target_n) * decay)
 
     def fit(self, x_prev: np.ndarray, x_now: np.ndarray, expected_thrust_n: np.ndarray,

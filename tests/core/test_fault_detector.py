@@ -134,3 +134,63 @@ def test_unknown_limits_from_the_flight_controller_fall_back_on_the_airframe():
     status = det.update(0.0, rom.hover_state(AF), np.full(ROTOR_COUNT, HOVER_N),
                         thrust_limit_n=[math.nan, 20.0, math.nan, 25.0])
     assert np.allclose(status.thrust_max_estimate_n, [AF.thrust_max_n, 20.0, AF.thrust_max_n, 25.0])
+
+
+def lagged_frames(commands_n, ceiling_fn, dt_s=0.02):
+    """Frames dt_s apart; over the interval that ends at frame k the motors follow commands_n[k]
+    (4,) with the airframe's first-order lag towards min(command, ceiling_fn(k)). Yields
+    (t, command in force over the interval, delivered thrust at t)."""
+    decay = math.exp(-dt_s / AF.motor_time_constant_s)
+    thrust = np.array(commands_n[0], dtype=float)
+    for k, cmd in enumerate(commands_n):
+        target = np.minimum(cmd, ceiling_fn(k))
+        thrust = target + (thrust - target) * decay
+        yield k * dt_s, cmd, thrust.copy()
+
+
+def test_delivered_thrust_far_below_the_lagged_command_two_frames_running_confirms_at_once():
+    """50 Hz telemetry, rotor 3 stops right after frame 4: its delivered thrust decays with the motor
+    lag, two frames with a deficit of more than deficit_min_n confirm (0.04 s, not confirm_s),
+    and the ceiling handed over is the level the lag heads to (0 N), not the thrust still delivered."""
+    det = FaultDetector(AF)
+    cmd = np.full(ROTOR_COUNT, HOVER_N)
+    ceiling = lambda k: np.array([AF.thrust_max_n, AF.thrust_max_n, 0.0 if k >= 5 else AF.thrust_max_n,
+                                  AF.thrust_max_n])
+    statuses = [det.update(t, rom.hover_state(AF), c, thrust_delivered_n=d)
+                for t, c, d in lagged_frames([cmd] * 12, ceiling)]
+    confirmed = next(s for s in statuses if s.state is FaultState.CONFIRMED)
+    assert confirmed.rotor == 3
+    assert confirmed.detected_at_s == pytest.approx(6 * 0.02)      # deficits at frames 5 and 6
+    assert confirmed.detected_at_s - 4 * 0.02 < FaultDetectorConfig().confirm_s
+    assert confirmed.thrust_max_estimate_n[2] == pytest.approx(AF.thrust_min_n, abs=0.05)
+    assert statuses[5].state is FaultState.SUSPECT
+
+
+def test_a_fast_command_step_the_motor_lag_delays_raises_no_alarm():
+    """Rotor 1 commanded from hover to the maximum in one frame, and back: the delivered thrust
+    trails the command by far more than deficit_min_n for a few frames, but not the command
+    passed through the motor lag."""
+    det = FaultDetector(AF)
+    hover = np.full(ROTOR_COUNT, HOVER_N)
+    step = hover.copy()
+    step[0] = AF.thrust_max_n
+    commands = [hover] * 5 + [step] * 10 + [hover] * 10
+    limits = lambda k: np.full(ROTOR_COUNT, AF.thrust_max_n)
+    frames = list(lagged_frames(commands, limits))
+    raw_deficits = [c[0] - d[0] for _, c, d in frames]
+    assert max(raw_deficits) > 2 * FaultDetectorConfig().deficit_min_n      # the raw command would alarm
+    for t, c, d in frames:
+        status = det.update(t, rom.hover_state(AF), c, thrust_delivered_n=d)
+        assert status.state is FaultState.HEALTHY, t
+
+
+def test_a_partial_loss_is_confirmed_from_delivered_thrust_with_its_ceiling():
+    det = FaultDetector(AF)
+    cmd = np.full(ROTOR_COUNT, HOVER_N)
+    ceiling = lambda k: np.array([AF.thrust_max_n, 0.5 * HOVER_N if k >= 5 else AF.thrust_max_n,
+                                  AF.thrust_max_n, AF.thrust_max_n])
+    statuses = [det.update(t, rom.hover_state(AF), c, thrust_delivered_n=d)
+                for t, c, d in lagged_frames([cmd] * 15, ceiling)]
+    confirmed = next(s for s in statuses if s.state is FaultState.CONFIRMED)
+    assert confirmed.rotor == 2 and confirmed.detected_at_s <= 9 * 0.02 + 1e-9
+    assert confirmed.thrust_max_estimate_n[1] == pytest.approx(0.5 * HOVER_N, abs=0.05)
