@@ -1,6 +1,8 @@
 """The flight's figures (PNG, matplotlib's Agg backend: no display needed), like the paper's.
 
-- trajectory.png: position of the centre of mass against the reference, and Euler angles;
+- trajectory.png: position of the centre of mass against the reference, roll and pitch, and
+  yaw on a panel of its own (after a rotor loss it spins through thousands of degrees, which
+  would flatten roll and pitch into a line);
 - velocities_rates.png: body-frame velocities and angular rates;
 - actuators.png: delivered thrust per rotor with its limit, and hip angles;
 - snapshots.png: drawings of the robot from above and from the side at a few instants;
@@ -50,16 +52,19 @@ def _finish(fig, axes, faults: list[dict], path: Path, title: str) -> Path:
 
 def trajectory_figure(path: Path, title: str, truth: Truth, ref_ned_m: np.ndarray, faults: list[dict]) -> Path:
     t = truth.time_s
-    fig, axes = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
+    fig, axes = plt.subplots(3, 1, figsize=(9, 9), sharex=True, height_ratios=(3, 3, 2))
     for i, (name, sign) in enumerate((("north", 1), ("east", 1), ("altitude", -1))):
         line, = axes[0].plot(t, sign * truth.com_ned_m[:, i], label=f"{name}")
         axes[0].plot(t, sign * ref_ned_m[:, i], ls="--", color=line.get_color(), lw=1, label=f"{name} ref")
     axes[0].set_ylabel("centre of mass (m)")
     axes[0].legend(ncol=3, fontsize=8)
-    for i, name in enumerate(("roll", "pitch", "yaw")):
-        axes[1].plot(t, np.degrees(np.unwrap(truth.euler_rad[:, i])), label=name)
-    axes[1].set_ylabel("Euler angles (deg)")
+    for i, name in enumerate(("roll", "pitch")):
+        axes[1].plot(t, np.degrees(truth.euler_rad[:, i]), label=name)
+    axes[1].set_ylabel("roll, pitch (deg)")
     axes[1].legend(fontsize=8)
+    axes[2].plot(t, np.degrees(np.unwrap(truth.euler_rad[:, 2])), color="tab:green", label="yaw")
+    axes[2].set_ylabel("yaw (deg, unwrapped)")
+    axes[2].legend(fontsize=8)
     return _finish(fig, axes, faults, path, title)
 
 
