@@ -13,10 +13,12 @@ motor's first-order lag (airframe motor_time_constant_s), so a fast command step
 motor is still following is no deficit. A frame votes for rotor i when its shortfall is at
 least deficit_min_n, or at least half that and shortfall_min of the lagged command, while
 every other rotor delivers what it is asked. Delivered thrust is a measurement, not an
-inference: direct_confirm_frames consecutive votes confirm at once.
+inference: votes in a row that cover direct_confirm_s confirm at once (at 50 Hz two frames;
+at 10 Hz one frame already spans three motor time constants, and waiting for a second would
+cost 0.1 s of an unchecked fall).
 
     healthy --vote i--> suspect(i) --votes for i during confirm_s--> confirmed(i)
-    suspect(i) --direct_confirm_frames direct votes for i in a row--> confirmed(i)
+    suspect(i) --direct votes for i in a row covering direct_confirm_s--> confirmed(i)
     suspect(i) --no vote--> healthy;  suspect(i) --vote j--> suspect(j)
 
 Confirmed is final (one rotor fault per flight). At confirmation the rotor's ceiling is
@@ -90,7 +92,7 @@ class FaultDetectorConfig:
     unexplained_max: float = 0.3          # chi2 the best rotor may leave, as a share of what it explains
     window_s: float = 0.1                 # evidence pooled over this much time before voting
     confirm_s: float = 0.1                # votes for one rotor during this long confirm it
-    direct_confirm_frames: int = 2        # consecutive votes from delivered-thrust telemetry that confirm
+    direct_confirm_s: float = 0.03        # delivered-thrust votes in a row covering this long confirm (~ motor lag)
     shortfall_min: float = 0.3            # share of its lagged command a rotor may fall short by (direct path)
     saturation_margin_n: float = 0.5      # a rotor commanded within this of its ceiling is at its ceiling
     ceiling_deficit_min_n: float = 0.5    # a deficit this large of the lost rotor at its ceiling lowers the estimate
@@ -107,9 +109,6 @@ class FaultDetectorConfig:
                      "bias_time_constant_s", "max_gap_s"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"FaultDetectorConfig.{name} must be > 0")
-        if self.direct_confirm_frames < 1 or self.direct_confirm_frames != int(self.direct_confirm_frames):
-            raise ValueError(f"FaultDetectorConfig.direct_confirm_frames must be an integer >= 1, "
-                             f"got {self.direct_confirm_frames}")
         if self.estimate_gain > 1:
             raise ValueError(f"FaultDetectorConfig.estimate_gain must be <= 1, got {self.estimate_gain}")
 
@@ -136,7 +135,7 @@ class FaultDetector:
         self._prev: tuple[float, np.ndarray] | None = None
         self._lag_n = np.zeros(ROTOR_COUNT)        # thrust the motors deliver (as reported, else modelled)
         self._cmd_lag_n = np.zeros(ROTOR_COUNT)    # the command through the motor lag: what healthy motors deliver
-        self._votes = 0                            # consecutive votes for the suspect rotor
+        self._direct_votes_s = 0.0                 # time covered by the direct votes in a row for the suspect rotor
         self._window: deque[tuple[float, IntervalFit]] = deque()
         self._bias_per_s = np.zeros(len(CHANNELS))
         self._rotor: int | None = None
@@ -184,11 +183,14 @@ class FaultDetector:
         self._cmd_lag_n = self._model.motor_response(self._cmd_lag_n, target, dt)[1]
         if delivered is not None and np.all(np.isfinite(delivered)):
             evidence = self._direct_evidence(delivered, dt)
+            same = evidence.rotor is not None and evidence.rotor == self._rotor
+            self._direct_votes_s = (self._direct_votes_s if same else 0.0) + dt if evidence.rotor is not None else 0.0
             self._deficit_n = evidence.deficit_n
             self._lag_n = delivered
         else:
             evidence = self._model_evidence(time_s, prev[1], x, average_n, dt)
             self._lag_n = end_n
+            self._direct_votes_s = 0.0
         self._decide(time_s, evidence, target)
         return self.status
 
@@ -229,13 +231,11 @@ class FaultDetector:
             self._refine(evidence, target_n)
             return
         if evidence.rotor is None:
-            self._state, self._rotor, self._votes = FaultState.HEALTHY, None, 0
+            self._state, self._rotor = FaultState.HEALTHY, None
             return
         if self._state is FaultState.HEALTHY or evidence.rotor != self._rotor:
-            self._state, self._rotor, self._suspect_since_s, self._votes = (FaultState.SUSPECT, evidence.rotor,
-                                                                            time_s, 0)
-        self._votes += 1
-        fast = evidence.direct and self._votes >= self._c.direct_confirm_frames
+            self._state, self._rotor, self._suspect_since_s = FaultState.SUSPECT, evidence.rotor, time_s
+        fast = evidence.direct and self._direct_votes_s >= self._c.direct_confirm_s - 1e-9
         if fast or time_s - self._suspect_since_s >= self._c.confirm_s - 1e-9:
             self._state, self._detected_at_s = FaultState.CONFIRMED, time_s
             self._estimate_n = self._clip(evidence.ceiling_n[self._rotor])

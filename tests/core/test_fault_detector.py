@@ -42,12 +42,13 @@ def test_delivered_thrust_telemetry_confirms_the_rotor_and_its_ceiling_directly(
         if k >= 3:
             delivered[1] = 6.0      # rotor 2 gives 6 N whatever it is asked
         statuses.append(det.update(k * DT, x, cmd, thrust_delivered_n=delivered))
-    assert [s.state for s in statuses[2:6]] == [FaultState.HEALTHY, FaultState.SUSPECT,
-                                                FaultState.CONFIRMED, FaultState.CONFIRMED]
+    # at 10 Hz one frame spans more than direct_confirm_s: the first frame short of thrust confirms
+    assert [s.state for s in statuses[2:5]] == [FaultState.HEALTHY, FaultState.CONFIRMED, FaultState.CONFIRMED]
     final = statuses[-1]
     assert final.rotor == 2 and final.message == "thrust loss rotor 2"
-    assert final.detected_at_s == pytest.approx(4 * DT)
-    assert final.thrust_max_estimate_n[1] == pytest.approx(6.0)
+    assert final.detected_at_s == pytest.approx(3 * DT)
+    # an instant drop is faster than the motor lag the ceiling is extrapolated with: a little low, never high
+    assert 6.0 - 0.05 * HOVER_N <= final.thrust_max_estimate_n[1] <= 6.0
     assert np.allclose(np.delete(final.thrust_max_estimate_n, 1), AF.thrust_max_n)
 
 
@@ -194,3 +195,18 @@ def test_a_partial_loss_is_confirmed_from_delivered_thrust_with_its_ceiling():
     confirmed = next(s for s in statuses if s.state is FaultState.CONFIRMED)
     assert confirmed.rotor == 2 and confirmed.detected_at_s <= 9 * 0.02 + 1e-9
     assert confirmed.thrust_max_estimate_n[1] == pytest.approx(0.5 * HOVER_N, abs=0.05)
+
+
+def test_one_frame_of_low_delivered_thrust_at_50_hz_is_only_a_suspicion():
+    """A single 50 Hz frame (shorter than direct_confirm_s) reporting rotor 1 far short of its
+    command, then normal thrust again: suspect for that frame, healthy after, never confirmed."""
+    det = FaultDetector(AF)
+    cmd = np.full(ROTOR_COUNT, HOVER_N)
+    states = []
+    for k in range(10):
+        delivered = cmd.copy()
+        if k == 4:
+            delivered[0] = 0.0
+        states.append(det.update(k * 0.02, rom.hover_state(AF), cmd, thrust_delivered_n=delivered).state)
+    assert states[4] is FaultState.SUSPECT
+    assert FaultState.CONFIRMED not in states and states[-1] is FaultState.HEALTHY
