@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
-# Installs everything a developer or CI needs: the project (editable) with the simulator
-# and test extras. No system packages are needed: MuJoCo's offscreen rendering is not used
-# by the tests.
+# Installs everything a developer or CI needs: the project (editable) with the simulator,
+# test and cluster (Dask) extras. No system packages are needed: the figures are drawn with
+# matplotlib's Agg backend, not MuJoCo's offscreen renderer, so no GPU or display either.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 python -m pip install --upgrade pip
-python -m pip install -e ".[sim,test]"
+python -m pip install -e ".[sim,test,cluster]"
