@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from companion.airframe import load_airframe
+from companion.config import DEFAULT_RATE_HZ
 from companion.scenario import Scenario
 from sitl.feed_recorder import FeedRecorder
 
@@ -53,7 +54,7 @@ class FlightOptions:
     viewer: bool = False
     port: int | None = None               # loopback UDP port of the companion's MAVLink link; None: a free one
     record_feed: bool = True
-    rate_hz: float = 50.0                 # the companion's control rate (the NMPC's design rate)
+    rate_hz: float = DEFAULT_RATE_HZ      # the companion's control rate
 
 
 class FlightFiles:

@@ -73,13 +73,7 @@ class ThrustResidualModel:
         self._af, self._noise = af, noise
         f = rom.dynamics(af)
         x, u, dt = ca.SX.sym("x", rom.NX), ca.SX.sym("u", rom.NU), ca.SX.sym("dt")
-        h, xk, d = dt / _PREDICTION_SUBSTEPS, x, ca.DM.zeros(rom.ND)
-        for _ in range(_PREDICTION_SUBSTEPS):
-            k1 = f(xk, u, d)
-            k2 = f(xk + h / 2 * k1, u, d)
-            k3 = f(xk + h / 2 * k2, u, d)
-            k4 = f(xk + h * k3, u, d)
-            xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        xk = rom.rk4(f, x, u, ca.DM.zeros(rom.ND), dt, _PREDICTION_SUBSTEPS)
         com, inertia = rom.mass_properties(af, x[rom.HIP])
         arms = rom.thruster_positions(af, x[rom.HIP]) - ca.repmat(com, 1, len(af.spin_sign))
         thrust = u[rom.THRUST]

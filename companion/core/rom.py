@@ -131,10 +131,10 @@ def dynamics(af: Airframe) -> ca.Function:
     return ca.Function("m4_rom_f", [x, u, d], [xdot], ["x", "u", "d"], ["xdot"])
 
 
-def rk4_step(f: ca.Function, dt_s: float, substeps: int = 1) -> ca.Function:
-    """Discrete step of f over dt_s with the inputs held: `substeps` RK4 stages in sequence."""
-    x, u, d = ca.SX.sym("x", NX), ca.SX.sym("u", NU), ca.SX.sym("d", ND)
-    h = dt_s / substeps
+def rk4(f: ca.Function, x, u, d, duration, substeps: int = 1):
+    """Expression of x after `duration` (a number or a symbol) of f with u and d held:
+    `substeps` RK4 stages in sequence."""
+    h = duration / substeps
     xk = x
     for _ in range(substeps):
         k1 = f(xk, u, d)
@@ -142,7 +142,13 @@ def rk4_step(f: ca.Function, dt_s: float, substeps: int = 1) -> ca.Function:
         k3 = f(xk + h / 2 * k2, u, d)
         k4 = f(xk + h * k3, u, d)
         xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    return ca.Function("m4_rom_step", [x, u, d], [xk], ["x", "u", "d"], ["x_next"])
+    return xk
+
+
+def rk4_step(f: ca.Function, dt_s: float, substeps: int = 1) -> ca.Function:
+    """Discrete step of f over dt_s with the inputs held."""
+    x, u, d = ca.SX.sym("x", NX), ca.SX.sym("u", NU), ca.SX.sym("d", ND)
+    return ca.Function("m4_rom_step", [x, u, d], [rk4(f, x, u, d, dt_s, substeps)], ["x", "u", "d"], ["x_next"])
 
 
 def build_rom(af: Airframe, dt_s: float, substeps: int = 1) -> RomFunctions:
