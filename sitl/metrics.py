@@ -71,11 +71,16 @@ def crashed(time_s: np.ndarray, on_ground: np.ndarray, tilt: np.ndarray, land_s:
     return bool(np.any(early) or np.any(tilt[:airborne_end + 1] > TILT_UPSIDE_DOWN_DEG))
 
 
-def touchdown_speed_m_s(vel_ned_m_s: np.ndarray, touchdown: int | None) -> float | None:
-    """Downward speed at the last sample before the first contact of the landing."""
+TOUCHDOWN_WINDOW_S = 0.2
+
+
+def touchdown_speed_m_s(time_s: np.ndarray, vel_ned_m_s: np.ndarray, touchdown: int | None) -> float | None:
+    """Fastest descent (m/s, >= 0) over the TOUCHDOWN_WINDOW_S before the first contact of the
+    landing: one sample of a spinning robot's hull can be caught bobbing up."""
     if touchdown is None:
         return None
-    return float(vel_ned_m_s[max(touchdown - 1, 0), 2])
+    start = int(np.searchsorted(time_s, time_s[touchdown] - TOUCHDOWN_WINDOW_S))
+    return float(max(np.max(vel_ned_m_s[start:touchdown + 1, 2]), 0.0))
 
 
 def reference_positions(scenario: Scenario, af: Airframe, time_s: np.ndarray, com_ned_m: np.ndarray,
@@ -199,7 +204,7 @@ def flight_metrics(scenario: Scenario, controller: str, af: Airframe, truth: Tru
         "time_to_yaw_saturation_s": time_to_yaw_saturation(t, truth.rates_frd_rad_s[:, 2], spin_s, yaw_final),
         "max_thrust_n": float(np.max(truth.thrust_n[after])),
         "landed": touchdown is not None and at_rest,
-        "touchdown_speed_m_s": touchdown_speed_m_s(truth.vel_ned_m_s, touchdown),
+        "touchdown_speed_m_s": touchdown_speed_m_s(t, truth.vel_ned_m_s, touchdown),
         "nmpc": nmpc_summary(nmpc),
         "realtime_factor": realtime_factor(t, truth.wall_s),
     }

@@ -162,3 +162,13 @@ def test_a_landing_is_soft_below_1_m_s_and_the_reference_follows_the_mission():
     hard = metrics.flight_metrics(scenario, "nmpc", AF, _truth(on_ground=ground, vel_ned_m_s=vel), ref,
                                   FaultStatusLog.empty(), NmpcLog.empty())
     assert not hard["checks"]["soft_landing"] and not hard["survived"]
+
+
+def test_touchdown_speed_is_the_fastest_descent_just_before_contact_not_a_last_bob_upwards():
+    from sitl.metrics import touchdown_speed_m_s
+    t = np.arange(0.0, 1.0, 0.01)
+    vel = np.zeros((len(t), 3))
+    vel[:, 2] = 0.4                      # descending at 0.4 m/s (NED: down is +)
+    vel[49, 2] = -0.1                    # the hull bobs up on the sample before contact
+    assert touchdown_speed_m_s(t, vel, 50) == pytest.approx(0.4)
+    assert touchdown_speed_m_s(t, vel, None) is None
