@@ -164,9 +164,10 @@ def model_matching_figure(path: Path, result: MatchResult) -> Path:
     axes[0].set_ylabel("centre of mass NED (m)")
     axes[0].legend(ncol=3, fontsize=8)
     for i, name in enumerate(("roll", "pitch", "yaw")):
-        line, = axes[1].plot(t, np.degrees(result.plant_euler_rad[:, i]), label=f"{name} plant")
-        axes[1].plot(t, np.degrees(result.rom_euler_rad[:, i]), ls="--", color=line.get_color(), label=f"{name} ROM")
-    axes[1].set_ylabel("Euler angles (deg)")
+        line, = axes[1].plot(t, np.degrees(np.unwrap(result.plant_euler_rad[:, i])), label=f"{name} plant")
+        axes[1].plot(t, np.degrees(np.unwrap(result.rom_euler_rad[:, i])), ls="--", color=line.get_color(),
+                     label=f"{name} ROM")
+    axes[1].set_ylabel("Euler angles (deg, unwrapped)")
     axes[1].legend(ncol=3, fontsize=8)
     axes[2].plot(t, result.position_error_m * 100, label="position error (cm)")
     axes[2].plot(t, np.degrees(result.attitude_error_rad), label="attitude error (deg)")
