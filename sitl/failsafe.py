@@ -109,10 +109,6 @@ class Failsafe:
         self._target = np.array(state.pos_ned_m, dtype=float)
         self._yaw = float(state.euler_rad[2])
 
-    def hold_at(self, ned_m, yaw_rad: float) -> None:
-        self._target = np.array(ned_m, dtype=float)
-        self._yaw = yaw_rad
-
     def update(self, state, now_ms: int) -> FailsafeOutput:
         if self.mode == FailsafeMode.HOLD and self._may_land and now_ms - self._since_ms >= LAND_AFTER_S * 1000:
             self.mode = FailsafeMode.LAND
