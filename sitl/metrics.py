@@ -33,11 +33,12 @@ import numpy as np
 
 from companion.airframe import Airframe
 from companion.core.reference import MissionReference
+from companion.mavlink import mavlink
 from companion.scenario import Scenario
 from sitl.records import FaultStatusLog, NmpcLog
 from sitl.truth import Truth
 
-CONFIRMED = 2
+CONFIRMED = mavlink.M4_FAULT_STATE_CONFIRMED
 TILT_RECOVERED_DEG = 10.0
 TILT_UPSIDE_DOWN_DEG = 90.0
 YAW_FINAL_WINDOW_S = 1.0

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from companion.airframe import ROTOR_COUNT
-from companion.mavlink import COMPANION_COMPONENT_ID, mavutil
+from companion.mavlink import COMPANION_COMPONENT_ID, mavlink, mavutil
 
 
 @dataclass(frozen=True)
@@ -97,7 +97,7 @@ def _setpoint_log(msgs) -> SetpointLog:
         time_s=np.array([m.time_boot_ms for m in msgs], dtype=float) / 1000.0,
         thrust_n=np.array([m.thrust_n for m in msgs], dtype=float).reshape(-1, ROTOR_COUNT),
         hip_angle_rad=np.array([m.hip_angle_rad for m in msgs], dtype=float).reshape(-1, ROTOR_COUNT),
-        thrust_cut=np.array([bool(m.flags & 1) for m in msgs], dtype=bool),
+        thrust_cut=np.array([bool(m.flags & mavlink.M4_SETPOINT_FLAG_THRUST_CUT) for m in msgs], dtype=bool),
     )
 
 
