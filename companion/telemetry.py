@@ -135,12 +135,6 @@ class TelemetryAssembler:
         self.counters.accepted += 1
         return True
 
-    def clear(self) -> None:
-        self._samples.clear()
-
-    def sample(self, msg_id: int) -> Sample | None:
-        return self._samples.get(msg_id)
-
     def age_s(self, msg_id: int, now_s: float) -> float | None:
         """Companion seconds since the stream's newest sample arrived (None: never)."""
         s = self._samples.get(msg_id)
