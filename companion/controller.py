@@ -36,7 +36,7 @@ from companion.config import CompanionConfig
 from companion.core import rom
 from companion.core.disturbance import DisturbanceEstimator
 from companion.core.fault_detector import FaultDetector, FaultState, FaultStatus
-from companion.core.nmpc import Nmpc, NmpcResult
+from companion.core.nmpc import Nmpc, NmpcResult, thrust_bounds
 from companion.core.reference import MissionReference
 from companion.core.touchdown import TouchdownDetector
 
@@ -75,12 +75,6 @@ def plausible_state(af: Airframe, x) -> bool:
     hip = x[rom.HIP]
     hip_ok = np.all(hip >= af.hip_min_rad - _HIP_MARGIN_RAD) and np.all(hip <= af.hip_max_rad + _HIP_MARGIN_RAD)
     return bool(hip_ok and all(np.all(np.abs(x[part]) <= limit) for part, limit in _PLAUSIBLE))
-
-
-def thrust_bounds(af: Airframe, thrust_max_n) -> np.ndarray:
-    """Per-rotor upper bounds: finite entries clipped into [thrust_min, thrust_max], the rest the maximum."""
-    t = np.asarray(thrust_max_n, dtype=float).reshape(ROTOR_COUNT)
-    return np.clip(np.where(np.isfinite(t), t, af.thrust_max_n), af.thrust_min_n, af.thrust_max_n)
 
 
 def safe_setpoint(af: Airframe, thrust_n, hip_rad, hip_rate_rad_s, thrust_max_n, measured_hip_rad=None,
@@ -235,7 +229,7 @@ class Controller:
         goal = self._hip_goal
         if goal is None or not np.all(np.isfinite(goal[0])) or np.max(np.abs(goal[0] - hip)) > HIP_RESYNC_RAD:
             fixed = self.nmpc.config.fixed_hip_rad        # the fixed-posture variant: the legs go there
-            start = np.clip(hip, self.af.hip_min_rad, self.af.hip_max_rad) if fixed is None else np.full(4, fixed)
+            start = np.clip(hip, self.af.hip_min_rad, self.af.hip_max_rad) if fixed is None else np.full(ROTOR_COUNT, fixed)
             goal = self._hip_goal = (start, np.zeros(ROTOR_COUNT))
         x = x_measured.copy()
         x[rom.HIP], x[rom.HIP_RATE] = goal

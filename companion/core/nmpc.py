@@ -58,6 +58,14 @@ class NmpcResult:
     fallback: bool
 
 
+def thrust_bounds(af: Airframe, thrust_max_n) -> np.ndarray:
+    """Per-rotor upper bounds: finite entries clipped into [thrust_min, thrust_max], the rest the maximum."""
+    t_max = np.asarray(thrust_max_n, dtype=float).reshape(-1)
+    if t_max.size != ROTOR_COUNT:
+        raise ValueError(f"thrust_max_n must have {ROTOR_COUNT} entries, got {t_max.size}")
+    return np.clip(np.where(np.isfinite(t_max), t_max, af.thrust_max_n), af.thrust_min_n, af.thrust_max_n)
+
+
 class Nmpc:
     """NMPC over the ROM of `airframe`; `solve` once per control period."""
 
@@ -75,7 +83,7 @@ class Nmpc:
             raise ValueError(f"NmpcConfig.fixed_hip_rad {fixed} is outside the airframe's hip range")
         self.hip_ref_rad = airframe.nominal_hip_rad if fixed is None else fixed
         accel = 0.0 if fixed is not None else airframe.hip_accel_max_rad_s2
-        self._accel_lo, self._accel_hi = np.full(4, -accel), np.full(4, accel)
+        self._accel_lo, self._accel_hi = np.full(ROTOR_COUNT, -accel), np.full(ROTOR_COUNT, accel)
         hip_bounds = (airframe.hip_min_rad, airframe.hip_max_rad)
         self.rows = state_rows(n, config.roll_pitch_max_rad, None if fixed is not None else hip_bounds,
                                airframe.same_side_pairs, airframe.same_side_sum_max_rad)
@@ -102,13 +110,8 @@ class Nmpc:
 
     def input_bounds(self, thrust_max_n) -> tuple[np.ndarray, np.ndarray]:
         """(lo, hi) of one stage's input; a non-finite thrust bound means the airframe's maximum."""
-        af = self.af
-        t_max = np.asarray(thrust_max_n, dtype=float).reshape(-1)
-        if t_max.size != ROTOR_COUNT:
-            raise ValueError(f"thrust_max_n must have {ROTOR_COUNT} entries, got {t_max.size}")
-        t_max = np.clip(np.where(np.isfinite(t_max), t_max, af.thrust_max_n), af.thrust_min_n, af.thrust_max_n)
-        lo = np.concatenate([np.full(ROTOR_COUNT, af.thrust_min_n), self._accel_lo])
-        hi = np.concatenate([t_max, self._accel_hi])
+        lo = np.concatenate([np.full(ROTOR_COUNT, self.af.thrust_min_n), self._accel_lo])
+        hi = np.concatenate([thrust_bounds(self.af, thrust_max_n), self._accel_hi])
         return lo, hi
 
     def targets(self, x0, x_ref, disturbance) -> tuple[np.ndarray, np.ndarray]:
