@@ -85,6 +85,7 @@ class Plant:
                                   accel_max_rad_s2=airframe.hip_accel_max_rad_s2,
                                   hip_min_rad=airframe.hip_min_rad, hip_max_rad=airframe.hip_max_rad,
                                   dt_s=REFERENCE_PERIOD_S)
+        self._state: PlantState | None = None      # state() at the current instant, until anything changes
         self._servo_period_steps = round(REFERENCE_PERIOD_S / self.physics_dt_s)
         self._servo_countdown = 0
         self._contact_height_m = _reach_m(airframe) + _CONTACT_CHECK_MARGIN_M
@@ -102,6 +103,7 @@ class Plant:
         mujoco.mj_setConst(m, self.data)
 
     def _apply_thrust(self) -> None:
+        self._state = None
         self._esc_cmd_n = np.clip(self._thrust_request_n, self.airframe.thrust_min_n, self._thrust_max_n)
         self.data.ctrl[self._thrust] = np.minimum(self._esc_cmd_n, self._limit_n)
 
@@ -140,6 +142,8 @@ class Plant:
         # The servo controller, the drag coefficients and the contact gate update once per servo
         # period; MuJoCo runs the physics steps in between in one call.
         m, d = self.model, self.data
+        if n > 0:
+            self._state = None
         while n > 0:
             if self._servo_countdown == 0:
                 self._servo_countdown = self._servo_period_steps
@@ -166,7 +170,13 @@ class Plant:
         d.ctrl[self._servo_ctrl] = hips.rate_rad_s * 2
 
     def state(self) -> PlantState:
-        """The truth."""
+        """The truth (computed once per instant and command: the flight controller and the truth
+        log both read it; treat its arrays as read-only)."""
+        if self._state is None:
+            self._state = self._compute_state()
+        return self._state
+
+    def _compute_state(self) -> PlantState:
         m, d = self.model, self.data
         mujoco.mj_forward(m, d)
         quat = frames.flip_quat_wxyz(d.qpos[self._quat])
