@@ -75,10 +75,7 @@ class ThrustResidualModel:
         x, u, dt = ca.SX.sym("x", rom.NX), ca.SX.sym("u", rom.NU), ca.SX.sym("dt")
         xk = rom.rk4(f, x, u, ca.DM.zeros(rom.ND), dt, _PREDICTION_SUBSTEPS)
         com, inertia = rom.mass_properties(af, x[rom.HIP])
-        arms = rom.thruster_positions(af, x[rom.HIP]) - ca.repmat(com, 1, len(af.spin_sign))
-        thrust = u[rom.THRUST]
-        torque = ca.vertcat(-ca.dot(arms[1, :].T, thrust), ca.dot(arms[0, :].T, thrust),
-                            af.moment_coefficient_m * ca.dot(ca.DM(af.spin_sign), thrust))
+        torque = rom.thrust_torque_frd(af, x[rom.HIP], com, u[rom.THRUST])
         self._predict = ca.Function("m4_fault_predict", [x, u, dt],
                                     [xk, ca.jacobian(xk, u[rom.THRUST]), ca.diag(inertia), torque])
 

@@ -104,6 +104,17 @@ def mass_properties(af: Airframe, hip):
     return com, inertia
 
 
+def thrust_torque_frd(af: Airframe, hip, com, thrust):
+    """Torque (FRD, about the centre of mass com) of the thrusts at posture hip: each thrust
+    along -z at its thruster, plus each rotor's reaction moment about body z."""
+    arms = thruster_positions(af, hip) - ca.repmat(com, 1, ROTOR_COUNT)
+    torque_frd = ca.SX.zeros(3)
+    for i in range(ROTOR_COUNT):
+        torque_frd += ca.cross(arms[:, i], ca.vertcat(0, 0, -thrust[i]))
+        torque_frd[2] += af.spin_sign[i] * af.moment_coefficient_m * thrust[i]
+    return torque_frd
+
+
 def dynamics(af: Airframe) -> ca.Function:
     """Continuous-time ROM: xdot = f(x, u, d)."""
     x, u, d = ca.SX.sym("x", NX), ca.SX.sym("u", NU), ca.SX.sym("d", ND)
@@ -111,12 +122,8 @@ def dynamics(af: Airframe) -> ca.Function:
     thrust, hip_accel = u[THRUST], u[HIP_ACCEL]
 
     com, inertia = mass_properties(af, hip)
-    arms = thruster_positions(af, hip) - ca.repmat(com, 1, ROTOR_COUNT)
     force_frd = ca.vertcat(0, 0, -ca.sum1(thrust))
-    torque_frd = ca.SX.zeros(3)
-    for i in range(ROTOR_COUNT):
-        torque_frd += ca.cross(arms[:, i], ca.vertcat(0, 0, -thrust[i]))
-        torque_frd[2] += af.spin_sign[i] * af.moment_coefficient_m * thrust[i]
+    torque_frd = thrust_torque_frd(af, hip, com, thrust)
 
     speed = ca.sqrt(ca.dot(v, v) + _SMOOTH_ABS_EPS)
     drag_ned = -(af.drag_linear_n_s_m + af.drag_quadratic_n_s2_m2 * speed) * v
