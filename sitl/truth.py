@@ -35,6 +35,9 @@ class Truth:
     on_ground: np.ndarray          # (n,) bool: any contact with the floor
 
 
+_FROM_STATE = tuple(f.name for f in fields(Truth) if f.name not in ("time_s", "wall_s"))   # PlantState's names
+
+
 class TruthRecorder:
     def __init__(self, period_ms: int = DEFAULT_PERIOD_MS):
         self.period_ms = period_ms
@@ -50,8 +53,7 @@ class TruthRecorder:
         rows = self._rows
         rows["time_s"].append(now_ms / 1000.0)
         rows["wall_s"].append(time.monotonic())
-        for name in ("pos_ned_m", "com_ned_m", "vel_ned_m_s", "euler_rad", "rates_frd_rad_s", "hip_rad",
-                     "thrust_cmd_n", "thrust_n", "thrust_limit_n", "on_ground"):
+        for name in _FROM_STATE:
             rows[name].append(getattr(s, name))
 
     def truth(self) -> Truth:
