@@ -4,8 +4,8 @@
 out over the horizon and returns the trajectory with every stage's Jacobians A_k = dx+/dx,
 B_k = dx+/du. `sensitivities` and `TrackingCost.gauss_newton` then eliminate the states: with
 dX = Gamma dU the Gauss-Newton QP of the tracking cost has only the N * 8 inputs as
-variables, and every state constraint is a linear row in the inputs. At N = 5 that is 40 variables, small enough for a dense active-set
-solver.
+variables, and every state constraint is a linear row in the inputs. At N = 5 that is 40
+variables, small enough for a dense active-set solver.
 """
 
 from __future__ import annotations
@@ -145,8 +145,7 @@ class StateRows:
         return rows
 
     def violation(self, xs: np.ndarray) -> float:
-        c = self.values(xs)
-        return float(np.sum(np.maximum(c - self.hi, 0.0) + np.maximum(self.lo - c, 0.0)))
+        return _violation(self.values(xs), self.lo, self.hi)
 
 
 def state_rows(horizon: int, roll_pitch_max_rad: float, hip_bounds: tuple[float, float] | None,
@@ -196,5 +195,9 @@ class FirstPeriodHipRows:
         return self.select @ hips
 
     def violation(self, x0: np.ndarray, us: np.ndarray) -> float:
-        c = self.values(x0, us)
-        return float(np.sum(np.maximum(c - self.hi, 0.0) + np.maximum(self.lo - c, 0.0)))
+        return _violation(self.values(x0, us), self.lo, self.hi)
+
+
+def _violation(c: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
+    """Total amount by which the row values c leave their bounds [lo, hi]."""
+    return float(np.sum(np.maximum(c - hi, 0.0) + np.maximum(lo - c, 0.0)))
