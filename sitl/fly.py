@@ -19,7 +19,7 @@ from companion.scenario import Scenario, load_scenario
 from sitl import scenarios
 from sitl.flight_run import FlightFiles, FlightOptions, run_flight
 from sitl.metrics import flight_metrics, reference_track
-from sitl.records import nmpc_log, read_feed, read_tlog
+from sitl.records import nmpc_log, read_fault_status, read_feed
 from sitl.truth import load_truth
 
 MODEL_MATCHING = "model-matching"
@@ -47,9 +47,9 @@ def fly(scenario_arg: str, out_dir: Path | None = None, options: FlightOptions =
 def evaluate(files: FlightFiles, scenario: Scenario, controller: str, af: Airframe, figures: bool = True) -> dict:
     """metrics.json and the figures of a flown flight's folder."""
     truth = load_truth(files.truth)
-    tlog = read_tlog(files.tlog)
-    ref = reference_track(scenario, af, truth, tlog.faults)
-    metrics = flight_metrics(scenario, controller, af, truth, ref, tlog.faults, nmpc_log(read_feed(files.feed)))
+    fault_status = read_fault_status(files.tlog)
+    ref = reference_track(scenario, af, truth, fault_status)
+    metrics = flight_metrics(scenario, controller, af, truth, ref, fault_status, nmpc_log(read_feed(files.feed)))
     if scenario.name == MODEL_MATCHING:
         metrics["model_matching"] = _model_matching(files.out_dir, af, figures)
     files.metrics.write_text(json.dumps(metrics, indent=2) + "\n")

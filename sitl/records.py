@@ -1,8 +1,8 @@
 """What a flight leaves behind, read back into arrays: the tlog, the feed and the truth.
 
-- `read_tlog`: the companion's M4_FAULT_STATUS and M4_SETPOINT messages and every STATUSTEXT
-  (both directions are in the tlog; the flight controller's own streams are not needed here,
-  the truth log has the real state).
+- `read_fault_status`: the companion's M4_FAULT_STATUS messages from the tlog (both directions
+  are in it; the flight controller's own streams are not needed here, the truth log has the
+  real state).
 - `read_feed`: the companion's Zenoh feed as recorded by `sitl.feed_recorder` (one JSON object
   a line: {"key": ..., "payload": {...}}); the NMPC diagnostics as arrays.
 - `load_truth` (sitl.truth): the plant's true state.
@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from companion.airframe import ROTOR_COUNT
-from companion.mavlink import COMPANION_COMPONENT_ID, mavlink, mavutil
+from companion.mavlink import COMPANION_COMPONENT_ID, mavutil
 
 
 @dataclass(frozen=True)
@@ -36,21 +36,6 @@ class FaultStatusLog:
 
 
 @dataclass(frozen=True)
-class SetpointLog:
-    time_s: np.ndarray                 # (n,)
-    thrust_n: np.ndarray               # (n, 4)
-    hip_angle_rad: np.ndarray          # (n, 4)
-    thrust_cut: np.ndarray             # (n,) bool
-
-
-@dataclass(frozen=True)
-class TlogRecord:
-    faults: FaultStatusLog
-    setpoints: SetpointLog
-    statustexts: list[tuple[int, int, str]]    # (source component, severity, text)
-
-
-@dataclass(frozen=True)
 class NmpcLog:
     time_s: np.ndarray                 # (n,) telemetry instant of each solve
     solve_ms: np.ndarray               # (n,)
@@ -61,26 +46,16 @@ class NmpcLog:
         return cls(np.zeros(0), np.zeros(0), np.zeros(0, bool))
 
 
-def read_tlog(path: str | Path) -> TlogRecord:
+def read_fault_status(path: str | Path) -> FaultStatusLog:
+    """The companion's M4_FAULT_STATUS messages in a flight's tlog."""
     log = mavutil.mavlink_connection(str(path))
-    faults, setpoints, texts = [], [], []
+    msgs = []
     try:
-        while (msg := log.recv_match(type=["M4_FAULT_STATUS", "M4_SETPOINT", "STATUSTEXT"], blocking=False)):
-            kind = msg.get_type()
-            if kind == "STATUSTEXT":
-                texts.append((msg.get_srcComponent(), msg.severity, msg.text))
-            elif msg.get_srcComponent() != COMPANION_COMPONENT_ID:
-                continue
-            elif kind == "M4_FAULT_STATUS":
-                faults.append(msg)
-            else:
-                setpoints.append(msg)
+        while (msg := log.recv_match(type="M4_FAULT_STATUS", blocking=False)):
+            if msg.get_srcComponent() == COMPANION_COMPONENT_ID:
+                msgs.append(msg)
     finally:
         log.close()
-    return TlogRecord(_fault_log(faults), _setpoint_log(setpoints), texts)
-
-
-def _fault_log(msgs) -> FaultStatusLog:
     if not msgs:
         return FaultStatusLog.empty()
     return FaultStatusLog(
@@ -89,15 +64,6 @@ def _fault_log(msgs) -> FaultStatusLog:
         state=np.array([m.state for m in msgs]),
         thrust_max_estimate_n=np.array([m.thrust_max_estimate_n for m in msgs], dtype=float),
         detected_s=np.array([m.detected_time_boot_ms / 1000.0 if m.state else np.nan for m in msgs]),
-    )
-
-
-def _setpoint_log(msgs) -> SetpointLog:
-    return SetpointLog(
-        time_s=np.array([m.time_boot_ms for m in msgs], dtype=float) / 1000.0,
-        thrust_n=np.array([m.thrust_n for m in msgs], dtype=float).reshape(-1, ROTOR_COUNT),
-        hip_angle_rad=np.array([m.hip_angle_rad for m in msgs], dtype=float).reshape(-1, ROTOR_COUNT),
-        thrust_cut=np.array([bool(m.flags & mavlink.M4_SETPOINT_FLAG_THRUST_CUT) for m in msgs], dtype=bool),
     )
 
 
