@@ -51,17 +51,37 @@ def parse_url(url: str) -> Endpoint:
     return Endpoint(mode, host, int(port))
 
 
-class UdpLink:
-    def __init__(self, url: str, source_system: int, source_component: int, *,
-                 tlog: TlogWriter | None = None, key: bytes | None = None, link_id: int = 0):
-        self.endpoint = parse_url(url)
+class MavlinkLink:
+    """What every link shares: the protocol object writing to `self.write(packet)` (signing
+    with `key` when one is given), `send`, `receive` and the signing counters. A subclass
+    provides `write(packet)` and `receive_from()`."""
+
+    def __init__(self, source_system: int, source_component: int, tlog: TlogWriter | None, key: bytes | None,
+                 link_id: int):
         self.tlog = tlog
         self.mav = new_mav(self, source_system, source_component)
         if key is not None:
             setup_signing(self.mav, key, link_id)
+        self.bad_packets = 0
+
+    def send(self, msg: mavlink.MAVLink_message) -> None:
+        self.mav.send(msg)
+
+    def receive(self) -> list[mavlink.MAVLink_message]:
+        """Every message that has arrived; rejected and garbled packets are counted, not returned."""
+        return [msg for _, msgs in self.receive_from() for msg in msgs]
+
+    def signing_counters(self) -> SigningCounters:
+        return SigningCounters.of(self.mav)
+
+
+class UdpLink(MavlinkLink):
+    def __init__(self, url: str, source_system: int, source_component: int, *,
+                 tlog: TlogWriter | None = None, key: bytes | None = None, link_id: int = 0):
+        self.endpoint = parse_url(url)
+        super().__init__(source_system, source_component, tlog, key, link_id)
         self.peer: tuple[str, int] | None = None
         self.locked_peer: tuple[str, int] | None = None
-        self.bad_packets = 0
         self.foreign_datagrams = 0
         self._batch: list[bytes] | None = None
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -101,9 +121,6 @@ class UdpLink:
             for packet in packets:
                 self.tlog.record(packet)
 
-    def send(self, msg: mavlink.MAVLink_message) -> None:
-        self.mav.send(msg)
-
     def send_all(self, msgs) -> None:
         """Send several messages in as few datagrams as fit in `DATAGRAM_PAYLOAD_MAX` bytes (as
         PX4 does; every MAVLink parser reads several packets from one datagram)."""
@@ -121,10 +138,6 @@ class UdpLink:
             datagram.append(packet)
         if datagram:
             self._send_datagram(datagram)
-
-    def receive(self) -> list[mavlink.MAVLink_message]:
-        """Every message that has arrived; rejected and garbled packets are counted, not returned."""
-        return [msg for _, msgs in self.receive_from() for msg in msgs]
 
     def receive_from(self) -> list[tuple[tuple[str, int], list[mavlink.MAVLink_message]]]:
         """Like `receive()`, with each datagram's sender: [(address, its messages), ...]."""
@@ -154,9 +167,6 @@ class UdpLink:
         self.locked_peer = address
         if address is not None and self.endpoint.mode == "udpin":
             self.peer = address
-
-    def signing_counters(self) -> SigningCounters:
-        return SigningCounters.of(self.mav)
 
     def close(self) -> None:
         self.sock.close()

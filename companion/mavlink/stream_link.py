@@ -10,13 +10,13 @@ to a full or broken stream are dropped (as UDP would).
 
 from __future__ import annotations
 
+import contextlib
 import select
 import socket
 import time
 
-from companion.mavlink.dialect import mavlink, new_mav
-from companion.mavlink.link import LinkError, parse_bytes
-from companion.mavlink.signing import SigningCounters, setup_signing
+from companion.mavlink.dialect import mavlink
+from companion.mavlink.link import LinkError, MavlinkLink, parse_bytes
 from companion.mavlink.tlog import TlogWriter
 
 SERIAL_DEFAULT_BAUD = 115200
@@ -44,7 +44,7 @@ class _TcpStream:
                 self._connect(timeout_s=5.0)
         except OSError as e:
             self.close()
-            raise LinkError(f"{mode}:{host}:{port}: cannot open ({e.strerror or e})") from None
+            raise LinkError(f"{self.label}: cannot open ({e.strerror or e})") from None
 
     @property
     def label(self) -> str:
@@ -69,10 +69,8 @@ class _TcpStream:
         if self.conn is None:
             if self.mode == "tcp" and time.monotonic() >= self._retry_at:
                 self._retry_at = time.monotonic() + RECONNECT_S
-                try:
+                with contextlib.suppress(OSError):
                     self._connect(timeout_s=0.2)
-                except OSError:
-                    return b""
             return b""
         try:
             data = self.conn.recv(_READ_MAX)
@@ -154,15 +152,11 @@ class _SerialStream:
         self.port.close()
 
 
-class StreamLink:
+class StreamLink(MavlinkLink):
     def __init__(self, stream, source_system: int, source_component: int, *, tlog: TlogWriter | None = None,
                  key: bytes | None = None, link_id: int = 0):
         self.stream = stream
-        self.tlog = tlog
-        self.mav = new_mav(self, source_system, source_component)
-        if key is not None:
-            setup_signing(self.mav, key, link_id)
-        self.bad_packets = 0
+        super().__init__(source_system, source_component, tlog, key, link_id)
 
     @property
     def foreign_datagrams(self) -> int:
@@ -180,9 +174,6 @@ class StreamLink:
         if self.stream.write(bytes(packet)) and self.tlog is not None:
             self.tlog.record(packet)
 
-    def send(self, msg: mavlink.MAVLink_message) -> None:
-        self.mav.send(msg)
-
     def receive_from(self) -> list[tuple[object, list[mavlink.MAVLink_message]]]:
         out = []
         while data := self.stream.read():
@@ -191,15 +182,9 @@ class StreamLink:
             out.append((self.stream.peer, msgs))
         return out
 
-    def receive(self) -> list[mavlink.MAVLink_message]:
-        return [msg for _, msgs in self.receive_from() for msg in msgs]
-
     def lock_peer(self, address) -> None:
         """A TCP server refuses other connections from now on; a client or serial port has one peer."""
         self.stream.locked = address
-
-    def signing_counters(self) -> SigningCounters:
-        return SigningCounters.of(self.mav)
 
     def close(self) -> None:
         self.stream.close()
