@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from companion.airframe import ROTOR_COUNT
 from sitl.flight_run import FlightOptions
 from sitl.parallel import FlightJob, fly_all
 
@@ -68,7 +69,7 @@ class Case:
 
 
 def grid_cases(losses: tuple[float, ...] = LOSS_LEVELS) -> list[Case]:
-    combos = itertools.product(range(1, 5), losses, GRID_SPEEDS_M_S, GRID_FAULT_TIMES_S)
+    combos = itertools.product(range(1, ROTOR_COUNT + 1), losses, GRID_SPEEDS_M_S, GRID_FAULT_TIMES_S)
     return [Case(f"grid-{i:03d}", rotor, loss, at_s, speed) for i, (rotor, loss, speed, at_s) in enumerate(combos)]
 
 
@@ -78,7 +79,7 @@ def random_cases(n: int, seed: int = 0, losses: tuple[float, ...] = LOSS_LEVELS)
     for i in range(n):
         hover = rng.random() < 0.5
         cases.append(Case(
-            name=f"sample-{i:03d}", rotor=int(rng.integers(1, 5)), loss=float(rng.choice(losses)),
+            name=f"sample-{i:03d}", rotor=int(rng.integers(1, ROTOR_COUNT + 1)), loss=float(rng.choice(losses)),
             at_s=round(float(rng.uniform(*FAULT_TIME_RANGE_S)), 2),
             speed_m_s=0.0 if hover else round(float(rng.uniform(0.5, MAX_SPEED_M_S)), 2),
             heading_deg=round(float(rng.uniform(-180.0, 180.0)), 1),

@@ -143,18 +143,19 @@ class FlightController:
     def _on_setpoint(self, msg, now_ms: int) -> None:
         if not self.addressed_to_me(msg):
             return
-        values = np.array([*msg.thrust_n, *msg.hip_angle_rad, *msg.hip_rate_rad_s], dtype=float)
+        values = np.array([msg.thrust_n, msg.hip_angle_rad, msg.hip_rate_rad_s], dtype=float)   # (3, ROTOR_COUNT)
         newest = self.setpoint.time_ms if self.setpoint is not None else -1
         if (msg.time_boot_ms > now_ms or msg.time_boot_ms < newest or msg.period_ms == 0
                 or not np.all(np.isfinite(values))):
             self.counters.setpoints_dropped += 1
             return
         af = self.airframe
+        thrust, hip, rate = values
         self.setpoint = Setpoint(
             time_ms=msg.time_boot_ms, period_ms=msg.period_ms,
-            thrust_n=np.clip(values[:4], af.thrust_min_n, af.thrust_max_n),
-            hip_rad=np.clip(values[4:8], af.hip_min_rad, af.hip_max_rad),
-            hip_rate_rad_s=np.clip(values[8:], -af.hip_rate_max_rad_s, af.hip_rate_max_rad_s),
+            thrust_n=np.clip(thrust, af.thrust_min_n, af.thrust_max_n),
+            hip_rad=np.clip(hip, af.hip_min_rad, af.hip_max_rad),
+            hip_rate_rad_s=np.clip(rate, -af.hip_rate_max_rad_s, af.hip_rate_max_rad_s),
             thrust_cut=bool(msg.flags & mavlink.M4_SETPOINT_FLAG_THRUST_CUT))
         self.counters.setpoints_accepted += 1
         self.tick(now_ms)

@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 
-from companion.airframe import Airframe
+from companion.airframe import ROTOR_COUNT, Airframe
 from sitl.frames import quat_wxyz_from_euler
 from sitl.state import PlantState
 
@@ -30,6 +30,6 @@ class SensorNoise:
             euler_rad=euler,
             quat_wxyz=quat_wxyz_from_euler(euler),
             rates_frd_rad_s=truth.rates_frd_rad_s + rng.normal(0.0, af.rate_noise_rad_s, 3),
-            hip_rad=truth.hip_rad + rng.normal(0.0, af.hip_noise_rad, 4),
-            hip_rate_rad_s=truth.hip_rate_rad_s + rng.normal(0.0, af.rate_noise_rad_s, 4),
+            hip_rad=truth.hip_rad + rng.normal(0.0, af.hip_noise_rad, ROTOR_COUNT),
+            hip_rate_rad_s=truth.hip_rate_rad_s + rng.normal(0.0, af.rate_noise_rad_s, ROTOR_COUNT),
         )
