@@ -32,23 +32,28 @@ SECONDS = 4.0
 RATE_HZ = 50.0
 
 
+def _serve(app, *serve_args):
+    """The SITL's `serve` with serve_args flown against app (run in a thread); app closed after."""
+    thread = threading.Thread(target=app.run, daemon=True)
+    thread.start()
+    cmd = [sys.executable, "-m", "sitl.cli", "serve", *serve_args,
+           "--mavlink", f"udpout:127.0.0.1:{app.fc.link.local_port}"]
+    try:
+        return subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
+    finally:
+        app.stop()
+        thread.join(5.0)
+        close_app(app)
+
+
 def _fly(tmp_path):
     config = parse_config({"control": {"rate_hz": RATE_HZ}, "link": {"fc_url": "udpin:127.0.0.1:0"}}, "test")
     config = dataclasses.replace(config, mission=scenarios.resolve(SCENARIO).mission)
     app = open_app(config)
     published = []
     app.feed = Feed(SimpleNamespace(put=lambda topic, payload: published.append((topic, payload)), close=list))
-    thread = threading.Thread(target=app.run, daemon=True)
-    thread.start()
     tlog = tmp_path / "flight.tlog"
-    cmd = [sys.executable, "-m", "sitl.cli", "serve", "--scenario", SCENARIO, "--duration", str(SECONDS),
-           "--mavlink", f"udpout:127.0.0.1:{app.fc.link.local_port}", "--tlog", str(tlog)]
-    try:
-        done = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
-    finally:
-        app.stop()
-        thread.join(5.0)
-        close_app(app)
+    done = _serve(app, "--scenario", SCENARIO, "--duration", str(SECONDS), "--tlog", str(tlog))
     assert done.returncode == 0, done.stderr
     return app, tlog, done.stderr, published
 
@@ -120,16 +125,7 @@ def test_with_signing_only_the_holder_of_the_key_flies_the_robot(tmp_path, same_
     config = parse_config({"control": {"rate_hz": RATE_HZ},
                            "link": {"fc_url": "udpin:127.0.0.1:0", "signing_key_file": str(our_key)}}, "test")
     app = open_app(config)
-    thread = threading.Thread(target=app.run, daemon=True)
-    thread.start()
-    cmd = [sys.executable, "-m", "sitl.cli", "serve", "--duration", "1", "--lockstep-timeout", "1",
-           "--signing-key", str(fc_key), "--mavlink", f"udpout:127.0.0.1:{app.fc.link.local_port}"]
-    try:
-        done = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
-    finally:
-        app.stop()
-        thread.join(5.0)
-        close_app(app)
+    done = _serve(app, "--duration", "1", "--lockstep-timeout", "1", "--signing-key", str(fc_key))
     accepted = int(re.search(r"setpoints accepted (\d+)", done.stderr).group(1))
     rejected = int(re.search(r"packets rejected (\d+)", done.stderr).group(1))
     health = app.fc.health()
