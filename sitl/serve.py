@@ -13,7 +13,6 @@ as they arrive. Every packet in and out goes to the tlog when one is asked for.
 
 from __future__ import annotations
 
-import sys
 import time
 import warnings
 from dataclasses import dataclass
@@ -25,7 +24,7 @@ from companion.mavlink.link import UdpLink, wait_readable
 from companion.mavlink.tlog import TlogWriter
 from companion.scenario import Scenario
 from sitl.truth import TruthRecorder
-from sitl.vehicle import Vehicle
+from sitl.vehicle import Vehicle, log
 
 RESEND_S = 1.0
 IDLE_PERIOD_MS = 20           # control instants in lockstep before any setpoint fixed the period
@@ -49,10 +48,6 @@ class ServeOptions:
 
 class ServeError(RuntimeError):
     """The server cannot start (tlog not writable, no display for the viewer)."""
-
-
-def _log(text: str) -> None:
-    print(f"m4-sitl: {text}", file=sys.stderr, flush=True)
 
 
 class Server:
@@ -130,7 +125,7 @@ class Server:
             self._open_viewer()
         wall0 = time.monotonic()
         mode = "real time" if self.options.realtime else "lockstep"
-        _log(f"serving {self.options.scenario.name!r} in {mode} on "
+        log(f"serving {self.options.scenario.name!r} in {mode} on "
              + ", ".join(link.endpoint.url for link in self.links))
         try:
             (self._run_realtime if self.options.realtime else self._run_lockstep)()
@@ -139,7 +134,7 @@ class Server:
             sim = self.vehicle.now_ms / 1000.0
             c = self.vehicle.fc.counters
             rejected = sum(link.signing_counters().rejected for link in self.links)
-            _log(f"stopped at t={sim:.3f} s after {wall:.1f} s wall ({sim / max(wall, 1e-9):.1f}x); "
+            log(f"stopped at t={sim:.3f} s after {wall:.1f} s wall ({sim / max(wall, 1e-9):.1f}x); "
                  f"setpoints accepted {c.setpoints_accepted}, dropped {c.setpoints_dropped}; "
                  f"commands {c.commands_acked}; unsigned/bad-signature packets rejected {rejected}")
 
@@ -167,7 +162,7 @@ class Server:
                 if not self._await_setpoint(v.now_ms):
                     if self._stop:
                         return
-                    _log(f"t={v.now_ms / 1000:.3f} s: no setpoint for {self.options.lockstep_timeout_s:g} s "
+                    log(f"t={v.now_ms / 1000:.3f} s: no setpoint for {self.options.lockstep_timeout_s:g} s "
                          "(wall clock); going on without waiting, in the FC's failsafe")
                     waiting = False
             else:

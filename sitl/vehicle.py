@@ -22,7 +22,8 @@ from sitl.streams import FRAME
 Send = Callable[[Iterable[mavlink.MAVLink_message]], None]
 
 
-def _log(text: str) -> None:
+def log(text: str) -> None:
+    """One line on stderr, prefixed like every message of the SITL process."""
     print(f"m4-sitl: {text}", file=sys.stderr, flush=True)
 
 
@@ -54,7 +55,7 @@ class Vehicle:
         while self._faults and self._faults[0][0] <= self.now_ms:
             _, fault = self._faults.pop(0)
             self.fc.set_rotor_loss(fault.rotor, fault.loss)
-            _log(f"t={self.now_ms / 1000:.3f} s: scenario fault, rotor {fault.rotor} loss {fault.loss:g}")
+            log(f"t={self.now_ms / 1000:.3f} s: scenario fault, rotor {fault.rotor} loss {fault.loss:g}")
         if self.now_ms % TICK_MS == 0:
             self.fc.tick(self.now_ms)
         send(self.fc.take_outbox())
