@@ -96,14 +96,19 @@ class Airframe:
         left = tuple(int(i) for i in np.flatnonzero(y < 0))
         return right, left  # type: ignore[return-value]
 
+    @property
+    def leg_swing_mass_kg(self) -> float:
+        """Sum over a leg's lumps of mass x fraction of the reach: the mass that, carried at the
+        hub, moves the centre of mass as the leg does."""
+        return sum(m * f for m, f in self.leg_lumps)
+
     def thruster_positions_frd_m(self, hip_rad) -> np.ndarray:
-        """(4, 3) thruster hub positions in the body frame for sagittal angles hip_rad (4,)."""
+        """(..., 4, 3) thruster hub positions in the body frame for sagittal angles hip_rad (..., 4)."""
         q = np.asarray(hip_rad, dtype=float)
         s = self.leg_direction_signs
-        hips = np.array(self.hip_frd_m)
-        out = hips.copy()
-        out[:, 0] += self.leg_length_m * s[:, 0] * np.cos(q)
-        out[:, 1] += self.leg_length_m * s[:, 1] * np.sin(q)
+        out = np.broadcast_to(np.array(self.hip_frd_m), q.shape + (3,)).copy()
+        out[..., 0] += self.leg_length_m * s[:, 0] * np.cos(q)
+        out[..., 1] += self.leg_length_m * s[:, 1] * np.sin(q)
         return out
 
     def com_offset_frd_m(self, hip_rad) -> np.ndarray:
@@ -111,8 +116,7 @@ class Airframe:
         three lumps of every leg."""
         hips = np.array(self.hip_frd_m)
         reach = self.thruster_positions_frd_m(hip_rad) - hips          # hip -> hub, per leg
-        swing = sum(m * f for m, f in self.leg_lumps)                   # mass-weighted share of the reach
-        return (self.leg_mass_kg * hips.sum(axis=0) + swing * reach.sum(axis=0)) / self.total_mass_kg
+        return (self.leg_mass_kg * hips.sum(axis=0) + self.leg_swing_mass_kg * reach.sum(axis=0)) / self.total_mass_kg
 
     def com_offset_rate_frd_m_s(self, hip_rad, hip_rate_rad_s) -> np.ndarray:
         """d/dt of com_offset_frd_m(hip_rad) while the hips move at hip_rate_rad_s."""
@@ -121,8 +125,7 @@ class Airframe:
         reach_rate = np.zeros((len(q), 3))
         reach_rate[:, 0] = -self.leg_length_m * s[:, 0] * np.sin(q) * qd
         reach_rate[:, 1] = self.leg_length_m * s[:, 1] * np.cos(q) * qd
-        swing = sum(m * f for m, f in self.leg_lumps)
-        return swing * reach_rate.sum(axis=0) / self.total_mass_kg
+        return self.leg_swing_mass_kg * reach_rate.sum(axis=0) / self.total_mass_kg
 
 
 def load_airframe(path: str | Path | None = None) -> Airframe:

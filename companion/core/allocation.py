@@ -31,18 +31,11 @@ class Allocation:
         return float(self.thrust_n.max())
 
 
-def _thruster_xy(af: Airframe, hip_rad: np.ndarray) -> np.ndarray:
-    """(K, 4, 2) thruster positions for K postures (K, 4)."""
-    hips = np.array(af.hip_frd_m)[:, :2]
-    s = af.leg_direction_signs
-    return hips + af.leg_length_m * np.stack([s[:, 0] * np.cos(hip_rad), s[:, 1] * np.sin(hip_rad)], axis=-1)
-
-
 def hover_thrusts(af: Airframe, hip_rad, failed_rotor: int) -> np.ndarray:
     """Thrusts (K, 4) that hover the robot in postures hip_rad (K, 4) with rotor
     `failed_rotor` (0-based) off. Negative entries mean the posture cannot hover."""
     q = np.atleast_2d(np.asarray(hip_rad, dtype=float))
-    r = _thruster_xy(af, q)
+    r = af.thruster_positions_frd_m(q)[..., :2]                        # (K, 4, 2)
     com = af.leg_mass_kg * r.sum(axis=1) / af.total_mass_kg          # (K, 2)
     live = [i for i in range(ROTOR_COUNT) if i != failed_rotor]
     arms = r[:, live, :] - com[:, None, :]                              # (K, 3, 2)
