@@ -79,6 +79,8 @@ def free_port(kind: int = socket.SOCK_DGRAM) -> int:
 
 
 def check_port_free(port: int) -> None:
+    if not 1 <= port <= 65535:
+        raise FlightError(f"UDP port must be 1..65535, got {port}")
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         try:
             s.bind(("127.0.0.1", port))

@@ -38,6 +38,13 @@ def test_a_port_in_use_is_refused_before_anything_starts(capsys, tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("port", ["0", "70000", "-3"])
+def test_a_port_out_of_range_is_named(capsys, tmp_path, port):
+    _fails_with(capsys, ["fly", "hover-rotor-loss", "--port", port, "--out", str(tmp_path / "out")],
+                f"UDP port must be 1..65535, got {port}")
+    assert not (tmp_path / "out").exists()
+
+
 def test_an_unknown_controller_is_refused(capsys, tmp_path):
     _fails_with(capsys, ["fly", "hover-rotor-loss", "--controller", "pid", "--out", str(tmp_path)], "pid")
 
