@@ -72,7 +72,7 @@ class FlightController:
         self.airframe = airframe
         self.lockstep = lockstep
         self.plant = plant
-        self.telemetry_builder = Telemetry(airframe, home or Home())
+        self.telemetry_builder = Telemetry(airframe, home)
         self.schedule = StreamSchedule()
         self.failsafe = Failsafe(airframe)
         self.counters = FcCounters()
