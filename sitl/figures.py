@@ -76,8 +76,9 @@ def body_velocities(truth: Truth) -> np.ndarray:
 def velocities_rates_figure(path: Path, title: str, truth: Truth, faults: list[dict]) -> Path:
     t = truth.time_s
     fig, axes = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
+    vel_frd_m_s = body_velocities(truth)
     for i, name in enumerate(("u (forward)", "v (right)", "w (down)")):
-        axes[0].plot(t, body_velocities(truth)[:, i], label=name)
+        axes[0].plot(t, vel_frd_m_s[:, i], label=name)
     axes[0].set_ylabel("body velocity (m/s)")
     axes[0].legend(fontsize=8)
     for i, name in enumerate(("p (roll)", "q (pitch)", "r (yaw)")):
