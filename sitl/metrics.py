@@ -47,6 +47,7 @@ YAW_SPIN_MIN_RAD_S = 1.0
 DETECTION_MARGIN = 0.25
 COMPLETE_TOLERANCE_S = 0.05
 AT_REST_SPEED_M_S = 0.2
+TOUCHDOWN_WINDOW_S = 0.2
 # Survival: what every built-in scenario must achieve.
 ALTITUDE_LOSS_MAX_M = 0.5
 TOUCHDOWN_SPEED_MAX_M_S = 1.0
@@ -70,9 +71,6 @@ def crashed(time_s: np.ndarray, on_ground: np.ndarray, tilt: np.ndarray, land_s:
             airborne_end: int) -> bool:
     early = on_ground if land_s is None else on_ground & (time_s < land_s)
     return bool(np.any(early) or np.any(tilt[:airborne_end + 1] > TILT_UPSIDE_DOWN_DEG))
-
-
-TOUCHDOWN_WINDOW_S = 0.2
 
 
 def touchdown_speed_m_s(time_s: np.ndarray, vel_ned_m_s: np.ndarray, touchdown: int | None) -> float | None:
