@@ -193,10 +193,9 @@ class Controller:
     def _detect(self, time_s, x, usable, delivered_n, limit_n) -> tuple[FaultStatus, bool]:
         if not usable or self._prev is None:
             return self.detector.status, False
-        limits = None if limit_n is None else np.asarray(limit_n, dtype=float).reshape(ROTOR_COUNT)
         cap = self.af.thrust_max_n
-        if limits is not None and np.any(np.isfinite(limits)):
-            cap = float(np.clip(np.nanmax(limits), self.af.thrust_min_n, self.af.thrust_max_n))
+        if limit_n is not None and np.any(np.isfinite(limit_n)):          # already a (4,) array (_thrust_telemetry)
+            cap = float(np.clip(np.nanmax(limit_n), self.af.thrust_min_n, self.af.thrust_max_n))
         status = self.detector.update(time_s, x, self._prev[2][rom.THRUST], np.full(ROTOR_COUNT, cap),
                                       delivered_n)
         confirmed_now = status.state is FaultState.CONFIRMED and not self._fault_announced
