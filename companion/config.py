@@ -81,8 +81,8 @@ def load_config(path: str | Path | None = None) -> CompanionConfig:
 
 def parse_config(data: dict, where: str, base_dir: Path | None = None) -> CompanionConfig:
     top = Table(data, where)
-    airframe_path = _path(top, "airframe_file", base_dir)
-    mission_path = _path(top, "mission_file", base_dir)
+    airframe_path = top.path("airframe_file", base_dir, must_exist=True)
+    mission_path = top.path("mission_file", base_dir, must_exist=True)
     control = top.table("control")
     rate_hz = control.number("rate_hz", DEFAULT_RATE_HZ, lo=0.0, lo_open=True, hi=RATE_MAX_HZ)
     control.finish()
@@ -154,7 +154,7 @@ def _link(t: Table, base_dir: Path | None) -> LinkConfig:
     d = LinkConfig()
     link = LinkConfig(
         fc_url=t.string("fc_url", d.fc_url),
-        signing_key_path=_path(t, "signing_key_file", base_dir, must_exist=False),
+        signing_key_path=t.path("signing_key_file", base_dir),
         telemetry_timeout_s=t.number("telemetry_timeout_s", d.telemetry_timeout_s, lo=0.0, lo_open=True, hi=10.0),
         fc_system_id=t.integer("fc_system_id", d.fc_system_id, lo=1, hi=255),
         fc_component_id=t.integer("fc_component_id", d.fc_component_id, lo=1, hi=255),
@@ -164,15 +164,3 @@ def _link(t: Table, base_dir: Path | None) -> LinkConfig:
         raise ConfigError(f"{t.where} fc_url must look like udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT "
                           f"or a serial device /dev/NAME,BAUD; got {link.fc_url!r}")
     return link
-
-
-def _path(t: Table, key: str, base_dir: Path | None, must_exist: bool = True) -> Path | None:
-    """An optional file path ("" or absent: None), relative to base_dir."""
-    text = t.string(key, "")
-    if not text:
-        return None
-    p = Path(text).expanduser()
-    p = p if p.is_absolute() or base_dir is None else base_dir / p
-    if must_exist and not p.is_file():
-        raise ConfigError(f"{t.where} {key}: no such file {p}")
-    return p

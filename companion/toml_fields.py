@@ -115,6 +115,17 @@ class Table:
         return tuple(Table({key: row}, f"{self._name(key)}[{i}]").vector(key, cols, lo=lo, hi=hi)
                      for i, row in enumerate(value))
 
+    def path(self, key: str, base_dir: Path | None = None, *, must_exist: bool = False) -> Path | None:
+        """An optional file path ("" or absent: None), "~" expanded, a relative one taken from base_dir."""
+        text = self.string(key, "")
+        if not text:
+            return None
+        p = Path(text).expanduser()
+        p = p if p.is_absolute() or base_dir is None else base_dir / p
+        if must_exist and not p.is_file():
+            raise ConfigError(f"{self._name(key)}: no such file {p}")
+        return p
+
     def table(self, key: str, *, required: bool = False) -> "Table":
         """A sub-table (an empty one when absent and not required)."""
         value = self._raw(key, _REQUIRED if required else {})

@@ -64,13 +64,13 @@ class FeedSettings:
 def parse_feed_settings(t: Table, base_dir: Path | None = None) -> FeedSettings:
     """Read a [feed] table; a relative zenoh_config path is taken from base_dir (the TOML's folder)."""
     enabled = t.boolean("enabled", True)
-    zenoh_config = t.string("zenoh_config", "") or None
-    if zenoh_config and t.has("mode"):
+    zenoh_config = t.path("zenoh_config", base_dir)
+    if zenoh_config is not None and t.has("mode"):
         raise ConfigError(f"{t.where}: give either zenoh_config or mode with endpoints, not both")
     settings = FeedSettings(
         enabled=enabled,
         vehicle=t.string("vehicle", DEFAULT_VEHICLE),
-        zenoh_config=_resolve(zenoh_config, base_dir),
+        zenoh_config=zenoh_config,
         mode=t.string("mode", "peer", choices=MODES),
         connect=_endpoint(t, "connect"),
         listen=_endpoint(t, "listen"),
@@ -82,13 +82,6 @@ def parse_feed_settings(t: Table, base_dir: Path | None = None) -> FeedSettings:
     except ConfigError as e:
         raise ConfigError(f"{t.where}: {e}") from None
     return settings
-
-
-def _resolve(path: str | None, base_dir: Path | None) -> Path | None:
-    if path is None:
-        return None
-    p = Path(path)
-    return p if p.is_absolute() or base_dir is None else base_dir / p
 
 
 def _endpoint(t: Table, key: str) -> tuple[str, ...]:
