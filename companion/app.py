@@ -75,7 +75,7 @@ class CompanionApp:
         while not self._stop:
             now = self.clock()
             wait_s = min(self.fc.next_due_s(now), self._loss_deadline_s(now)) - now
-            _wait(self.fc.link, min(max(wait_s, 0.0), 0.1))
+            wait_readable([self.fc.link], min(wait_s, 0.1))
             self.poll()
 
     def poll(self) -> None:
@@ -194,15 +194,6 @@ class CompanionApp:
             log.warning("no telemetry for %.2f s: link lost, setpoints stopped", self.config.link.telemetry_timeout_s)
             self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, "companion: telemetry lost, setpoints stopped")
             self._publish_link(last_s)
-
-
-def _wait(link, timeout_s: float) -> None:
-    """Until the link has data or timeout_s passed (a TCP client between connections has no
-    socket to wait on: it just sleeps)."""
-    if link.fileno() < 0:
-        time.sleep(timeout_s)
-    else:
-        wait_readable([link], timeout_s)
 
 
 def open_app(config: CompanionConfig) -> CompanionApp:

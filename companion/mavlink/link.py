@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import select
 import socket
+import time
 from dataclasses import dataclass
 
 from companion.mavlink.dialect import mavlink, new_mav
@@ -186,6 +187,13 @@ def parse_bytes(mav: mavlink.MAVLink, data: bytes, tlog: TlogWriter | None) -> t
 
 
 def wait_readable(links, timeout_s: float) -> bool:
-    """Block until one of `links` has data or `timeout_s` passes; True if data is waiting."""
-    readable, _, _ = select.select(list(links), [], [], max(timeout_s, 0.0))
+    """Block until one of `links` has data or `timeout_s` passes; True if data is waiting.
+    A link with no socket yet (a TCP client between connections: fileno() < 0) is not
+    waited on; with none left this just sleeps."""
+    timeout_s = max(timeout_s, 0.0)
+    waiting = [link for link in links if link.fileno() >= 0]
+    if not waiting:
+        time.sleep(timeout_s)
+        return False
+    readable, _, _ = select.select(waiting, [], [], timeout_s)
     return bool(readable)
