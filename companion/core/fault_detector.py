@@ -183,8 +183,10 @@ class FaultDetector:
         self._cmd_lag_n = self._model.motor_response(self._cmd_lag_n, target, dt)[1]
         if delivered is not None and np.all(np.isfinite(delivered)):
             evidence = self._direct_evidence(delivered, dt)
-            same = evidence.rotor is not None and evidence.rotor == self._rotor
-            self._direct_votes_s = (self._direct_votes_s if same else 0.0) + dt if evidence.rotor is not None else 0.0
+            if evidence.rotor is None:
+                self._direct_votes_s = 0.0
+            else:                                # a vote: extends the run when it is for the same rotor
+                self._direct_votes_s = dt + (self._direct_votes_s if evidence.rotor == self._rotor else 0.0)
             self._deficit_n = evidence.deficit_n
             self._lag_n = delivered
         else:
