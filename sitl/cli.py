@@ -9,8 +9,8 @@
     m4-sitl campaign [--out DIR] [--samples N | --grid] [--loss X]... [--seed N] [--jobs N] [--rate-hz HZ]
                      [--engine local|dask] [--scheduler ADDRESS]
 
-A subcommand is one `_add_<name>(subparsers)` function that sets `func`, registered in
-`SUBCOMMANDS`. Bad input (unknown scenario, malformed file, bad URL, port in use) prints one
+A subcommand is one `add_<name>(subparsers)` function that sets `func`, registered through
+`SUBCOMMANDS` (the flight subcommands live in sitl/flight_cli.py). Bad input (unknown scenario, malformed file, bad URL, port in use) prints one
 line on stderr and exits with 2.
 """
 
@@ -113,25 +113,15 @@ def _list(args) -> int:
     return 0
 
 
-def _add_fly(sub) -> None:
+def _add_flights(sub) -> None:
+    """fly, compare, campaign (sitl.flight_cli, which imports this module: imported once it is loaded)."""
     from sitl import flight_cli
 
-    flight_cli.add_fly(sub)
+    for add in (flight_cli.add_fly, flight_cli.add_compare, flight_cli.add_campaign):
+        add(sub)
 
 
-def _add_compare(sub) -> None:
-    from sitl import flight_cli
-
-    flight_cli.add_compare(sub)
-
-
-def _add_campaign(sub) -> None:
-    from sitl import flight_cli
-
-    flight_cli.add_campaign(sub)
-
-
-SUBCOMMANDS = [_add_serve, _add_list, _add_fly, _add_compare, _add_campaign]
+SUBCOMMANDS = [_add_serve, _add_list, _add_flights]
 
 
 def main(argv: list[str] | None = None) -> int:
