@@ -22,6 +22,7 @@ from companion.airframe import ROTOR_COUNT, Airframe
 from companion.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from sitl.commands import CommandHandler
 from sitl.failsafe import Failsafe, FailsafeMode
+from sitl.state import PlantState
 from sitl.streams import FRAME, StreamSchedule
 from sitl.telemetry import Home, Snapshot, Telemetry, statustext
 
@@ -80,11 +81,11 @@ class FlightController:
         self.mode: FcMode | None = None
         self._applied: Setpoint | None = None
         self._outbox: list[mavlink.MAVLink_message] = []
-        self._measured: tuple[int, object] | None = None
+        self._measured: tuple[int, PlantState] | None = None
         self._commands = CommandHandler(self)
 
     # -- the plant as the FC sees it -------------------------------------------------------
-    def measured_state(self, now_ms: int):
+    def measured_state(self, now_ms: int) -> PlantState:
         if self._measured is None or self._measured[0] != now_ms:
             self._measured = (now_ms, self.plant.measured_state())
         return self._measured[1]

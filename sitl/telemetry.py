@@ -15,6 +15,7 @@ import numpy as np
 
 from companion.airframe import Airframe
 from companion.mavlink import mavlink
+from sitl.state import PlantState
 
 EARTH_RADIUS_M = 6378137.0
 _SENSORS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
@@ -43,7 +44,7 @@ class Home:
 class Snapshot:
     """What the FC reports at one instant."""
     t_ms: int
-    state: object              # sitl.plant.PlantState (as the FC measures it)
+    state: PlantState          # as the FC measures it
     custom_mode: int
     armed: bool
     landed: bool
