@@ -30,14 +30,19 @@ from sitl.serve import Server
 Answer = Callable[[int], tuple]      # time_boot_ms -> (thrust_n, hip_rad, hip_rate_rad_s, flags)
 
 
+def _hover_answer() -> Answer:
+    """The hover thrust per rotor at the nominal posture, whatever the instant (open loop)."""
+    af = load_airframe()
+    hover = (np.full(ROTOR_COUNT, af.hover_thrust_per_rotor_n), np.full(ROTOR_COUNT, af.nominal_hip_rad),
+             np.zeros(ROTOR_COUNT), 0)
+    return lambda t_ms: hover
+
+
 class StandInCompanion:
     def __init__(self, period_ms: int = 20, key: bytes | None = None, answer: Answer | None = None,
                  until_ms: int | None = None, port: int = 0):
-        af = load_airframe()
-        hover = (np.full(ROTOR_COUNT, af.hover_thrust_per_rotor_n), np.full(ROTOR_COUNT, af.nominal_hip_rad),
-                 np.zeros(ROTOR_COUNT), 0)
         self.period_ms = period_ms
-        self.answer = answer or (lambda t_ms: hover)
+        self.answer = answer or _hover_answer()
         self.link = UdpLink(f"udpin:127.0.0.1:{port}", FC_SYSTEM_ID, COMPANION_COMPONENT_ID, key=key)
         self.received: list[mavlink.MAVLink_message] = []
         self.until_ms = until_ms          # stop answering frames from this instant on (None: never)
