@@ -17,27 +17,32 @@ from sitl.parallel import FlightJob, fly_all
 COMPARED = ("hover-rotor-loss", "forward-flight-fault", "waypoint-loe", "hover-rotor-loss-tight")
 DEFAULT_OUT = Path("runs") / "compare"
 
-COLUMNS = (
-    ("survived", "survived", lambda m: "yes" if m["survived"] else "**no**"),
-    ("altitude loss (m)", "altitude_loss_m", lambda m: f"{m['altitude_loss_m']:.2f}"),
-    ("max tilt after fault (deg)", "max_tilt_deg_after_fault", lambda m: f"{m['max_tilt_deg_after_fault']:.0f}"),
-    ("time to yaw saturation (s)", "time_to_yaw_saturation_s",
-     lambda m: "-" if m["time_to_yaw_saturation_s"] is None else f"{m['time_to_yaw_saturation_s']:.2f}"),
-    ("final yaw rate (rad/s)", "yaw_rate_final_rad_s", lambda m: f"{m['yaw_rate_final_rad_s']:.1f}"),
-    ("largest thrust (N)", "max_thrust_n", lambda m: f"{m['max_thrust_n']:.1f}"),
-    ("position RMSE (m)", "position_rmse_m", lambda m: f"{m['position_rmse_m']:.2f}"),
+COLUMNS = (                  # header, metrics.json key, number format
+    ("survived", "survived", ""),
+    ("altitude loss (m)", "altitude_loss_m", ".2f"),
+    ("max tilt after fault (deg)", "max_tilt_deg_after_fault", ".0f"),
+    ("time to yaw saturation (s)", "time_to_yaw_saturation_s", ".2f"),
+    ("final yaw rate (rad/s)", "yaw_rate_final_rad_s", ".1f"),
+    ("largest thrust (N)", "max_thrust_n", ".1f"),
+    ("position RMSE (m)", "position_rmse_m", ".2f"),
 )
+
+
+def _cell(value, number_format: str) -> str:
+    if isinstance(value, bool):
+        return "yes" if value else "**no**"
+    return "-" if value is None else format(value, number_format)
 
 
 def markdown_table(rows: list[dict]) -> str:
     """One line per flight; a flight that failed to run shows its error."""
-    head = ["scenario", "controller"] + [c[0] for c in COLUMNS]
+    head = ["scenario", "controller"] + [header for header, _, _ in COLUMNS]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for m in rows:
         if "error" in m:
             cells = [m["scenario"], m["controller"], f"not flown: {m['error']}"] + [""] * (len(COLUMNS) - 1)
         else:
-            cells = [m["scenario"], m["controller"]] + [fmt(m) for _, _, fmt in COLUMNS]
+            cells = [m["scenario"], m["controller"]] + [_cell(m[key], fmt) for _, key, fmt in COLUMNS]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
