@@ -16,7 +16,6 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import math
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -37,9 +36,6 @@ RATE_MAX_HZ = 100.0
 # every built-in scenario passes with about 11 deg of tilt (README, "Measured results").
 DEFAULT_RATE_HZ = 50.0
 DEFAULT_DISTURBANCE_GAIN = inspect.signature(DisturbanceEstimator).parameters["gain"].default
-# pymavlink connection strings the companion accepts for the flight controller.
-_NETWORK_URL = re.compile(r"^(udpin|udpout|udp|tcp|tcpin):[^:\s]+:\d{1,5}$")
-_SERIAL_URL = re.compile(r"^(/dev/\S+?|COM\d+)(,\d+)?$")
 
 
 @dataclass(frozen=True)
@@ -160,7 +156,12 @@ def _link(t: Table, base_dir: Path | None) -> LinkConfig:
         fc_component_id=t.integer("fc_component_id", d.fc_component_id, lo=1, hi=255),
     )
     t.finish()
-    if not (_NETWORK_URL.match(link.fc_url) or _SERIAL_URL.match(link.fc_url)):
-        raise ConfigError(f"{t.where} fc_url must look like udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT "
-                          f"or a serial device /dev/NAME,BAUD; got {link.fc_url!r}")
+    # Imported here, not at the top: the pure-logic controller imports this module, and
+    # pymavlink should load only where a link is read or opened.
+    from companion.mavlink.connect import LinkError, check_url
+
+    try:
+        check_url(link.fc_url)
+    except LinkError as e:
+        raise ConfigError(f"{t.where} fc_url: {e}") from None
     return link
