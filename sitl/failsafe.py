@@ -98,33 +98,33 @@ class Failsafe:
         self.mode = FailsafeMode.HOLD
         self._since_ms = 0
         self._may_land = False
-        self._target = np.zeros(3)
-        self._yaw = 0.0
+        self._target_ned_m = np.zeros(3)
+        self._yaw_rad = 0.0
 
     def engage(self, state, now_ms: int, may_land: bool) -> None:
         """Hold here from `now_ms`; with `may_land`, land once held for LAND_AFTER_S."""
         self.mode = FailsafeMode.HOLD
         self._since_ms = now_ms
         self._may_land = may_land
-        self._target = np.array(state.pos_ned_m, dtype=float)
-        self._yaw = float(state.euler_rad[2])
+        self._target_ned_m = np.array(state.pos_ned_m, dtype=float)
+        self._yaw_rad = float(state.euler_rad[2])
 
     def update(self, state, now_ms: int) -> FailsafeOutput:
         if self.mode == FailsafeMode.HOLD and self._may_land and now_ms - self._since_ms >= LAND_AFTER_S * 1000:
             self.mode = FailsafeMode.LAND
             self._since_ms = now_ms
-            self._target = np.array(state.pos_ned_m, dtype=float)
+            self._target_ned_m = np.array(state.pos_ned_m, dtype=float)
         if self.mode == FailsafeMode.LAND:
             descent = LAND_SPEED_M_S * (now_ms - self._since_ms) / 1000.0
-            target = self._target + np.array([0.0, 0.0, descent])
-            stalled = (target[2] - state.pos_ned_m[2] > TOUCHDOWN_LAG_M
+            target_ned_m = self._target_ned_m + np.array([0.0, 0.0, descent])
+            stalled = (target_ned_m[2] - state.pos_ned_m[2] > TOUCHDOWN_LAG_M
                        and abs(state.vel_ned_m_s[2]) < TOUCHDOWN_SPEED_M_S)
             if state.on_ground or stalled:
                 self.mode = FailsafeMode.LANDED
             else:
-                thrust = self.controller.thrust_n(state, target, self._yaw, (0.0, 0.0, LAND_SPEED_M_S))
+                thrust = self.controller.thrust_n(state, target_ned_m, self._yaw_rad, (0.0, 0.0, LAND_SPEED_M_S))
                 return FailsafeOutput(self.mode, thrust, self.controller.hip_rad)
         if self.mode == FailsafeMode.LANDED:
             return FailsafeOutput(self.mode, np.zeros(ROTOR_COUNT), self.controller.hip_rad)
-        thrust = self.controller.thrust_n(state, self._target, self._yaw)
+        thrust = self.controller.thrust_n(state, self._target_ned_m, self._yaw_rad)
         return FailsafeOutput(self.mode, thrust, self.controller.hip_rad)
