@@ -61,7 +61,6 @@ class CompanionApp:
         self.counters = LoopCounters()
         self.connected = False
         self._last_answered_ms: int | None = None
-        self._was_locked = False
         self._stop = False
         self._received = 0                       # messages from the FC, for the link's rate
         self._rate_mark: tuple[float, int] | None = None
@@ -80,11 +79,11 @@ class CompanionApp:
 
     def poll(self) -> None:
         """Everything that has arrived, then the answer, the watchdog and the periodic messages."""
+        was_locked = self.fc.locked
         msgs = self.fc.receive()
         now = self.clock()
         self._received += len(msgs)
-        if self.fc.locked and not self._was_locked:
-            self._was_locked = True
+        if self.fc.locked and not was_locked:            # the FC's first heartbeat was among msgs
             log.info("flight controller found at %s; asking for telemetry every %d ms", self.fc.fc_address,
                      self.period_ms)
             self.fc.request_intervals(self.config.control_period_s)
