@@ -40,7 +40,7 @@ class _Parser(argparse.ArgumentParser):
         raise BadInput(f"{self.prog}: {message}")
 
 
-def _positive(text: str) -> float:
+def positive_number(text: str) -> float:
     try:
         value = float(text)
     except ValueError:
@@ -50,7 +50,7 @@ def _positive(text: str) -> float:
     return value
 
 
-def _seed(text: str) -> int:
+def seed_number(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
@@ -71,9 +71,10 @@ def _add_serve(sub) -> None:
     p.add_argument("--tlog", type=Path, metavar="PATH", help="write every packet, both directions, as a tlog")
     p.add_argument("--signing-key", type=Path, metavar="FILE", help="MAVLink 2 signing key (64 hex digits or 32 bytes)")
     p.add_argument("--truth-log", type=Path, metavar="PATH", help="write the plant's true state at 100 Hz (.npz)")
-    p.add_argument("--seed", type=_seed, default=0, help="sensor noise seed (default 0)")
-    p.add_argument("--duration", type=_positive, metavar="S", help="stop after S simulated seconds (default: never)")
-    p.add_argument("--lockstep-timeout", type=_positive, default=5.0, metavar="S",
+    p.add_argument("--seed", type=seed_number, default=0, help="sensor noise seed (default 0)")
+    p.add_argument("--duration", type=positive_number, metavar="S",
+                   help="stop after S simulated seconds (default: never)")
+    p.add_argument("--lockstep-timeout", type=positive_number, default=5.0, metavar="S",
                    help="wall-clock wait for a setpoint before going on in failsafe (default 5)")
     p.set_defaults(func=_serve)
 

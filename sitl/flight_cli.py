@@ -10,7 +10,7 @@ import argparse
 from pathlib import Path
 
 from sitl import scenarios
-from sitl.cli import BadInput, _positive, _seed
+from sitl.cli import BadInput, positive_number, seed_number
 from sitl.flight_run import CONTROLLERS, FlightError, FlightOptions
 
 DEFAULT_RATE_HZ = FlightOptions.rate_hz
@@ -27,7 +27,7 @@ def _loss(text: str) -> float:
 
 
 def _rate(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--rate-hz", type=_positive, default=DEFAULT_RATE_HZ, metavar="HZ",
+    p.add_argument("--rate-hz", type=positive_number, default=DEFAULT_RATE_HZ, metavar="HZ",
                    help=f"the companion's control rate (default {DEFAULT_RATE_HZ:g})")
 
 
@@ -36,7 +36,7 @@ def add_fly(sub) -> None:
     p.add_argument("scenario", metavar="SCENARIO", help="built-in name (m4-sitl list) or scenario file")
     p.add_argument("--out", type=Path, metavar="DIR", help="output folder (default runs/<scenario>-<timestamp>)")
     p.add_argument("--controller", choices=CONTROLLERS, default="nmpc", help="nmpc (default) or fixed-posture")
-    p.add_argument("--seed", type=_seed, default=0, help="sensor noise seed (default 0)")
+    p.add_argument("--seed", type=seed_number, default=0, help="sensor noise seed (default 0)")
     p.add_argument("--port", type=int, metavar="N", help="loopback UDP port of the MAVLink link (default: a free one)")
     _rate(p)
     p.add_argument("--realtime", action="store_true", help="pace by the wall clock (default: lockstep)")
@@ -85,7 +85,7 @@ def add_campaign(sub) -> None:
     p.add_argument("--grid", action="store_true", help="the full grid of rotors, losses, speeds, fault times instead")
     p.add_argument("--loss", type=_loss, action="append", metavar="X",
                    help="only this loss of effectiveness (0..1; repeat for more; default 0.33, 0.66 and 1)")
-    p.add_argument("--seed", type=_seed, default=0, help="seed of the sample and of the sensor noise (default 0)")
+    p.add_argument("--seed", type=seed_number, default=0, help="seed of the sample and of the sensor noise (default 0)")
     p.add_argument("--jobs", type=int, metavar="N", help="flights at once (default: half the cores)")
     _rate(p)
     p.add_argument("--engine", choices=ENGINES, default="local", help="local processes (default) or Dask (cluster extra)")
