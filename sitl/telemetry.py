@@ -106,7 +106,7 @@ class Telemetry:
     def actuator_output_status(self, snap: Snapshot):
         outputs = np.zeros(32)
         n = len(snap.state.thrust_cmd_n)
-        outputs[:n] = np.asarray(snap.state.thrust_cmd_n) / self.airframe.thrust_max_n
+        outputs[:n] = np.asarray(snap.state.thrust_cmd_n) / np.asarray(snap.state.thrust_rated_max_n)
         return mavlink.MAVLink_actuator_output_status_message(snap.t_ms * 1000, (1 << n) - 1, _f4(outputs))
 
     def home_position(self, snap: Snapshot):

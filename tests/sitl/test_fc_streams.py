@@ -91,3 +91,15 @@ def test_in_lockstep_thruster_status_marks_only_the_control_instants():
     stamps = [m.time_boot_ms for m in msgs if m.get_type() == "M4_THRUSTER_STATUS"]
     assert sorted(set(stamps)) == list(range(0, 1001, 100))
     assert len([m for m in msgs if m.get_type() == "ATTITUDE" and 0 <= m.time_boot_ms < 1000]) == 100
+
+
+def test_actuator_outputs_are_normalised_by_the_limit_the_fc_is_configured_with():
+    from companion.scenario import PlantOptions
+    capped = Scenario(name="capped", duration_s=60.0, plant=PlantOptions(thrust_max_n=24.0))
+    companion = StandInCompanion(answer=lambda t_ms: (np.full(4, 30.0), np.full(4, math.radians(45.0)),
+                                                      np.zeros(4), 0))
+    msgs = _run(companion, 0.3, scenario=capped)
+    output = [m for m in msgs if m.get_type() == "ACTUATOR_OUTPUT_STATUS"][-1]
+    assert np.allclose(output.actuator[:4], 1.0)              # saturated at the configured 24 N: full output
+    status = [m for m in msgs if m.get_type() == "M4_THRUSTER_STATUS"][-1]
+    assert np.allclose(status.thrust_limit_n, 24.0)
