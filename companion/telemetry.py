@@ -18,12 +18,12 @@ offset's own motion with the legs.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from companion.airframe import ROTOR_COUNT, Airframe
+from companion.attitude import euler_from_quat_wxyz
 from companion.core import rom
 from companion.mavlink import mavlink
 
@@ -97,15 +97,6 @@ class VehicleSnapshot:
     thrust_cmd_n: np.ndarray            # as the FC reports them (NaN: it cannot tell)
     thrust_n: np.ndarray
     thrust_limit_n: np.ndarray
-
-
-def euler_from_quat_wxyz(q) -> np.ndarray:
-    """(roll, pitch, yaw), ZYX, of the rotation body FRD -> NED given by the unit quaternion q."""
-    w, x, y, z = np.asarray(q, dtype=float) / np.linalg.norm(q)
-    sin_pitch = float(np.clip(2.0 * (w * y - x * z), -1.0, 1.0))
-    return np.array([math.atan2(2.0 * (w * x + y * z), w * w - x * x - y * y + z * z),
-                     math.asin(sin_pitch),
-                     math.atan2(2.0 * (w * z + x * y), w * w + x * x - y * y - z * z)])
 
 
 class TelemetryAssembler:

@@ -8,8 +8,6 @@ For a quaternion (w, x, y, z) that conjugation negates y and z. Quaternions are 
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 FLIP = np.array([1.0, -1.0, -1.0])
@@ -26,21 +24,3 @@ def flip_quat_wxyz(q) -> np.ndarray:
     return _QUAT_FLIP * np.asarray(q, dtype=float)
 
 
-def euler_from_quat_wxyz(q) -> np.ndarray:
-    """(roll, pitch, yaw), ZYX convention, of the rotation body -> world given by q."""
-    w, x, y, z = q
-    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
-    pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
-    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    return np.array([roll, pitch, yaw])
-
-
-def quat_wxyz_from_euler(euler) -> np.ndarray:
-    """Quaternion of R = Rz(yaw) Ry(pitch) Rx(roll) (body -> world), scalar first."""
-    cr, sr = math.cos(euler[0] / 2), math.sin(euler[0] / 2)
-    cp, sp = math.cos(euler[1] / 2), math.sin(euler[1] / 2)
-    cy, sy = math.cos(euler[2] / 2), math.sin(euler[2] / 2)
-    return np.array([cr * cp * cy + sr * sp * sy,
-                     sr * cp * cy - cr * sp * sy,
-                     cr * sp * cy + sr * cp * sy,
-                     cr * cp * sy - sr * sp * cy])

@@ -15,6 +15,7 @@ import mujoco
 import numpy as np
 
 from companion.airframe import ROTOR_COUNT, Airframe
+from companion.attitude import euler_from_quat_wxyz, quat_wxyz_from_euler
 from companion.scenario import PlantOptions
 from sitl import frames
 from sitl.drag import HullDrag
@@ -79,7 +80,7 @@ class Plant:
         d.act[self._thrust_act] = d.ctrl[self._thrust]
 
         d.qpos[self._pos] = frames.flip_vector(start)
-        d.qpos[self._quat] = frames.flip_quat_wxyz(frames.quat_wxyz_from_euler((0.0, 0.0, start_yaw_rad)))
+        d.qpos[self._quat] = frames.flip_quat_wxyz(quat_wxyz_from_euler((0.0, 0.0, start_yaw_rad)))
         self._hip_target = np.full(ROTOR_COUNT, airframe.nominal_hip_rad)
         self._hips = HipReference(self._hip_target, rate_max_rad_s=airframe.hip_rate_max_rad_s,
                                   accel_max_rad_s2=airframe.hip_accel_max_rad_s2,
@@ -185,7 +186,7 @@ class Plant:
             pos_ned_m=frames.flip_vector(d.qpos[self._pos]),
             vel_ned_m_s=frames.flip_vector(d.qvel[self._vel]),
             quat_wxyz=quat,
-            euler_rad=frames.euler_from_quat_wxyz(quat),
+            euler_rad=euler_from_quat_wxyz(quat),
             rates_frd_rad_s=frames.flip_vector(d.qvel[self._rates]),
             hip_rad=d.qpos[self._hip_qpos].copy(),
             hip_rate_rad_s=d.qvel[self._hip_qvel].copy(),

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 
 from companion.airframe import ROTOR_COUNT, Airframe
-from sitl.frames import quat_wxyz_from_euler
+from companion.attitude import quat_wxyz_from_euler
 from sitl.state import PlantState
 
 

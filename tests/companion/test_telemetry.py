@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 
 from companion.airframe import load_airframe
+from companion.attitude import euler_from_quat_wxyz
 from companion.core import rom
 from companion.mavlink import mavlink
 from companion.telemetry import (ATTITUDE, LOCAL_POSITION, THRUSTER_STATUS, TelemetryAssembler,
-                                 euler_from_quat_wxyz, rom_state)
+                                 rom_state)
 
 AF = load_airframe()
 NAN4 = [math.nan] * 4
