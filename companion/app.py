@@ -29,7 +29,7 @@ from companion.core import rom
 from companion.fc_link import FcLink
 from companion.feed import Feed, open_feed
 from companion.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
-from companion.mavlink.connect import open_link
+from companion.mavlink.connect import listens_for_peer, open_link
 from companion.mavlink.link import wait_readable
 from companion.mavlink.signing import load_key
 from companion.telemetry import THRUSTER_STATUS, TelemetryAssembler, VehicleSnapshot, rom_state
@@ -209,8 +209,8 @@ def open_app(config: CompanionConfig) -> CompanionApp:
         if feed is not None:
             feed.close()
         raise
-    listening = config.link.fc_url.partition(":")[0] in ("udpin", "udp")
-    fc = FcLink(link, config.link.fc_system_id, config.link.fc_component_id, heartbeat_before_lock=not listening)
+    fc = FcLink(link, config.link.fc_system_id, config.link.fc_component_id,
+                heartbeat_before_lock=not listens_for_peer(config.link.fc_url))
     return CompanionApp(config, fc, controller, feed)
 
 

@@ -38,6 +38,12 @@ def check_url(url: str) -> str:
     return url
 
 
+def listens_for_peer(url: str) -> bool:
+    """True for a UDP link that listens (udpin:, udp:): it learns its peer from the first packet
+    it receives, so it has nobody to send to before that."""
+    return check_url(url).startswith("udpin:")
+
+
 def open_link(url: str, source_system: int, source_component: int, *, tlog: TlogWriter | None = None,
               key: bytes | None = None, link_id: int = 0):
     """Open the link a URL names; LinkError says what is wrong with it."""
@@ -51,4 +57,4 @@ def open_link(url: str, source_system: int, source_component: int, *, tlog: Tlog
     return UdpLink(url, source_system, source_component, **kwargs)
 
 
-__all__ = ["LinkError", "check_url", "open_link"]
+__all__ = ["LinkError", "check_url", "listens_for_peer", "open_link"]

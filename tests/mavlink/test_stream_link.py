@@ -10,7 +10,7 @@ import time
 import pytest
 
 from companion.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
-from companion.mavlink.connect import open_link
+from companion.mavlink.connect import listens_for_peer, open_link
 from companion.mavlink.link import LinkError, UdpLink
 
 
@@ -135,3 +135,13 @@ def test_serial_link_over_a_pseudo_terminal():
         link.close()
         os.close(master)
         os.close(slave)
+
+
+@pytest.mark.parametrize("url, listens", [
+    ("udpin:127.0.0.1:14550", True), ("udp:127.0.0.1:14550", True), ("udpin://127.0.0.1:14550", True),
+    ("udpout:127.0.0.1:14550", False), ("tcp:127.0.0.1:5760", False), ("tcpin:127.0.0.1:5760", False),
+    ("/dev/ttyTHS1,921600", False),
+])
+def test_only_a_listening_udp_link_must_wait_for_its_peer_before_sending(url, listens):
+
+    assert listens_for_peer(url) is listens
