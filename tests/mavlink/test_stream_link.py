@@ -143,5 +143,4 @@ def test_serial_link_over_a_pseudo_terminal():
     ("/dev/ttyTHS1,921600", False),
 ])
 def test_only_a_listening_udp_link_must_wait_for_its_peer_before_sending(url, listens):
-
     assert listens_for_peer(url) is listens
