@@ -27,11 +27,11 @@ from companion.config import CompanionConfig
 from companion.controller import ControlStep, Controller
 from companion.core import rom
 from companion.fc_link import FcLink
-from companion.feed import Feed, open_feed
-from companion.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
-from companion.mavlink.connect import listens_for_peer, open_link
-from companion.mavlink.link import wait_readable
-from companion.mavlink.signing import load_key
+from companion.feed_publisher import Feed, open_feed
+from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from m4.mavlink.connect import listens_for_peer, open_link
+from m4.mavlink.link import wait_readable
+from m4.mavlink.signing import load_key
 from companion.telemetry import THRUSTER_STATUS, TelemetryAssembler, VehicleSnapshot, rom_state
 
 log = logging.getLogger("m4-companion")

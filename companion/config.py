@@ -8,7 +8,7 @@ The tables map onto the settings dataclasses of the parts they configure (NmpcCo
 ReferenceConfig, TouchdownConfig, FaultDetectorConfig, FeedSettings): a key is a field's
 name, its default is the field's default, and a field in radians (`*_rad`) is written in
 degrees (`*_deg`) in the file. Relative paths are taken from the file's folder. The Zenoh
-feed is the [feed] table of companion.feed.settings (absent: no feed).
+feed is the [feed] table of m4.feed.settings (absent: no feed).
 """
 
 from __future__ import annotations
@@ -20,15 +20,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from companion.airframe import Airframe, load_airframe
+from m4.airframe import Airframe, load_airframe
 from companion.core.disturbance import DisturbanceEstimator
 from companion.core.fault_detector import FaultDetectorConfig
 from companion.core.nmpc_config import NmpcConfig, NmpcWeights
 from companion.core.reference import ReferenceConfig
 from companion.core.touchdown import TouchdownConfig
-from companion.feed.settings import FeedSettings, parse_feed_settings
-from companion.scenario import Mission, load_mission
-from companion.toml_fields import ConfigError, Table, load_toml
+from m4.feed.settings import FeedSettings, parse_feed_settings
+from m4.mission import Mission, load_mission
+from m4.toml_fields import ConfigError, Table, load_toml
 
 RATE_MAX_HZ = 100.0
 # 50 Hz: the paper's 10 Hz survives a rotor loss in hover or at 3.5 m/s on the MuJoCo plant
@@ -158,7 +158,7 @@ def _link(t: Table, base_dir: Path | None) -> LinkConfig:
     t.finish()
     # Imported here, not at the top: the pure-logic controller imports this module, and
     # pymavlink should load only where a link is read or opened.
-    from companion.mavlink.connect import LinkError, check_url
+    from m4.mavlink.connect import LinkError, check_url
 
     try:
         check_url(link.fc_url)

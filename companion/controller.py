@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.airframe import ROTOR_COUNT, Airframe
+from m4.airframe import ROTOR_COUNT, Airframe
 from companion.config import CompanionConfig
 from companion.core import rom
 from companion.core.disturbance import DisturbanceEstimator

@@ -14,7 +14,7 @@
   dropped by signing), foreign (other systems, components or addresses).
 
 The transport is anything with `receive_from()`, `send(msg)` and `lock_peer(address)` (see
-companion.mavlink.link and companion.mavlink.stream_link).
+m4.mavlink.link and m4.mavlink.stream_link).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import numpy as np
 
 from companion.controller import Setpoint
 from companion.core.fault_detector import FaultStatus
-from companion.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from m4.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from companion.telemetry import STREAMS
 
 HEARTBEAT_PERIOD_S = 1.0

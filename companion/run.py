@@ -15,7 +15,7 @@ import signal
 import sys
 from pathlib import Path
 
-from companion.toml_fields import ConfigError
+from m4.toml_fields import ConfigError
 
 EXIT_BAD_INPUT = 2
 
@@ -31,7 +31,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def _config(args: argparse.Namespace):
     from companion.config import load_config
-    from companion.scenario import load_mission
+    from m4.mission import load_mission
 
     config = load_config(args.config)
     if args.fc is not None:          # checked when the link opens
@@ -44,8 +44,8 @@ def _config(args: argparse.Namespace):
 def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.INFO, format="m4-companion: %(message)s", stream=sys.stderr)
     from companion.app import close_app, open_app
-    from companion.feed import FeedError
-    from companion.mavlink.link import LinkError
+    from m4.feed.transport import FeedError
+    from m4.mavlink.link import LinkError
 
     try:
         config = _config(args)

@@ -22,10 +22,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.airframe import ROTOR_COUNT, Airframe
-from companion.attitude import euler_from_quat_wxyz
-from companion.core import rom
-from companion.mavlink import mavlink
+from m4.airframe import ROTOR_COUNT, Airframe
+from m4.attitude import euler_from_quat_wxyz, rotation_ned_from_frd
+from companion.core import rom_layout as rom
+from m4.mavlink import mavlink
 
 ATTITUDE = mavlink.MAVLINK_MSG_ID_ATTITUDE
 ATTITUDE_QUATERNION = mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION
@@ -155,7 +155,7 @@ class TelemetryAssembler:
 
 def rom_state(snap: VehicleSnapshot, af: Airframe) -> np.ndarray:
     """The NMPC's state (20) from a snapshot: centre of mass position and velocity (NED)."""
-    rot = rom.rotation_ned_from_frd(snap.euler_rad)
+    rot = rotation_ned_from_frd(snap.euler_rad)
     r_frd = af.com_offset_frd_m(snap.hip_rad)
     r_dot_frd = af.com_offset_rate_frd_m_s(snap.hip_rad, snap.hip_rate_rad_s)
     x = np.zeros(rom.NX)

@@ -18,8 +18,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, TextIO
 
-from companion.feed.payloads import KEY_PREFIX, TOPICS, check_vehicle
-from companion.feed.transport import (FeedError, config_from_endpoints, config_from_file,
+from m4.feed.payloads import KEY_PREFIX, TOPICS, check_vehicle
+from m4.feed.transport import (FeedError, config_from_endpoints, config_from_file,
                                       open_session)
 
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"     # the robot's local Zenoh router (deploy/)

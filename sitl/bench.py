@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from companion.airframe import ROTOR_COUNT, load_airframe
+from m4.airframe import ROTOR_COUNT, load_airframe
 from sitl.plant import Plant
 
 COMMAND_PERIOD_S = 0.02

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.airframe import ROTOR_COUNT
+from m4.airframe import ROTOR_COUNT
 from sitl.flight_run import FlightOptions
 from sitl.parallel import FlightJob, fly_all
 
@@ -137,7 +137,7 @@ def summary_markdown(rows: list[dict]) -> str:
 
 
 def run_campaign(out_dir: Path = DEFAULT_OUT, samples: int = 20, seed: int = 0, grid: bool = False,
-                 workers: int | None = None, rate_hz: float = FlightOptions.rate_hz,
+                 workers: int | None = None, rate_hz: float | None = None,
                  losses: tuple[float, ...] = LOSS_LEVELS, engine: str = "local", scheduler: str | None = None) -> str:
     out_dir = Path(out_dir)
     cases = grid_cases(losses) if grid else random_cases(samples, seed, losses)

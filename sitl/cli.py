@@ -10,7 +10,8 @@
                      [--engine local|dask] [--scheduler ADDRESS]
 
 A subcommand is one `add_<name>(subparsers)` function that sets `func`, registered through
-`SUBCOMMANDS` (the flight subcommands live in sitl/flight_cli.py). Bad input (unknown scenario, malformed file, bad URL, port in use) prints one
+`SUBCOMMANDS` (the flight subcommands live in sitl/flight_cli.py, the shared argument
+types in sitl/cli_args.py). Bad input (unknown scenario, malformed file, bad URL, port in use) prints one
 line on stderr and exits with 2.
 """
 
@@ -21,43 +22,15 @@ import signal
 import sys
 from pathlib import Path
 
-from companion.mavlink.link import LinkError
-from companion.mavlink.signing import load_key
-from companion.scenario import Scenario
-from companion.toml_fields import ConfigError
-from sitl import scenarios
+from m4.mavlink.link import LinkError
+from m4.mavlink.signing import load_key
+from sitl.scenario import Scenario
+from m4.toml_fields import ConfigError
+from sitl import flight_cli, scenarios
+from sitl.cli_args import BadInput, Parser, positive_number, seed_number
 
 EXIT_BAD_INPUT = 2
 DEFAULT_URL = "udpout:127.0.0.1:14550"
-
-
-class BadInput(Exception):
-    """A command-line argument is wrong, or the server cannot start with it."""
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):              # one line, not the usage block
-        raise BadInput(f"{self.prog}: {message}")
-
-
-def positive_number(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not value > 0.0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return value
-
-
-def seed_number(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return value
 
 
 def _add_serve(sub) -> None:
@@ -114,19 +87,11 @@ def _list(args) -> int:
     return 0
 
 
-def _add_flights(sub) -> None:
-    """fly, compare, campaign (sitl.flight_cli, which imports this module: imported once it is loaded)."""
-    from sitl import flight_cli
-
-    for add in (flight_cli.add_fly, flight_cli.add_compare, flight_cli.add_campaign):
-        add(sub)
-
-
-SUBCOMMANDS = [_add_serve, _add_list, _add_flights]
+SUBCOMMANDS = [_add_serve, _add_list, flight_cli.add_fly, flight_cli.add_compare, flight_cli.add_campaign]
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = _Parser(prog="m4-sitl", description="M4 simulator: MuJoCo plant behind a MAVLink 2 flight controller")
+    parser = Parser(prog="m4-sitl", description="M4 simulator: MuJoCo plant behind a MAVLink 2 flight controller")
     sub = parser.add_subparsers(dest="command", required=True)
     for add in SUBCOMMANDS:
         add(sub)

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import math
 
-from companion.airframe import ROTOR_COUNT
-from companion.mavlink import mavlink
+from m4.airframe import ROTOR_COUNT
+from m4.mavlink import mavlink
 
 m = mavlink
 

@@ -48,16 +48,17 @@ def markdown_table(rows: list[dict]) -> str:
 
 
 def compare(out_dir: Path = DEFAULT_OUT, scenarios: tuple[str, ...] = COMPARED, workers: int | None = None,
-            rate_hz: float = FlightOptions.rate_hz) -> str:
+            rate_hz: float | None = None) -> str:
     out_dir = Path(out_dir)
     pairs = [(s, c) for s in scenarios for c in CONTROLLERS]
     jobs = [FlightJob(s, out_dir / f"{s}-{c}", FlightOptions(controller=c, rate_hz=rate_hz), figures=True)
             for s, c in pairs]
     results = [{"scenario": s, "controller": c, **m} for (s, c), m in zip(pairs, fly_all(jobs, workers, "compare"))]
     table = markdown_table(results)
+    rate_text = "the companion's default rate" if rate_hz is None else f"{rate_hz:g} Hz"
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "comparison.md").write_text(
-        f"Posture manipulation (nmpc) against the fixed posture (fixed-posture), control at {rate_hz:g} Hz; "
+        f"Posture manipulation (nmpc) against the fixed posture (fixed-posture), control at {rate_text}; "
         "regenerate with `m4-sitl compare`.\n\n" + table)
     (out_dir / "comparison.json").write_text(json.dumps(results, indent=2) + "\n")
     return table

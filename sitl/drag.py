@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from companion.airframe import Airframe
+from m4.airframe import Airframe
 
 
 class HullDrag:

@@ -11,8 +11,8 @@ import json
 import threading
 from pathlib import Path
 
-from companion.feed.payloads import KEY_PREFIX
-from companion.feed.transport import config_from_endpoints, open_session
+from m4.feed.payloads import KEY_PREFIX
+from m4.feed.transport import config_from_endpoints, open_session
 
 
 class FeedRecorder:

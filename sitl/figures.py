@@ -21,8 +21,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from companion.airframe import ROTOR_COUNT, Airframe
-from companion.core import rom
+from m4.airframe import ROTOR_COUNT, Airframe
+from m4.attitude import rotation_ned_from_frd
 from sitl.model_matching import FAILED_ROTOR, MatchResult
 from sitl.truth import Truth
 
@@ -70,7 +70,7 @@ def trajectory_figure(path: Path, title: str, truth: Truth, ref_ned_m: np.ndarra
 
 def body_velocities(truth: Truth) -> np.ndarray:
     """(n, 3) velocity of the hull in the body frame FRD."""
-    return np.array([rom.rotation_ned_from_frd(e).T @ v for e, v in zip(truth.euler_rad, truth.vel_ned_m_s)])
+    return np.array([rotation_ned_from_frd(e).T @ v for e, v in zip(truth.euler_rad, truth.vel_ned_m_s)])
 
 
 def velocities_rates_figure(path: Path, title: str, truth: Truth, faults: list[dict]) -> Path:
@@ -112,7 +112,7 @@ def snapshot_instants(truth: Truth, fault_s: float | None) -> list[int]:
 
 def _robot_lines(af: Airframe, pos_ned_m, euler_rad, hip_rad) -> tuple[np.ndarray, np.ndarray]:
     """Hull outline (5, 3) and thruster hubs (4, 3), local NED."""
-    r = rom.rotation_ned_from_frd(euler_rad)
+    r = rotation_ned_from_frd(euler_rad)
     lx, ly, _ = np.array(af.body_box_size_m) / 2
     hull = np.array([[lx, ly, 0], [lx, -ly, 0], [-lx, -ly, 0], [-lx, ly, 0], [lx, ly, 0]])
     hubs = af.thruster_positions_frd_m(hip_rad)
@@ -128,7 +128,7 @@ def snapshots_figure(path: Path, title: str, af: Airframe, truth: Truth, fault_s
     for col, k in enumerate(picks):
         p, e, q = truth.pos_ned_m[k], truth.euler_rad[k], truth.hip_rad[k]
         hull, hubs = _robot_lines(af, p, e, q)
-        hip_world = p + hips @ rom.rotation_ned_from_frd(e).T
+        hip_world = p + hips @ rotation_ned_from_frd(e).T
         failed = {i - 1 for i in failed_rotors} if fault_s is not None and truth.time_s[k] >= fault_s else set()
         for row, (h, v, hlabel, vlabel) in enumerate(((1, 0, "east (m)", "north (m)"),
                                                       (0, 2, "north (m)", "altitude (m)"))):

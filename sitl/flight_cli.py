@@ -10,10 +10,8 @@ import argparse
 from pathlib import Path
 
 from sitl import scenarios
-from sitl.cli import BadInput, positive_number, seed_number
+from sitl.cli_args import BadInput, positive_number, seed_number
 from sitl.flight_run import CONTROLLERS, FlightError, FlightOptions
-
-DEFAULT_RATE_HZ = FlightOptions.rate_hz
 
 
 def _loss(text: str) -> float:
@@ -27,8 +25,8 @@ def _loss(text: str) -> float:
 
 
 def _rate(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--rate-hz", type=positive_number, default=DEFAULT_RATE_HZ, metavar="HZ",
-                   help=f"the companion's control rate (default {DEFAULT_RATE_HZ:g})")
+    p.add_argument("--rate-hz", type=positive_number, metavar="HZ",
+                   help="the companion's control rate (default: the companion's own, [control] rate_hz)")
 
 
 def add_fly(sub) -> None:

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.airframe import ROTOR_COUNT, Airframe
-from companion.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from m4.airframe import ROTOR_COUNT, Airframe
+from m4.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from sitl.commands import CommandHandler
 from sitl.failsafe import Failsafe, FailsafeMode
 from sitl.state import PlantState

@@ -28,9 +28,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from companion.airframe import load_airframe
-from companion.config import DEFAULT_RATE_HZ
-from companion.scenario import Scenario
+from m4.airframe import load_airframe
+from sitl.scenario import Scenario
 from sitl.feed_recorder import FeedRecorder
 
 CONTROLLERS = ("nmpc", "fixed-posture")
@@ -54,7 +53,7 @@ class FlightOptions:
     viewer: bool = False
     port: int | None = None               # loopback UDP port of the companion's MAVLink link; None: a free one
     record_feed: bool = True
-    rate_hz: float = DEFAULT_RATE_HZ      # the companion's control rate
+    rate_hz: float | None = None          # the companion's control rate; None: the companion's default
 
 
 class FlightFiles:
@@ -89,8 +88,9 @@ def check_port_free(port: int) -> None:
 
 
 def companion_config_text(options: FlightOptions, mavlink_port: int, feed_port: int | None) -> str:
+    rate = [] if options.rate_hz is None else [f"rate_hz = {options.rate_hz:g}"]
     lines = ["# The companion's configuration for this flight (written by m4-sitl fly).",
-             "[control]", f"rate_hz = {options.rate_hz:g}", "", "[link]",
+             "[control]", *rate, "", "[link]",
              f'fc_url = "udpin:127.0.0.1:{mavlink_port}"', ""]
     if options.controller == "fixed-posture":
         nominal_deg = math.degrees(load_airframe().nominal_hip_rad)

@@ -14,8 +14,8 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from companion.airframe import Airframe, load_airframe
-from companion.scenario import Scenario, load_scenario
+from m4.airframe import Airframe, load_airframe
+from sitl.scenario import Scenario, load_scenario
 from sitl import scenarios
 from sitl.flight_run import FlightFiles, FlightOptions, run_flight
 from sitl.metrics import flight_metrics, reference_track

@@ -31,10 +31,10 @@ import math
 
 import numpy as np
 
-from companion.airframe import Airframe
-from companion.core.reference import MissionReference
-from companion.mavlink import mavlink
-from companion.scenario import Scenario
+from m4.airframe import Airframe
+from m4.mission_plan import MissionPlan
+from m4.mavlink import mavlink
+from sitl.scenario import Scenario
 from sitl.records import FaultStatusLog, NmpcLog
 from sitl.truth import Truth
 
@@ -85,7 +85,7 @@ def touchdown_speed_m_s(time_s: np.ndarray, vel_ned_m_s: np.ndarray, touchdown: 
 def reference_positions(scenario: Scenario, af: Airframe, time_s: np.ndarray, com_ned_m: np.ndarray,
                         hold_detected_s: float | None) -> np.ndarray:
     """(n, 3) the mission reference at each sample."""
-    ref = MissionReference(scenario.mission, com_ned_m[0], af, t0_s=float(time_s[0]))
+    ref = MissionPlan(scenario.mission, com_ned_m[0], af, t0_s=float(time_s[0]))
     if hold_detected_s is not None:
         k = int(np.searchsorted(time_s, hold_detected_s))
         ref.fault_detected(hold_detected_s, com_ned_m[min(k, len(time_s) - 1)])

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.airframe import ROTOR_COUNT, Airframe, load_airframe
+from m4.airframe import ROTOR_COUNT, Airframe, load_airframe
 from companion.core import rom
 from sitl.plant import Plant
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from companion.toml_fields import ConfigError
+from m4.toml_fields import ConfigError
 from sitl.flight_run import FlightError, FlightOptions
 
 ENGINES = ("local", "dask")

@@ -14,9 +14,9 @@ import math
 import mujoco
 import numpy as np
 
-from companion.airframe import ROTOR_COUNT, Airframe
-from companion.attitude import euler_from_quat_wxyz, quat_wxyz_from_euler
-from companion.scenario import PlantOptions
+from m4.airframe import ROTOR_COUNT, Airframe
+from m4.attitude import euler_from_quat_wxyz, quat_wxyz_from_euler
+from sitl.scenario import PlantOptions
 from sitl import frames
 from sitl.drag import HullDrag
 from sitl.mjcf import PHYSICS_DT_S, compile_model

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.airframe import ROTOR_COUNT
-from companion.mavlink import COMPANION_COMPONENT_ID, mavutil
+from m4.airframe import ROTOR_COUNT
+from m4.mavlink import COMPANION_COMPONENT_ID, mavutil
 
 
 @dataclass(frozen=True)

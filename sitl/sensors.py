@@ -6,8 +6,8 @@ import dataclasses
 
 import numpy as np
 
-from companion.airframe import ROTOR_COUNT, Airframe
-from companion.attitude import quat_wxyz_from_euler
+from m4.airframe import ROTOR_COUNT, Airframe
+from m4.attitude import quat_wxyz_from_euler
 from sitl.state import PlantState
 
 

@@ -18,11 +18,11 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
-from companion.airframe import Airframe, load_airframe
-from companion.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID
-from companion.mavlink.link import UdpLink, wait_readable
-from companion.mavlink.tlog import TlogWriter
-from companion.scenario import Scenario
+from m4.airframe import Airframe, load_airframe
+from m4.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID
+from m4.mavlink.link import UdpLink, wait_readable
+from m4.mavlink.tlog import TlogWriter
+from sitl.scenario import Scenario
 from sitl.truth import TruthRecorder
 from sitl.vehicle import Vehicle, log
 

@@ -22,9 +22,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from companion.airframe import ROTOR_COUNT, load_airframe
-from companion.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
-from companion.mavlink.link import UdpLink, wait_readable
+from m4.airframe import ROTOR_COUNT, load_airframe
+from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from m4.mavlink.link import UdpLink, wait_readable
 from sitl.serve import Server
 
 Answer = Callable[[int], tuple]      # time_boot_ms -> (thrust_n, hip_rad, hip_rate_rad_s, flags)

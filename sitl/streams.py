@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 
-from companion.mavlink import mavlink
+from m4.mavlink import mavlink
 
 m = mavlink
 FRAME = (m.MAVLINK_MSG_ID_ATTITUDE, m.MAVLINK_MSG_ID_ATTITUDE_QUATERNION, m.MAVLINK_MSG_ID_LOCAL_POSITION_NED,

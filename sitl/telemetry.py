@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.airframe import Airframe
-from companion.mavlink import mavlink
+from m4.airframe import Airframe
+from m4.mavlink import mavlink
 from sitl.state import PlantState
 
 EARTH_RADIUS_M = 6378137.0

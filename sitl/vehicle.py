@@ -12,9 +12,9 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable, Iterable
 
-from companion.airframe import Airframe
-from companion.mavlink import mavlink
-from companion.scenario import Scenario
+from m4.airframe import Airframe
+from m4.mavlink import mavlink
+from sitl.scenario import Scenario
 from sitl.flight_controller import TICK_MS, FlightController
 from sitl.plant import Plant
 from sitl.streams import FRAME

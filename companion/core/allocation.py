@@ -17,7 +17,7 @@ from itertools import product
 
 import numpy as np
 
-from companion.airframe import ROTOR_COUNT, Airframe
+from m4.airframe import ROTOR_COUNT, Airframe
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from companion.airframe import Airframe
+from m4.airframe import Airframe
 from companion.core import rom
 from companion.core.rom import ND, NU, NX
 

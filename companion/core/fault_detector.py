@@ -46,7 +46,7 @@ from enum import IntEnum
 
 import numpy as np
 
-from companion.airframe import ROTOR_COUNT, Airframe
+from m4.airframe import ROTOR_COUNT, Airframe
 from companion.core import rom
 from companion.core.fault_residual import (
     CHANNELS,

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import daqp
 import numpy as np
 
-from companion.airframe import ROTOR_COUNT, Airframe
+from m4.airframe import ROTOR_COUNT, Airframe
 from companion.core import rom
 from companion.core.codegen_cache import compiled
 from companion.core.condensing import (

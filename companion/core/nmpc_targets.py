@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from companion.airframe import ROTOR_COUNT, Airframe
+from m4.airframe import ROTOR_COUNT, Airframe
 from companion.core import rom
 
 ROLL, PITCH, YAW = rom.EULER.start, rom.EULER.start + 1, rom.EULER.start + 2

@@ -24,21 +24,10 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from companion.airframe import ROTOR_COUNT, Airframe
+from companion.core.rom_layout import EULER, HIP, HIP_ACCEL, HIP_RATE, ND, NU, NX, P, RATES, THRUST, V
+from m4.airframe import ROTOR_COUNT, Airframe
+from m4.attitude import rotation_rows
 
-NX = 20
-NU = 8
-ND = 6
-
-# Slices into the state and input vectors.
-P = slice(0, 3)
-EULER = slice(3, 6)
-HIP = slice(6, 10)
-V = slice(10, 13)
-RATES = slice(13, 16)
-HIP_RATE = slice(16, 20)
-THRUST = slice(0, 4)
-HIP_ACCEL = slice(4, 8)
 
 _SMOOTH_ABS_EPS = 1e-6   # |a| ~ sqrt(a^2 + eps): keeps the quadratic drag differentiable at 0
 
@@ -46,11 +35,7 @@ _SMOOTH_ABS_EPS = 1e-6   # |a| ~ sqrt(a^2 + eps): keeps the quadratic drag diffe
 def rotation_ned_from_frd(euler):
     """ZYX Euler angles (roll, pitch, yaw) -> rotation matrix body FRD -> NED (CasADi or numpy)."""
     lib = ca if isinstance(euler, (ca.SX, ca.MX)) else np
-    roll, pitch, yaw = euler[0], euler[1], euler[2]
-    cr, sr, cp, sp, cy, sy = lib.cos(roll), lib.sin(roll), lib.cos(pitch), lib.sin(pitch), lib.cos(yaw), lib.sin(yaw)
-    rows = [[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr]]
+    rows = rotation_rows(*(f(euler[i]) for i in range(3) for f in (lib.cos, lib.sin)))
     if lib is np:
         return np.array(rows, dtype=float)
     return ca.vertcat(*[ca.horzcat(*r) for r in rows])

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from companion.airframe import ROTOR_COUNT, Airframe
+from m4.airframe import ROTOR_COUNT, Airframe
 from companion.core import rom
 from companion.core.disturbance import DisturbanceEstimator
 from companion.core.nmpc import Nmpc

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.airframe import ROTOR_COUNT, Airframe
+from m4.airframe import ROTOR_COUNT, Airframe
 from companion.core import rom
 from companion.core.fault_detector import FaultState, FaultStatus
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 from importlib import resources
 from pathlib import Path
 
-from companion.scenario import Scenario, load_scenario
-from companion.toml_fields import ConfigError
+from sitl.scenario import Scenario, load_scenario
+from m4.toml_fields import ConfigError
 
 
 def builtin_names() -> list[str]:

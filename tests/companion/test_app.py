@@ -13,14 +13,14 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from companion.airframe import load_airframe
+from m4.airframe import load_airframe
 from companion.app import CompanionApp
 from companion.config import parse_config
 from companion.controller import Controller
 from companion.fc_link import FcLink
-from companion.feed import Feed
-from companion.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
-from companion.mavlink.link import UdpLink
+from companion.feed_publisher import Feed
+from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
+from m4.mavlink.link import UdpLink
 
 AF = load_airframe()
 CONFIG = parse_config({"control": {"rate_hz": 50.0}, "link": {"fc_url": "udpin:127.0.0.1:0"}}, "test")

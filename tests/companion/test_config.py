@@ -4,11 +4,11 @@ from pathlib import Path
 
 import pytest
 
-from companion.airframe import load_airframe
+from m4.airframe import load_airframe
 from companion.config import CompanionConfig, load_config
 from companion.core.fault_detector import FaultDetectorConfig
 from companion.core.nmpc_config import NmpcConfig
-from companion.toml_fields import ConfigError
+from m4.toml_fields import ConfigError
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "deploy" / "companion.toml"
 

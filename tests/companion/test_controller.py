@@ -10,13 +10,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from companion.airframe import ROTOR_COUNT, load_airframe
+from m4.airframe import ROTOR_COUNT, load_airframe
 from companion.config import parse_config
 from companion.controller import Controller, Setpoint, safe_setpoint, thrust_bounds
 from companion.core import rom
 from companion.core.fault_detector import FaultState
 from companion.core.nmpc import Nmpc
-from companion.scenario import Landing, Mission
+from m4.mission import Landing, Mission
 from companion.telemetry import VehicleSnapshot, rom_state
 
 AF = load_airframe()

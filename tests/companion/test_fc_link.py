@@ -9,8 +9,8 @@ import pytest
 
 from companion.controller import Setpoint
 from companion.fc_link import FcLink
-from companion.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
-from companion.mavlink.link import UdpLink
+from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from m4.mavlink.link import UdpLink
 from companion.telemetry import STREAMS
 
 KEY = bytes(range(32))

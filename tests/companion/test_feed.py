@@ -5,11 +5,14 @@ import numpy as np
 import pytest
 import zenoh
 
-from companion.feed import FeedError, FeedSettings, TOPICS, key_for, open_feed, parse_feed_settings
-from companion.feed import payloads
-from companion.feed.publisher import Feed
-from companion.feed.transport import config_from_endpoints, config_from_file, open_session
-from companion.toml_fields import ConfigError, Table
+from companion.feed_publisher import open_feed
+from m4.feed.payloads import TOPICS, key_for
+from m4.feed.settings import FeedSettings, parse_feed_settings
+from m4.feed.transport import FeedError
+from m4.feed import payloads
+from companion.feed_publisher import Feed
+from m4.feed.transport import config_from_endpoints, config_from_file, open_session
+from m4.toml_fields import ConfigError, Table
 
 
 # --- payloads: plain data in, strict JSON out ----------------------------------------------

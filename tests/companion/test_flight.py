@@ -18,11 +18,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from companion.airframe import load_airframe
+from m4.airframe import load_airframe
 from companion.app import close_app, open_app
 from companion.config import parse_config
-from companion.feed import Feed
-from companion.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, mavlink, mavutil
+from companion.feed_publisher import Feed
+from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, mavlink, mavutil
 from sitl import scenarios
 
 pytestmark = pytest.mark.flight

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from companion.airframe import load_airframe
-from companion.attitude import euler_from_quat_wxyz
+from m4.airframe import load_airframe
+from m4.attitude import euler_from_quat_wxyz
 from companion.core import rom
-from companion.mavlink import mavlink
+from m4.mavlink import mavlink
 from companion.telemetry import (ATTITUDE, LOCAL_POSITION, THRUSTER_STATUS, TelemetryAssembler,
                                  rom_state)
 

@@ -5,8 +5,10 @@ import threading
 import pytest
 
 from companion import watch
-from companion.feed import FeedSettings, TOPICS, open_feed
-from companion.feed import payloads
+from companion.feed_publisher import open_feed
+from m4.feed.payloads import TOPICS
+from m4.feed.settings import FeedSettings
+from m4.feed import payloads
 
 
 @pytest.fixture

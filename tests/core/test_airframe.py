@@ -3,8 +3,8 @@ import math
 import numpy as np
 import pytest
 
-from companion.airframe import load_airframe
-from companion.toml_fields import ConfigError
+from m4.airframe import load_airframe
+from m4.toml_fields import ConfigError
 
 
 def test_reference_airframe_has_the_design_numbers():
@@ -33,7 +33,7 @@ def test_symmetric_posture_keeps_the_centre_of_mass_at_the_hull_centre():
 
 def _write_airframe(tmp_path, old, new):
     from importlib import resources
-    text = (resources.files("companion.airframes") / "m4_reference.toml").read_text()
+    text = (resources.files("m4.airframes") / "m4_reference.toml").read_text()
     assert old in text
     path = tmp_path / "bad.toml"
     path.write_text(text.replace(old, new))

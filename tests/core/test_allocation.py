@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from companion.airframe import load_airframe
+from m4.airframe import load_airframe
 from companion.core.allocation import admissible, allocate, best_posture
 
 AF = load_airframe()

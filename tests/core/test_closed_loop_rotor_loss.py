@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from companion.airframe import load_airframe
+from m4.airframe import load_airframe
 from companion.core import rom
 from companion.core.nmpc import Nmpc
 from companion.core.nmpc_config import NmpcConfig

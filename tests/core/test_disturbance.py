@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from companion.airframe import load_airframe
+from m4.airframe import load_airframe
 from companion.core import rom
 from companion.core.disturbance import DisturbanceEstimator
 

@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from companion.airframe import ROTOR_COUNT, load_airframe
+from m4.airframe import ROTOR_COUNT, load_airframe
 from companion.core import rom
 from companion.core.fault_detector import FaultDetector, FaultDetectorConfig, FaultState
 from companion.core.thrust_loss_baseline import ThrustLossCheck

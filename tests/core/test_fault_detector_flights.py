@@ -16,7 +16,7 @@ import math
 import numpy as np
 import pytest
 
-from companion.airframe import ROTOR_COUNT, load_airframe
+from m4.airframe import ROTOR_COUNT, load_airframe
 from companion.core import rom
 from companion.core.disturbance import DisturbanceEstimator
 from companion.core.fault_detector import FaultDetector, FaultState
@@ -24,7 +24,7 @@ from companion.core.nmpc import Nmpc
 from companion.core.nmpc_config import NmpcConfig
 from companion.core.reference import MissionReference
 from companion.core.thrust_loss_baseline import ThrustLossCheck
-from companion.scenario import Mission, Waypoint
+from m4.mission import Mission, Waypoint
 
 AF = load_airframe()
 HOVER_N = AF.hover_thrust_per_rotor_n

@@ -13,14 +13,15 @@ import pytest
 
 pytest.importorskip("mujoco")
 
-from companion.airframe import ROTOR_COUNT, load_airframe
+from m4.airframe import ROTOR_COUNT, load_airframe
 from companion.core import rom
 from companion.core.disturbance import DisturbanceEstimator
 from companion.core.fault_detector import FaultDetector, FaultState
 from companion.core.nmpc import Nmpc
 from companion.core.nmpc_config import NmpcConfig
 from companion.core.reference import MissionReference
-from companion.scenario import Mission, PlantOptions, Waypoint
+from m4.mission import Mission, Waypoint
+from sitl.scenario import PlantOptions
 from companion.telemetry import VehicleSnapshot, rom_state
 from sitl.plant import Plant
 

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from companion.airframe import load_airframe
+from m4.airframe import load_airframe
 from companion.core import nmpc as nmpc_module
 from companion.core import rom
 from companion.core.nmpc import Nmpc

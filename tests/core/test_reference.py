@@ -3,15 +3,12 @@ import math
 import numpy as np
 import pytest
 
-from companion.airframe import load_airframe
+from m4.airframe import load_airframe
 from companion.core import rom
-from companion.core.reference import (
-    MissionReference,
-    ReferenceConfig,
-    ground_com_height_m,
-)
+from companion.core.reference import MissionReference, ReferenceConfig
 from companion.core.touchdown import TouchdownConfig, TouchdownDetector
-from companion.scenario import Landing, Mission, Waypoint
+from m4.mission import Landing, Mission, Waypoint
+from m4.mission_plan import ground_com_height_m
 
 AF = load_airframe()
 START = (0.0, 0.0, -2.0)

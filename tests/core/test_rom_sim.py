@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from companion.airframe import load_airframe
+from m4.airframe import load_airframe
 from companion.core import rom
 from companion.core.nmpc import Nmpc
 from companion.core.rom_sim import (

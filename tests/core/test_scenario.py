@@ -1,7 +1,8 @@
 import pytest
 
-from companion.scenario import load_mission, load_scenario
-from companion.toml_fields import ConfigError
+from m4.mission import load_mission
+from sitl.scenario import load_scenario
+from m4.toml_fields import ConfigError
 from sitl.scenarios import builtin_names, resolve, scenario_path
 
 GOOD = """

@@ -3,7 +3,7 @@ from pathlib import Path
 
 import zenoh
 
-from companion.feed import FeedSettings
+from m4.feed.settings import FeedSettings
 from companion.watch import DEFAULT_CONNECT
 
 DEPLOY = Path(__file__).resolve().parents[2] / "deploy"

@@ -6,8 +6,8 @@ import os
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from companion.mavlink import COMPANION_COMPONENT_ID, DIALECT, mavlink, mavutil, new_mav
-from companion.mavlink.generate import GENERATED_PATH, PYMAVLINK_V20_DIR, XML_PATH, generate
+from m4.mavlink import COMPANION_COMPONENT_ID, DIALECT, mavlink, mavutil, new_mav
+from m4.mavlink.generate import GENERATED_PATH, PYMAVLINK_V20_DIR, XML_PATH, generate
 
 OUR_IDS = range(48000, 48100)
 
@@ -24,7 +24,7 @@ def test_generated_module_is_what_the_xml_generates(tmp_path):
     out = tmp_path / "m4_generated.py"
     generate(out)
     assert out.read_bytes() == GENERATED_PATH.read_bytes(), \
-        "companion/mavlink/m4_generated.py is stale: run python -m companion.mavlink.generate"
+        "m4/mavlink/m4_generated.py is stale: run python -m m4.mavlink.generate"
 
 
 def test_mavlink2_is_set_before_pymavlink_chooses():

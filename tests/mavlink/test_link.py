@@ -7,9 +7,9 @@ import time
 
 import pytest
 
-from companion.mavlink import mavlink, mavutil
-from companion.mavlink.link import DATAGRAM_PAYLOAD_MAX, LinkError, UdpLink, parse_url, wait_readable
-from companion.mavlink.tlog import TlogWriter
+from m4.mavlink import mavlink, mavutil
+from m4.mavlink.link import DATAGRAM_PAYLOAD_MAX, LinkError, UdpLink, parse_url, wait_readable
+from m4.mavlink.tlog import TlogWriter
 
 
 @pytest.mark.parametrize("url", ["", "udp:127.0.0.1:5", "udpin:127.0.0.1", "udpin:127.0.0.1:x",

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from companion.mavlink import mavlink, new_mav
-from companion.mavlink.signing import SigningCounters, load_key, setup_signing
-from companion.toml_fields import ConfigError
+from m4.mavlink import mavlink, new_mav
+from m4.mavlink.signing import SigningCounters, load_key, setup_signing
+from m4.toml_fields import ConfigError
 
 KEY = bytes(range(32))
 

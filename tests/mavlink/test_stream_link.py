@@ -9,9 +9,9 @@ import time
 
 import pytest
 
-from companion.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
-from companion.mavlink.connect import listens_for_peer, open_link
-from companion.mavlink.link import LinkError, UdpLink
+from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
+from m4.mavlink.connect import listens_for_peer, open_link
+from m4.mavlink.link import LinkError, UdpLink
 
 
 def packed(*msgs) -> bytes:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import tomllib
 
-from companion.scenario import parse_scenario
+from sitl.scenario import parse_scenario
 from sitl import campaign
 from sitl.compare import markdown_table
 

@@ -6,9 +6,9 @@ import contextlib
 
 import pytest
 
-from companion.airframe import load_airframe
-from companion.mavlink import mavlink
-from companion.scenario import Scenario
+from m4.airframe import load_airframe
+from m4.mavlink import mavlink
+from sitl.scenario import Scenario
 from sitl.serve import ServeOptions
 from sitl.standin import StandInCompanion, served
 from sitl.telemetry import Home

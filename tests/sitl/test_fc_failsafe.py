@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from companion.airframe import load_airframe
-from companion.scenario import PlantOptions, Scenario, Start
+from m4.airframe import load_airframe
+from sitl.scenario import PlantOptions, Scenario, Start
 from sitl.failsafe import LAND_AFTER_S, LAND_SPEED_M_S
 from sitl.flight_controller import STALE_MIN_MS, FcMode
 from sitl.serve import ServeOptions

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from companion.airframe import load_airframe
+from m4.airframe import load_airframe
 from sitl import figures
 from sitl.truth import Truth
 

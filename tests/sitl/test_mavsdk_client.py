@@ -15,7 +15,7 @@ from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 from mavsdk.component_type import ComponentType
 from mavsdk.plugins.failure import FailureType, FailureUnit
 
-from companion.mavlink import mavutil
+from m4.mavlink import mavutil
 from sitl.telemetry import Home
 
 pytestmark = pytest.mark.flight

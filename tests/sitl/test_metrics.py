@@ -5,8 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from companion.airframe import load_airframe
-from companion.scenario import Fault, Landing, Mission, Scenario, Start, Waypoint
+from m4.airframe import load_airframe
+from m4.mission import Landing, Mission, Waypoint
+from sitl.scenario import Fault, Scenario, Start
 from sitl import metrics
 from sitl.records import FaultStatusLog, NmpcLog
 from sitl.truth import Truth

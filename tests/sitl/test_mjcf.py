@@ -4,7 +4,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from companion.airframe import ROTOR_COUNT, load_airframe
+from m4.airframe import ROTOR_COUNT, load_airframe
 from sitl import mjcf
 
 AF = load_airframe()

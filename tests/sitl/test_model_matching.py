@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from companion.airframe import load_airframe
+from m4.airframe import load_airframe
 from sitl.model_matching import compare
 
 

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from companion.airframe import ROTOR_COUNT, load_airframe
+from m4.airframe import ROTOR_COUNT, load_airframe
 from companion.core.rom import rotation_ned_from_frd
 from sitl.plant import Plant, PlantOptions
 

@@ -9,9 +9,9 @@ import time
 import numpy as np
 import pytest
 
-from companion.airframe import load_airframe
-from companion.mavlink import mavutil
-from companion.scenario import Fault, PlantOptions, Scenario
+from m4.airframe import load_airframe
+from m4.mavlink import mavutil
+from sitl.scenario import Fault, PlantOptions, Scenario
 from sitl.serve import ServeOptions, Server
 from sitl.standin import StandInCompanion, served
 

@@ -1,10 +1,10 @@
 """MAVLink for the M4: the dialect (MAVLink 2 only), UDP links, signing and tlogs.
 
-Import every MAVLink thing from here (or `companion.mavlink.dialect`): it is the one place
+Import every MAVLink thing from here (or `m4.mavlink.dialect`): it is the one place
 that makes pymavlink speak MAVLink 2 and registers the project's dialect.
 """
 
-from companion.mavlink.dialect import (
+from m4.mavlink.dialect import (
                                        COMPANION_COMPONENT_ID,
                                        DIALECT,
                                        FC_COMPONENT_ID,

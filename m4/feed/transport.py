@@ -14,8 +14,8 @@ from typing import Any
 
 import zenoh
 
-from companion.feed.payloads import TOPICS, key_for
-from companion.feed.settings import FeedSettings
+from m4.feed.payloads import TOPICS, key_for
+from m4.feed.settings import FeedSettings
 
 _RUST_LOCATION = re.compile(r"\s+at \S+\.rs:\d+\.?\s*$")
 

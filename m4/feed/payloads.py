@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from companion.airframe import ROTOR_COUNT
+from m4.airframe import ROTOR_COUNT
 
 TOPICS = ("state", "setpoint", "fault", "nmpc", "link")
 FAULT_STATES = ("healthy", "suspect", "confirmed")   # M4_FAULT_STATUS.state 0, 1, 2

@@ -16,9 +16,9 @@ import socket
 import time
 from dataclasses import dataclass
 
-from companion.mavlink.dialect import mavlink, new_mav
-from companion.mavlink.signing import SigningCounters, setup_signing
-from companion.mavlink.tlog import TlogWriter
+from m4.mavlink.dialect import mavlink, new_mav
+from m4.mavlink.signing import SigningCounters, setup_signing
+from m4.mavlink.tlog import TlogWriter
 
 MODES = ("udpin", "udpout")
 _DATAGRAM_MAX = 65535

@@ -21,8 +21,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from companion.feed.payloads import check_vehicle
-from companion.toml_fields import ConfigError, Table
+from m4.feed.payloads import check_vehicle
+from m4.toml_fields import ConfigError, Table
 
 MODES = ("peer", "client")
 DEFAULT_VEHICLE = "m4"

@@ -3,7 +3,7 @@
 pymavlink decides the wire protocol from the environment when it first loads (MAVLink 1
 unless `MAVLINK20` is set) and keeps one global dialect, so both are settled here, before
 anything else imports pymavlink. The dialect module (generated from `mavlink_defs/m4.xml`
-by `python -m companion.mavlink.generate`) is registered as `pymavlink.dialects.v20.m4`, so
+by `python -m m4.mavlink.generate`) is registered as `pymavlink.dialects.v20.m4`, so
 `mavutil.mavlink_connection(..., dialect="m4")` finds it without regenerating anything into
 site-packages; `new_mav()` gives the bare protocol object for a transport of one's own.
 """
@@ -19,7 +19,7 @@ os.environ["MAVLINK20"] = "1"
 import pymavlink.dialects.v20 as _v20
 from pymavlink import mavutil
 
-from companion.mavlink import m4_generated as mavlink
+from m4.mavlink import m4_generated as mavlink
 
 DIALECT = "m4"
 sys.modules[f"{_v20.__name__}.{DIALECT}"] = mavlink

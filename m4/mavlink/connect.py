@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import re
 
-from companion.mavlink.link import LinkError, UdpLink, parse_url
-from companion.mavlink.stream_link import SERIAL_DEFAULT_BAUD, open_serial, open_tcp
-from companion.mavlink.tlog import TlogWriter
+from m4.mavlink.link import LinkError, UdpLink, parse_url
+from m4.mavlink.stream_link import SERIAL_DEFAULT_BAUD, open_serial, open_tcp
+from m4.mavlink.tlog import TlogWriter
 
 _TCP = re.compile(r"^(tcp|tcpin):(?://)?([^:\s]+):(\d{1,5})$")
 _SERIAL = re.compile(r"^(/dev/\S+?|COM\d+)(?:,(\d+))?$")

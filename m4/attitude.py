@@ -29,3 +29,16 @@ def quat_wxyz_from_euler(euler) -> np.ndarray:
                      sr * cp * cy - cr * sp * sy,
                      cr * sp * cy + sr * cp * sy,
                      cr * cp * sy - sr * sp * cy])
+
+
+def rotation_rows(cr, sr, cp, sp, cy, sy) -> list:
+    """The rows of R = Rz(yaw) Ry(pitch) Rx(roll) from the cosines and sines of roll, pitch
+    and yaw (any number type: numpy here, CasADi symbols in the ROM)."""
+    return [[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr]]
+
+
+def rotation_ned_from_frd(euler_rad) -> np.ndarray:
+    """(3, 3) rotation body FRD -> NED of the ZYX Euler angles (roll, pitch, yaw)."""
+    return np.array(rotation_rows(*(f(a) for a in np.asarray(euler_rad, dtype=float)[:3] for f in (np.cos, np.sin))))

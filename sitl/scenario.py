@@ -1,8 +1,8 @@
 """Scenario files (interfaces.md): what is flown, what fails, how the plant differs.
 
-The plant reads `[start]`, `[[fault]]` and `[plant]`; the companion reads `[mission]` (its
-`--mission FILE` may be a whole scenario or a file with only a `[mission]` table). Units SI,
-positions local NED (z negative is up), angles in degrees in the file. Unknown keys and
+The plant reads `[start]`, `[[fault]]` and `[plant]`; the companion reads `[mission]`
+(`m4.mission`, parsed here too so that a scenario is checked whole before it flies). Units
+SI, positions local NED (z negative is up), angles in degrees in the file. Unknown keys and
 out-of-range values raise ConfigError naming the key.
 """
 
@@ -12,32 +12,9 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from companion.airframe import ROTOR_COUNT
-from companion.toml_fields import ConfigError, Table, load_toml
-
-ON_FAULT_CHOICES = ("hold", "continue")
-MAX_SPEED_M_S = 15.0
-MAX_ALTITUDE_M = 500.0
-
-
-@dataclass(frozen=True)
-class Waypoint:
-    ned_m: tuple[float, float, float]
-    speed_m_s: float          # speed of the reference along the leg to this waypoint
-    hold_s: float             # time to stay at it before the next one
-
-
-@dataclass(frozen=True)
-class Landing:
-    at_s: float               # from here the reference descends to the ground
-    descent_speed_m_s: float
-
-
-@dataclass(frozen=True)
-class Mission:
-    on_fault: str = "hold"    # "hold": hold where the fault was detected; "continue": keep tracking
-    waypoints: tuple[Waypoint, ...] = ()
-    land: Landing | None = None
+from m4.airframe import ROTOR_COUNT
+from m4.mission import Mission, ned_position, parse_mission
+from m4.toml_fields import ConfigError, Table, load_toml
 
 
 @dataclass(frozen=True)
@@ -83,20 +60,6 @@ def load_scenario(path: str | Path) -> Scenario:
     return parse_scenario(load_toml(path), path.name)
 
 
-def load_mission(path: str | Path) -> Mission:
-    """The `[mission]` of a file: a whole scenario or a file holding only `[mission]`."""
-    path = Path(path)
-    data = load_toml(path)
-    if "mission" not in data:
-        raise ConfigError(f"{path.name}: no [mission] table")
-    if set(data) - {"mission"}:
-        return parse_scenario(data, path.name).mission
-    top = Table(data, path.name)
-    mission = parse_mission(top.table("mission"))
-    top.finish()
-    return mission
-
-
 def parse_scenario(data: dict, where: str) -> Scenario:
     top = Table(data, where)
     name = top.string("name")
@@ -111,38 +74,8 @@ def parse_scenario(data: dict, where: str) -> Scenario:
     return Scenario(name=name, duration_s=duration_s, start=start, mission=mission, faults=faults, plant=plant)
 
 
-def parse_mission(t: Table) -> Mission:
-    on_fault = t.string("on_fault", "hold", choices=ON_FAULT_CHOICES)
-    waypoints = tuple(_parse_waypoint(w) for w in t.tables("waypoint"))
-    land = None
-    if t.has("land"):
-        lt = t.table("land")
-        land = Landing(at_s=lt.number("at_s", lo=0.0),
-                       descent_speed_m_s=lt.number("descent_speed_m_s", 0.5, lo=0.05, lo_open=False, hi=3.0))
-        lt.finish()
-    t.finish()
-    return Mission(on_fault=on_fault, waypoints=waypoints, land=land)
-
-
-def _ned_position(t: Table, key: str, default=None) -> tuple[float, float, float]:
-    ned = t.vector(key, 3, default, lo=-1e5, hi=1e5)
-    if ned[2] > 0.0:
-        raise ConfigError(f"{t.where} {key}: z must be <= 0 (NED, up is negative), got {ned[2]:g}")
-    if -ned[2] > MAX_ALTITUDE_M:
-        raise ConfigError(f"{t.where} {key}: altitude {-ned[2]:g} m is above {MAX_ALTITUDE_M:g} m")
-    return ned  # type: ignore[return-value]
-
-
-def _parse_waypoint(t: Table) -> Waypoint:
-    w = Waypoint(ned_m=_ned_position(t, "ned_m"),
-                 speed_m_s=t.number("speed_m_s", 1.0, lo=0.0, lo_open=True, hi=MAX_SPEED_M_S),
-                 hold_s=t.number("hold_s", 0.0, lo=0.0, hi=3600.0))
-    t.finish()
-    return w
-
-
 def _parse_start(t: Table) -> Start:
-    s = Start(ned_m=_ned_position(t, "ned_m", list(Start.ned_m)),
+    s = Start(ned_m=ned_position(t, "ned_m", list(Start.ned_m)),
               yaw_deg=t.number("yaw_deg", 0.0, lo=-360.0, hi=360.0))
     t.finish()
     return s

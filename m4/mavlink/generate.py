@@ -1,6 +1,6 @@
 """Regenerate the dialect's Python module from `mavlink_defs/m4.xml`.
 
-    python -m companion.mavlink.generate [--output PATH]
+    python -m m4.mavlink.generate [--output PATH]
 
 The XML includes `common.xml`; it is resolved against the copy that ships inside the
 installed pymavlink (its CRCs are the ones every peer of ours uses), never a download. The
@@ -43,7 +43,7 @@ def generate(output: Path, xml_path: Path = XML_PATH) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m companion.mavlink.generate", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m m4.mavlink.generate", description=__doc__.splitlines()[0])
     parser.add_argument("--output", type=Path, default=GENERATED_PATH, help=f"default: {GENERATED_PATH}")
     args = parser.parse_args(argv)
     generate(args.output)

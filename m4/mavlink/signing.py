@@ -11,8 +11,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from companion.mavlink.dialect import mavlink
-from companion.toml_fields import ConfigError
+from m4.mavlink.dialect import mavlink
+from m4.toml_fields import ConfigError
 
 KEY_BYTES = 32
 UNSIGNED_ALLOWED_IDS = frozenset({mavlink.MAVLINK_MSG_ID_HEARTBEAT, mavlink.MAVLINK_MSG_ID_RADIO_STATUS})

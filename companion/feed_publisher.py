@@ -18,10 +18,10 @@ import logging
 import time
 from typing import Any, Callable, Protocol
 
-from companion.feed import payloads
-from companion.feed.settings import FeedSettings
-from companion.feed.transport import ZenohSink
-from companion.toml_fields import ConfigError
+from m4.feed import payloads
+from m4.feed.settings import FeedSettings
+from m4.feed.transport import ZenohSink
+from m4.toml_fields import ConfigError
 
 log = logging.getLogger(__name__)
 

@@ -15,9 +15,9 @@ import select
 import socket
 import time
 
-from companion.mavlink.dialect import mavlink
-from companion.mavlink.link import LinkError, MavlinkLink, parse_bytes
-from companion.mavlink.tlog import TlogWriter
+from m4.mavlink.dialect import mavlink
+from m4.mavlink.link import LinkError, MavlinkLink, parse_bytes
+from m4.mavlink.tlog import TlogWriter
 
 SERIAL_DEFAULT_BAUD = 115200
 RECONNECT_S = 1.0

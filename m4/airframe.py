@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.toml_fields import ConfigError, Table, load_toml
+from m4.toml_fields import ConfigError, Table, load_toml
 
 ROTOR_COUNT = 4
 REFERENCE_AIRFRAME = "m4_reference.toml"
@@ -131,7 +131,7 @@ class Airframe:
 def load_airframe(path: str | Path | None = None) -> Airframe:
     """Read an airframe file; None reads the bundled reference airframe."""
     if path is None:
-        with resources.as_file(resources.files("companion.airframes") / REFERENCE_AIRFRAME) as p:
+        with resources.as_file(resources.files("m4.airframes") / REFERENCE_AIRFRAME) as p:
             return _parse(load_toml(p), p.name)
     return _parse(load_toml(path), Path(path).name)
 

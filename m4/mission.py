@@ -1,0 +1,81 @@
+"""The scenario file's `[mission]` (interfaces.md): what the companion flies.
+
+A `--mission FILE` may be a whole scenario (only its `[mission]` table is read here; the
+simulator reads the rest, `sitl.scenario`) or a file with only a `[mission]` table. Units SI,
+positions local NED (z negative is up). Unknown keys and out-of-range values raise
+ConfigError naming the key.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from m4.toml_fields import ConfigError, Table, load_toml
+
+ON_FAULT_CHOICES = ("hold", "continue")
+MAX_SPEED_M_S = 15.0
+MAX_ALTITUDE_M = 500.0
+
+
+@dataclass(frozen=True)
+class Waypoint:
+    ned_m: tuple[float, float, float]
+    speed_m_s: float          # speed of the reference along the leg to this waypoint
+    hold_s: float             # time to stay at it before the next one
+
+
+@dataclass(frozen=True)
+class Landing:
+    at_s: float               # from here the reference descends to the ground
+    descent_speed_m_s: float
+
+
+@dataclass(frozen=True)
+class Mission:
+    on_fault: str = "hold"    # "hold": hold where the fault was detected; "continue": keep tracking
+    waypoints: tuple[Waypoint, ...] = ()
+    land: Landing | None = None
+
+
+def load_mission(path: str | Path) -> Mission:
+    """The `[mission]` of a file: a whole scenario or a file holding only `[mission]`."""
+    path = Path(path)
+    data = load_toml(path)
+    if "mission" not in data:
+        raise ConfigError(f"{path.name}: no [mission] table")
+    top = Table({"mission": data["mission"]}, path.name)
+    mission = parse_mission(top.table("mission"))
+    top.finish()
+    return mission
+
+
+def parse_mission(t: Table) -> Mission:
+    on_fault = t.string("on_fault", "hold", choices=ON_FAULT_CHOICES)
+    waypoints = tuple(_parse_waypoint(w) for w in t.tables("waypoint"))
+    land = None
+    if t.has("land"):
+        lt = t.table("land")
+        land = Landing(at_s=lt.number("at_s", lo=0.0),
+                       descent_speed_m_s=lt.number("descent_speed_m_s", 0.5, lo=0.05, lo_open=False, hi=3.0))
+        lt.finish()
+    t.finish()
+    return Mission(on_fault=on_fault, waypoints=waypoints, land=land)
+
+
+def ned_position(t: Table, key: str, default=None) -> tuple[float, float, float]:
+    """A local NED position (m) at or above the ground and below MAX_ALTITUDE_M."""
+    ned = t.vector(key, 3, default, lo=-1e5, hi=1e5)
+    if ned[2] > 0.0:
+        raise ConfigError(f"{t.where} {key}: z must be <= 0 (NED, up is negative), got {ned[2]:g}")
+    if -ned[2] > MAX_ALTITUDE_M:
+        raise ConfigError(f"{t.where} {key}: altitude {-ned[2]:g} m is above {MAX_ALTITUDE_M:g} m")
+    return ned  # type: ignore[return-value]
+
+
+def _parse_waypoint(t: Table) -> Waypoint:
+    w = Waypoint(ned_m=ned_position(t, "ned_m"),
+                 speed_m_s=t.number("speed_m_s", 1.0, lo=0.0, lo_open=True, hi=MAX_SPEED_M_S),
+                 hold_s=t.number("hold_s", 0.0, lo=0.0, hi=3600.0))
+    t.finish()
+    return w
