@@ -12,7 +12,8 @@
 A subcommand is one `add_<name>(subparsers)` function that sets `func`, registered through
 `SUBCOMMANDS` (the flight subcommands live in sitl/flight_cli.py, the shared argument
 types in sitl/cli_args.py). Bad input (unknown scenario, malformed file, bad URL, port in use) prints one
-line on stderr and exits with 2.
+line on stderr and exits with 2; so does an install without the `sim` extra (every subcommand but
+`list` needs MuJoCo, matplotlib and tqdm), naming the extra to install.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import signal
 import sys
 from pathlib import Path
 
+from m4 import extras
 from m4.mavlink.link import LinkError
 from m4.mavlink.signing import load_key
 from sitl.scenario import Scenario
@@ -97,6 +99,8 @@ def main(argv: list[str] | None = None) -> int:
         add(sub)
     try:
         args = parser.parse_args(argv)
+        if args.command != "list" and (hint := extras.extra_hint(f"m4-sitl {args.command}", "sim", extras.SIM)):
+            raise BadInput(hint)
         return args.func(args)
     except (BadInput, ConfigError, LinkError) as e:
         print(f"m4-sitl: error: {e}", file=sys.stderr)
