@@ -24,15 +24,15 @@ import time
 from dataclasses import dataclass
 
 from companion.config import CompanionConfig
-from companion.controller import ControlStep, Controller
+from companion.controller import ControllerSettings, ControlStep, Controller
 from companion.core import rom
-from companion.fc_link import FcLink
+from companion.fc_link import FcLink, LinkEvent
 from companion.feed_publisher import Feed, open_feed
+from companion.telemetry import THRUSTER_STATUS, TelemetryAssembler, VehicleSnapshot, rom_state
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from m4.mavlink.connect import listens_for_peer, open_link
 from m4.mavlink.link import wait_readable
 from m4.mavlink.signing import load_key
-from companion.telemetry import THRUSTER_STATUS, TelemetryAssembler, VehicleSnapshot, rom_state
 
 log = logging.getLogger("m4-companion")
 
@@ -57,9 +57,8 @@ class CompanionApp:
         self.feed = feed or Feed.disabled()
         self.clock = clock
         self.period_ms = max(1, round(1000.0 * config.control_period_s))
-        self.telemetry = TelemetryAssembler(reboot_gap_s=config.link.telemetry_timeout_s)
+        self.telemetry = TelemetryAssembler()
         self.counters = LoopCounters()
-        self.connected = False
         self._last_answered_ms: int | None = None
         self._stop = False
         self._received = 0                       # messages from the FC, for the link's rate
@@ -73,35 +72,39 @@ class CompanionApp:
     def run(self) -> None:
         while not self._stop:
             now = self.clock()
-            wait_s = min(self.fc.next_due_s(now), self._loss_deadline_s(now)) - now
-            wait_readable([self.fc.link], min(wait_s, 0.1))
+            wait_readable([self.fc.link], min(self.fc.next_due_s(now) - now, 0.1))
             self.poll()
 
     def poll(self) -> None:
-        """Everything that has arrived, then the answer, the watchdog and the periodic messages."""
-        was_locked = self.fc.locked
-        msgs = self.fc.receive()
+        """Everything that has arrived, what it means, then the answer and the periodic messages."""
         now = self.clock()
-        self._received += len(msgs)
-        if self.fc.locked and not was_locked:            # the FC's first heartbeat was among msgs
+        received = self.fc.receive(now)
+        self._received += len(received.messages)
+        for event in received.events:
+            self._on_event(event, now)
+        newest = None
+        for msg in received.messages:
+            if self.telemetry.add(msg, now) and msg.get_msgId() == THRUSTER_STATUS:
+                newest = msg.time_boot_ms
+        if newest is not None and self._due(newest):
+            self._answer(newest)
+        self.fc.tick(now)
+
+    def _on_event(self, event: LinkEvent, now: float) -> None:
+        if event is LinkEvent.LOCKED:
             log.info("flight controller found at %s; asking for telemetry every %d ms", self.fc.fc_address,
                      self.period_ms)
             self.fc.request_intervals(self.config.control_period_s)
-        newest, reboots = None, self.telemetry.counters.reboots
-        for msg in msgs:
-            if self.telemetry.add(msg, now) and msg.get_msgId() == THRUSTER_STATUS:
-                newest = msg.time_boot_ms
-        if self.telemetry.counters.reboots > reboots:
+        elif event is LinkEvent.REBOOTED:
             log.warning("the flight controller's clock went back after a silence: it rebooted; the mission "
                         "starts over")
+            self.telemetry.clear()
             self._last_answered_ms = None
             self.controller.restart()
-        if newest is not None:
-            self._on_telemetry(newest)
-            if self._due(newest):
-                self._answer(newest)
-        self._watchdog(now)
-        self.fc.tick(now)
+        elif event is LinkEvent.TELEMETRY:
+            self._on_telemetry_back()
+        else:
+            self._on_lost()
 
     # -- answering ---------------------------------------------------------------------------------
     def _due(self, t_ms: int) -> bool:
@@ -113,9 +116,11 @@ class CompanionApp:
         if snap is None:
             self.counters.skipped_incomplete += 1
             return
+        t_s, x = t_ms / 1000.0, rom_state(snap, self.config.airframe)
         try:
-            step = self.controller.step(t_ms / 1000.0, rom_state(snap, self.config.airframe), snap.thrust_n,
-                                        snap.thrust_limit_n)
+            if not self.controller.started and self.controller.start(t_s, x):
+                log.info("t=%.3f s: mission anchored at the centre of mass (%.2f, %.2f, %.2f) m NED", t_s, *x[rom.P])
+            step = self.controller.step(t_s, x, snap.thrust_n, snap.thrust_limit_n)
         except Exception:           # a defect, not bad input: say it, send nothing, let the FC's failsafe fly
             self.counters.control_errors += 1
             log.exception("control step at t=%.3f s failed; no setpoint for this instant", t_ms / 1000.0)
@@ -141,14 +146,14 @@ class CompanionApp:
         x, t, f, sp = step.state, step.time_s, step.fault, step.setpoint
         self.feed.state(t, pos_ned_m=x[rom.P], vel_ned_m_s=x[rom.V], euler_rad=x[rom.EULER],
                         rates_frd_rad_s=x[rom.RATES], hip_rad=snap.hip_rad, thrust_n=snap.thrust_n)
-        self.feed.setpoint(t, thrust_n=sp.thrust_n, hip_rad=sp.hip_angle_rad, hip_rate_rad_s=sp.hip_rate_rad_s,
+        self.feed.setpoint(t, thrust_n=sp.thrust_n, hip_rad=sp.hip_rad, hip_rate_rad_s=sp.hip_rate_rad_s,
                            thrust_cut=sp.thrust_cut)
         self.feed.fault(t, state=int(f.state), rotor=f.rotor, thrust_max_estimate_n=f.thrust_max_estimate_n,
                         message=f.message, detected_at_s=f.detected_at_s)
         if step.nmpc is not None:
             r = step.nmpc
             self.feed.nmpc(t, solve_ms=r.solve_ms, iterations=r.iterations, status=r.status, cost=r.cost, ok=r.ok,
-                           fallback=r.fallback, dt_s=self.controller.nmpc.config.dt_s,
+                           fallback=r.fallback, dt_s=self.config.nmpc.dt_s,
                            predicted_p_ned_m=r.x_pred[:, rom.P])
         self._publish_link(t)
 
@@ -159,21 +164,13 @@ class CompanionApp:
             if self._rate_mark is not None:
                 self._msgs_per_s = (self._received - self._rate_mark[1]) / (now - self._rate_mark[0])
             self._rate_mark = (now, self._received)
-        self.feed.link(t_s, connected=self.connected, last_msg_age_s=None if last is None else now - last,
+        self.feed.link(t_s, connected=self.fc.connected, last_msg_age_s=None if last is None else now - last,
                        msgs_per_s=self._msgs_per_s, bad_crc=h.bad_crc, bad_signature=h.bad_signature,
                        dropped_foreign=h.foreign)
 
     # -- link loss ---------------------------------------------------------------------------------
-    def _loss_deadline_s(self, now: float) -> float:
-        last = self.telemetry.last_received_s()
-        if not self.connected or last is None:
-            return now + 1.0
-        return last + self.config.link.telemetry_timeout_s
-
-    def _on_telemetry(self, t_ms: int) -> None:
-        if self.connected:
-            return
-        self.connected = True
+    def _on_telemetry_back(self) -> None:
+        t_ms = self.fc.fc_time_ms
         if self._last_answered_ms is None:
             log.info("telemetry flowing (t=%.3f s)", t_ms / 1000.0)
             return
@@ -185,14 +182,12 @@ class CompanionApp:
         self.fc.request_intervals(self.config.control_period_s)
         self._publish_link(t_ms / 1000.0)
 
-    def _watchdog(self, now: float) -> None:
-        if self.connected and now >= self._loss_deadline_s(now):
-            self.connected = False
-            self.counters.link_losses += 1
-            last_s = None if self._last_answered_ms is None else self._last_answered_ms / 1000.0
-            log.warning("no telemetry for %.2f s: link lost, setpoints stopped", self.config.link.telemetry_timeout_s)
-            self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, "companion: telemetry lost, setpoints stopped")
-            self._publish_link(last_s)
+    def _on_lost(self) -> None:
+        self.counters.link_losses += 1
+        last_s = None if self._last_answered_ms is None else self._last_answered_ms / 1000.0
+        log.warning("no telemetry for %.2f s: link lost, setpoints stopped", self.fc.telemetry_timeout_s)
+        self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, "companion: telemetry lost, setpoints stopped")
+        self._publish_link(last_s)
 
 
 def open_app(config: CompanionConfig) -> CompanionApp:
@@ -203,14 +198,15 @@ def open_app(config: CompanionConfig) -> CompanionApp:
     feed = None
     try:
         feed = open_feed(config.feed)
-        controller = Controller(config)
+        controller = Controller(ControllerSettings.of(config))
     except BaseException:
         link.close()
         if feed is not None:
             feed.close()
         raise
     fc = FcLink(link, config.link.fc_system_id, config.link.fc_component_id,
-                heartbeat_before_lock=not listens_for_peer(config.link.fc_url))
+                heartbeat_before_lock=not listens_for_peer(config.link.fc_url),
+                telemetry_timeout_s=config.link.telemetry_timeout_s)
     return CompanionApp(config, fc, controller, feed)
 
 

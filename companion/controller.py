@@ -14,10 +14,8 @@ are that goal, not the measured joints: a servo holding a load deflects a little
 planning from the deflected angle would feed the deflection back into the goal (the legs
 creep). The measured joints still place the centre of mass; when goal and joints drift
 apart by more than HIP_RESYNC_RAD (a blocked leg) or after a gap, the goal restarts from
-the measured joints. `safe_setpoint` is the last word before anything leaves the
-process: every value finite, thrusts within [thrust_min, bound], hips within the joint range
-and the same-side sum, rates within the servo's limit; whatever is not finite becomes a
-safe value (hover thrust, the measured or nominal hip, zero rate).
+the measured joints. Every setpoint passes `safe_setpoint` (companion.core.control_types)
+before it leaves.
 
 Fault detection input: the FC's per-rotor delivered thrust when it reports one (NaN: the
 model residual is used instead) and the command in force over the last period (ours). The
@@ -27,31 +25,52 @@ on one rotor is exactly what the detector must find itself, so it is not handed 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from m4.airframe import ROTOR_COUNT, Airframe
-from companion.config import CompanionConfig
 from companion.core import rom
+from companion.core.control_types import FaultState, FaultStatus, plausible_state, safe_setpoint, thrust_bounds
 from companion.core.disturbance import DisturbanceEstimator
-from companion.core.fault_detector import FaultDetector, FaultState, FaultStatus
-from companion.core.nmpc import Nmpc, NmpcResult, thrust_bounds
-from companion.core.reference import MissionReference
-from companion.core.touchdown import TouchdownDetector
+from companion.core.fault_detector import FaultDetector, FaultDetectorConfig
+from companion.core.nmpc import Nmpc, NmpcResult
+from companion.core.nmpc_config import NmpcConfig
+from companion.core.reference import MissionReference, ReferenceConfig
+from companion.core.touchdown import TouchdownConfig, TouchdownDetector
+from m4.airframe import ROTOR_COUNT, Airframe
+from m4.mission import Mission
+from m4.setpoint import Setpoint
+
+if TYPE_CHECKING:
+    from companion.config import CompanionConfig
 
 _CONSECUTIVE_TOLERANCE = 0.5     # steps closer than (1 +- this) periods count as consecutive
 HIP_RESYNC_RAD = 0.2             # hip goal this far from the measured joint: restart it there
-_HIP_MARGIN_RAD = 0.5            # measured hips beyond the joint range by more than this are broken
-_PLAUSIBLE = ((rom.P, 1e5), (rom.EULER, 2 * np.pi), (rom.V, 100.0), (rom.RATES, 100.0), (rom.HIP_RATE, 100.0))
+
+DetectorFactory = Callable[[], FaultDetector]
+ReferenceFactory = Callable[[float, np.ndarray], MissionReference]    # (t0_s, start com NED) -> the mission's
 
 
 @dataclass(frozen=True)
-class Setpoint:
-    thrust_n: np.ndarray          # (4,)
-    hip_angle_rad: np.ndarray     # (4,) servo goal at the answered instant ...
-    hip_rate_rad_s: np.ndarray    # (4,) ... moving at this rate: on the planned hip one period later
-    thrust_cut: bool = False
+class ControllerSettings:
+    """What the controller needs of the companion's configuration."""
+
+    airframe: Airframe
+    control_period_s: float
+    nmpc: NmpcConfig
+    disturbance_gain: float
+    mission: Mission = field(default_factory=Mission)
+    reference: ReferenceConfig = field(default_factory=ReferenceConfig)
+    touchdown: TouchdownConfig = field(default_factory=TouchdownConfig)
+    fault_detector: FaultDetectorConfig = field(default_factory=FaultDetectorConfig)
+
+    @classmethod
+    def of(cls, config: CompanionConfig) -> ControllerSettings:
+        return cls(airframe=config.airframe, control_period_s=config.control_period_s, nmpc=config.nmpc,
+                   disturbance_gain=config.disturbance_gain, mission=config.mission, reference=config.reference,
+                   touchdown=config.touchdown, fault_detector=config.fault_detector)
 
 
 @dataclass(frozen=True)
@@ -59,91 +78,94 @@ class ControlStep:
     time_s: float
     setpoint: Setpoint
     state: np.ndarray             # (20,) the ROM state planned from: measured, the hips their goal
-    reference: np.ndarray | None  # (N+1, 20); None before a reference could start
-    nmpc: NmpcResult | None       # None when no solve ran (thrust cut, no reference)
+    reference: np.ndarray | None  # (N+1, 20); None before the flight started
+    nmpc: NmpcResult | None       # None when no solve ran (thrust cut, not started, implausible state)
     fault: FaultStatus
     fault_confirmed_now: bool     # the step at which the fault was confirmed (announce it)
     disturbance: np.ndarray       # (6,) estimate handed to the NMPC
 
 
-def plausible_state(af: Airframe, x) -> bool:
-    """Finite and physically possible (a state outside this is a broken measurement: the
-    controller falls back instead of planning from it)."""
-    x = np.asarray(x, dtype=float)
-    if not np.all(np.isfinite(x)):
-        return False
-    hip = x[rom.HIP]
-    hip_ok = np.all(hip >= af.hip_min_rad - _HIP_MARGIN_RAD) and np.all(hip <= af.hip_max_rad + _HIP_MARGIN_RAD)
-    return bool(hip_ok and all(np.all(np.abs(x[part]) <= limit) for part, limit in _PLAUSIBLE))
+@dataclass(frozen=True)
+class LastCommand:
+    """The command in force since the last step, and the state it answered."""
+
+    time_s: float
+    state: np.ndarray             # (20,)
+    input: np.ndarray             # (8,) thrust_n (as sent) and the NMPC's hip_accel_rad_s2
+
+    @property
+    def thrust_n(self) -> np.ndarray:
+        return self.input[rom.THRUST]
 
 
-def safe_setpoint(af: Airframe, thrust_n, hip_rad, hip_rate_rad_s, thrust_max_n, measured_hip_rad=None,
-                  thrust_cut: bool = False) -> Setpoint:
-    """A setpoint that is finite and within every bound, whatever goes in (NaN, inf, out of range)."""
-    bound = thrust_bounds(af, thrust_max_n)
-    thrust = np.asarray(thrust_n, dtype=float).reshape(ROTOR_COUNT)
-    thrust = np.clip(np.where(np.isfinite(thrust), thrust, af.hover_thrust_per_rotor_n), af.thrust_min_n, bound)
-    if thrust_cut:
-        thrust = np.zeros(ROTOR_COUNT)
-    fallback_hip = np.full(ROTOR_COUNT, af.nominal_hip_rad)
-    if measured_hip_rad is not None:
-        measured = np.asarray(measured_hip_rad, dtype=float).reshape(ROTOR_COUNT)
-        fallback_hip = np.where(np.isfinite(measured), measured, fallback_hip)
-    hip = np.asarray(hip_rad, dtype=float).reshape(ROTOR_COUNT)
-    hip = np.clip(np.where(np.isfinite(hip), hip, fallback_hip), af.hip_min_rad, af.hip_max_rad)
-    for pair in af.same_side_pairs:
-        excess = hip[list(pair)].sum() - af.same_side_sum_max_rad
-        if excess > 0:
-            hip[list(pair)] = np.maximum(hip[list(pair)] - excess / 2, af.hip_min_rad)
-    rate = np.asarray(hip_rate_rad_s, dtype=float).reshape(ROTOR_COUNT)
-    rate = np.clip(np.where(np.isfinite(rate), rate, 0.0), -af.hip_rate_max_rad_s, af.hip_rate_max_rad_s)
-    return Setpoint(thrust_n=_float32_within(thrust, 0.0 if thrust_cut else af.thrust_min_n, bound),
-                    hip_angle_rad=_float32_within(hip, af.hip_min_rad, hip),
-                    hip_rate_rad_s=_float32_within(rate, -af.hip_rate_max_rad_s, af.hip_rate_max_rad_s),
-                    thrust_cut=thrust_cut)
+@dataclass(frozen=True)
+class HipGoal:
+    """The servos' goal now: the ROM's hip states the NMPC plans from."""
+
+    angle_rad: np.ndarray         # (4,)
+    rate_rad_s: np.ndarray        # (4,)
 
 
-def _float32_within(values: np.ndarray, lo, hi) -> np.ndarray:
-    """Values that stay within [lo, hi] as the float32 MAVLink carries (rounding to the nearest
-    float32 may step past a bound such as pi/2); the hips pass hi = themselves, so they never
-    round up and a pair's sum stays within its bound."""
-    v32 = values.astype(np.float32)
-    v32 = np.where(v32.astype(float) > hi, np.nextafter(v32, np.float32(-np.inf)), v32)
-    v32 = np.where(v32.astype(float) < lo, np.nextafter(v32, np.float32(np.inf)), v32)
-    return v32.astype(float)
+@dataclass
+class Flight:
+    """What the controller knows of this flight since start(): forgotten by restart()."""
+
+    reference: MissionReference
+    touchdown: TouchdownDetector
+    fault_announced: bool = False
 
 
 class Controller:
-    """The companion's controller for `config` (its airframe, mission, NMPC and detector settings)."""
+    """The companion's controller: its airframe, mission, NMPC and detector settings.
 
-    def __init__(self, config: CompanionConfig, nmpc: Nmpc | None = None):
-        self.config = config
-        self.af = af = config.airframe
-        self.period_s = config.control_period_s
-        self.nmpc = nmpc or Nmpc(af, config.nmpc)
-        self.disturbance = DisturbanceEstimator(af, self.period_s, config.disturbance_gain)
-        self.detector = FaultDetector(af, config.fault_detector)
-        self.reference: MissionReference | None = None
-        self.touchdown: TouchdownDetector | None = None
-        self._prev: tuple[float, np.ndarray, np.ndarray] | None = None    # (t, x, u applied)
-        self._hip_goal: tuple[np.ndarray, np.ndarray] | None = None         # (angle, rate) now
-        self._fault_announced = False
+    nmpc, new_detector and new_reference are built from the settings unless given (tests
+    inject their own). The flight begins with start() at the first plausible measured state,
+    which anchors the mission there; until then step() answers with the fallback.
+    """
+
+    def __init__(self, settings: ControllerSettings, *, nmpc: Nmpc | None = None,
+                 new_detector: DetectorFactory | None = None, new_reference: ReferenceFactory | None = None):
+        self.settings = s = settings
+        self.af = af = s.airframe
+        self.period_s = s.control_period_s
+        self.nmpc = nmpc or Nmpc(af, s.nmpc)
+        self._new_detector = new_detector or (lambda: FaultDetector(af, s.fault_detector))
+        self._new_reference = new_reference or (
+            lambda t0_s, start_ned_m: MissionReference(s.mission, start_ned_m, af, s.reference, t0_s=t0_s))
+        self.disturbance = DisturbanceEstimator(af, self.period_s, s.disturbance_gain)
+        self.detector = self._new_detector()
+        self.flight: Flight | None = None
+        self._last: LastCommand | None = None
+        self._hip_goal: HipGoal | None = None
+
+    @property
+    def started(self) -> bool:
+        return self.flight is not None
+
+    def start(self, time_s: float, x_measured) -> bool:
+        """The flight begins at time_s: the mission is anchored at this measured state. False
+        (nothing changes) when the state is not plausible."""
+        x = np.asarray(x_measured, dtype=float).reshape(rom.NX)
+        if not plausible_state(self.af, x):
+            return False
+        reference = self._new_reference(time_s, x[rom.P])
+        self.flight = Flight(reference, TouchdownDetector(reference.ground_com_z_ned_m, self.settings.touchdown))
+        return True
 
     def resume(self) -> None:
         """After a gap in the telemetry (link loss): the previous plan, state and hip goal are
         stale. The disturbance estimate is kept (it describes the robot, not the moment)."""
         self.nmpc.reset()
-        self._prev = None
+        self._last = None
         self._hip_goal = None
 
     def restart(self) -> None:
         """The flight controller rebooted: its clock, and so the mission's time, starts over.
-        Everything about the flight so far is forgotten but the NMPC itself."""
+        Everything about the flight so far is forgotten but the NMPC itself; start() again."""
         self.resume()
         self.disturbance.reset()
-        self.detector = FaultDetector(self.af, self.config.fault_detector)
-        self.reference = self.touchdown = None
-        self._fault_announced = False
+        self.detector = self._new_detector()
+        self.flight = None
 
     def step(self, time_s: float, x_measured, thrust_delivered_n=None, thrust_limit_n=None) -> ControlStep:
         """The setpoint answering the telemetry instant time_s for the measured ROM state."""
@@ -154,25 +176,23 @@ class Controller:
         usable = plausible_state(af, x)
         if usable:
             x = self._with_hip_goal(x)
-        if self.reference is None and usable:
-            self.reference = MissionReference(self.config.mission, x[rom.P], af, self.config.reference, t0_s=time_s)
-            self.touchdown = TouchdownDetector(self.reference.ground_com_z_ned_m, self.config.touchdown)
         fault, confirmed_now = self._detect(time_s, x, usable, thrust_delivered_n, thrust_limit_n)
         if confirmed_now:
             self.disturbance.reset()      # it held the lost rotor's effect, which the bound now models
+            self.flight.reference.fault_detected(time_s, x[rom.P])
         d = self._estimate_disturbance(time_s, x, usable, fault.thrust_max_estimate_n)
-        if self.reference is None or not usable:
+        if self.flight is None or not usable:
             return self._fallback(time_s, x, fault, confirmed_now, d)
         if self._touched_down(time_s, x):
             sp = safe_setpoint(af, np.zeros(ROTOR_COUNT), x[rom.HIP], np.zeros(ROTOR_COUNT),
                                fault.thrust_max_estimate_n, x[rom.HIP], thrust_cut=True)
-            self._prev = self._hip_goal = None
+            self._last = self._hip_goal = None
             return ControlStep(time_s, sp, x, None, None, fault, confirmed_now, d)
         c = self.nmpc.config
-        x_ref = self.reference.reference(time_s, c.horizon, c.dt_s)
+        x_ref = self.flight.reference.reference(time_s, c.horizon, c.dt_s)
         res = self.nmpc.solve(x, x_ref, fault.thrust_max_estimate_n, d)
         sp = self._setpoint(x, res, fault.thrust_max_estimate_n)
-        self._prev = (time_s, x, np.r_[sp.thrust_n, res.u[rom.HIP_ACCEL]])
+        self._last = LastCommand(time_s, x, np.r_[sp.thrust_n, res.u[rom.HIP_ACCEL]])
         return ControlStep(time_s, sp, x, x_ref, res, fault, confirmed_now, d)
 
     # ------------------------------------------------------------------------------------------
@@ -185,24 +205,23 @@ class Controller:
         return np.where(np.isfinite(t) & (t >= 0.0) & (t <= 2.0 * self.af.thrust_max_n), t, np.nan)
 
     def _consecutive(self, time_s: float) -> bool:
-        if self._prev is None:
+        if self._last is None:
             return False
-        dt = time_s - self._prev[0]
+        dt = time_s - self._last.time_s
         return abs(dt - self.period_s) <= _CONSECUTIVE_TOLERANCE * self.period_s
 
     def _detect(self, time_s, x, usable, delivered_n, limit_n) -> tuple[FaultStatus, bool]:
-        if not usable or self._prev is None:
+        """The detector's status after this frame; True the first time it is confirmed in a flight."""
+        if not usable or self._last is None:
             return self.detector.status, False
         cap = self.af.thrust_max_n
         if limit_n is not None and np.any(np.isfinite(limit_n)):          # already a (4,) array (_thrust_telemetry)
             cap = float(np.clip(np.nanmax(limit_n), self.af.thrust_min_n, self.af.thrust_max_n))
-        status = self.detector.update(time_s, x, self._prev[2][rom.THRUST], np.full(ROTOR_COUNT, cap),
-                                      delivered_n)
-        confirmed_now = status.state is FaultState.CONFIRMED and not self._fault_announced
+        status = self.detector.update(time_s, x, self._last.thrust_n, np.full(ROTOR_COUNT, cap), delivered_n)
+        flight = self.flight
+        confirmed_now = status.state is FaultState.CONFIRMED and flight is not None and not flight.fault_announced
         if confirmed_now:
-            self._fault_announced = True
-            if self.reference is not None:
-                self.reference.fault_detected(time_s, x[rom.P])
+            flight.fault_announced = True
         return status, confirmed_now
 
     def _estimate_disturbance(self, time_s, x, usable, thrust_max_n) -> np.ndarray:
@@ -213,25 +232,25 @@ class Controller:
         the loss); at confirmation the estimate restarts, the bound taking over."""
         if not (usable and self._consecutive(time_s)):
             return self.disturbance.estimate.copy()
-        u = self._prev[2].copy()
+        u = self._last.input.copy()
         u[rom.THRUST] = np.minimum(u[rom.THRUST], thrust_bounds(self.af, thrust_max_n))
-        return self.disturbance.update(self._prev[1], u, x)
+        return self.disturbance.update(self._last.state, u, x)
 
     def _touched_down(self, time_s: float, x: np.ndarray) -> bool:
-        if not self.reference.landing_started(time_s):
+        if not self.flight.reference.landing_started(time_s):
             return False
-        return self.touchdown.update(time_s, float(x[rom.P][2]), float(x[rom.V][2]))
+        return self.flight.touchdown.update(time_s, float(x[rom.P][2]), float(x[rom.V][2]))
 
     def _with_hip_goal(self, x_measured: np.ndarray) -> np.ndarray:
         """The NMPC's state: measured, but the hip goal in place of the measured joints."""
         hip = x_measured[rom.HIP]
         goal = self._hip_goal
-        if goal is None or not np.all(np.isfinite(goal[0])) or np.max(np.abs(goal[0] - hip)) > HIP_RESYNC_RAD:
+        if goal is None or not np.all(np.isfinite(goal.angle_rad)) or np.max(np.abs(goal.angle_rad - hip)) > HIP_RESYNC_RAD:
             fixed = self.nmpc.config.fixed_hip_rad        # the fixed-posture variant: the legs go there
             start = np.clip(hip, self.af.hip_min_rad, self.af.hip_max_rad) if fixed is None else np.full(ROTOR_COUNT, fixed)
-            goal = self._hip_goal = (start, np.zeros(ROTOR_COUNT))
+            goal = self._hip_goal = HipGoal(start, np.zeros(ROTOR_COUNT))
         x = x_measured.copy()
-        x[rom.HIP], x[rom.HIP_RATE] = goal
+        x[rom.HIP], x[rom.HIP_RATE] = goal.angle_rad, goal.rate_rad_s
         return x
 
     def _setpoint(self, x: np.ndarray, res: NmpcResult, thrust_max_n) -> Setpoint:
@@ -242,13 +261,14 @@ class Controller:
         planned = x[rom.HIP] + x[rom.HIP_RATE] * tau + 0.5 * accel * tau**2
         sp = safe_setpoint(af, res.u[rom.THRUST], x[rom.HIP], (planned - x[rom.HIP]) / tau, thrust_max_n, x[rom.HIP])
         next_rate = np.clip(x[rom.HIP_RATE] + accel * tau, -af.hip_rate_max_rad_s, af.hip_rate_max_rad_s)
-        self._hip_goal = (np.clip(sp.hip_angle_rad + sp.hip_rate_rad_s * tau, af.hip_min_rad, af.hip_max_rad),
-                          np.where(np.isfinite(next_rate), next_rate, 0.0))
+        self._hip_goal = HipGoal(np.clip(sp.hip_rad + sp.hip_rate_rad_s * tau, af.hip_min_rad, af.hip_max_rad),
+                                 np.where(np.isfinite(next_rate), next_rate, 0.0))
         return sp
 
     def _fallback(self, time_s, x, fault, confirmed_now, d) -> ControlStep:
-        """No usable state: hover thrust within the bounds, hips held where they are, legs stopped."""
+        """No usable state or no flight yet: hover thrust within the bounds, hips held where they
+        are, legs stopped."""
         sp = safe_setpoint(self.af, np.full(ROTOR_COUNT, np.nan), x[rom.HIP], np.zeros(ROTOR_COUNT),
                            fault.thrust_max_estimate_n, x[rom.HIP])
-        self._prev = self._hip_goal = None
+        self._last = self._hip_goal = None
         return ControlStep(time_s, sp, x, None, None, fault, confirmed_now, d)

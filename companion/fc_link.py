@@ -6,32 +6,79 @@
   address (a stray sender, even with the FC's ids, can neither feed us nor redirect our
   replies). Nothing is sent before, except on a link with a fixed peer (udpout, tcp,
   serial: `heartbeat_before_lock`), where our heartbeat is how the FC learns of us.
+- Liveness: telemetry (the frame's streams) that stops for `telemetry_timeout_s` is LOST;
+  the first telemetry after that (or ever) is TELEMETRY. When the FC's clock (time_boot_ms)
+  goes back after such a silence, the FC REBOOTED: its clock, and the mission's, start over.
+  `receive(now_s)` returns these events with the messages; nobody compares state before and
+  after a call.
 - Heartbeat at 1 Hz as MAV_TYPE_ONBOARD_CONTROLLER.
 - Message intervals: the telemetry frame's streams are asked for at the control period with
   MAV_CMD_SET_MESSAGE_INTERVAL, one command at a time, each resent until acknowledged.
 - Out: M4_SETPOINT, M4_FAULT_STATUS, STATUSTEXT.
 - Health counters: bad CRC (garbled packets), bad signature (unsigned or badly signed,
   dropped by signing), foreign (other systems, components or addresses).
-
-The transport is anything with `receive_from()`, `send(msg)` and `lock_peer(address)` (see
-m4.mavlink.link and m4.mavlink.stream_link).
 """
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass
+from typing import Any, Protocol
 
 import numpy as np
 
-from companion.controller import Setpoint
-from companion.core.fault_detector import FaultStatus
-from m4.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from companion.core.control_types import FaultStatus
 from companion.telemetry import STREAMS
+from m4.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from m4.mavlink.signing import SigningCounters
+from m4.setpoint import Setpoint
 
 HEARTBEAT_PERIOD_S = 1.0
 COMMAND_RETRY_S = 0.5
 COMMAND_ATTEMPTS = 5
 STATUSTEXT_MAX = 50
+DEFAULT_TELEMETRY_TIMEOUT_S = 0.3
+
+
+class FcTransport(Protocol):
+    """Everything FcLink uses of a MAVLink link (m4.mavlink.link.UdpLink,
+    m4.mavlink.stream_link.StreamLink, or a test's fake)."""
+
+    @property
+    def signing_key(self) -> bytes | None: ...          # None: nothing signed or checked
+
+    @property
+    def bad_packets(self) -> int: ...                   # garbled or rejected by signing
+
+    @property
+    def foreign_datagrams(self) -> int: ...             # from another address than the locked peer
+
+    def receive_from(self) -> list[tuple[Any, list[mavlink.MAVLink_message]]]: ...   # [(sender, msgs)]
+
+    def send(self, msg: mavlink.MAVLink_message) -> None: ...
+
+    def lock_peer(self, address: Any) -> None: ...      # hear and answer only `address` from now on
+
+    def signing_counters(self) -> SigningCounters: ...
+
+    def fileno(self) -> int: ...                        # to wait on; < 0: nothing to wait on
+
+    def close(self) -> None: ...
+
+
+class LinkEvent(enum.Enum):
+    LOCKED = "locked"          # the FC proved itself (its HEARTBEAT, signed when signing is on)
+    REBOOTED = "rebooted"      # its clock went back after a silence
+    TELEMETRY = "telemetry"    # telemetry flows: the first ever, or back after LOST
+    LOST = "lost"              # no telemetry for telemetry_timeout_s
+
+
+@dataclass(frozen=True)
+class Received:
+    """What one receive() brought: events in the order given in LinkEvent, then the FC's messages."""
+
+    events: tuple[LinkEvent, ...]
+    messages: list[mavlink.MAVLink_message]
 
 
 @dataclass(frozen=True)
@@ -49,31 +96,38 @@ def _floats(values) -> list[float]:
 
 
 class FcLink:
-    def __init__(self, link, fc_system_id: int = FC_SYSTEM_ID, fc_component_id: int = FC_COMPONENT_ID,
-                 heartbeat_before_lock: bool = False):
+    def __init__(self, link: FcTransport, fc_system_id: int = FC_SYSTEM_ID, fc_component_id: int = FC_COMPONENT_ID,
+                 heartbeat_before_lock: bool = False, telemetry_timeout_s: float = DEFAULT_TELEMETRY_TIMEOUT_S):
         self.link = link
         self.heartbeat_before_lock = heartbeat_before_lock
+        self.telemetry_timeout_s = telemetry_timeout_s
         self.fc_ids = (fc_system_id, fc_component_id)
         self.fc_address = None
+        self.connected = False                              # telemetry flowing (LinkEvent.TELEMETRY .. LOST)
+        self.fc_time_ms: int | None = None                  # the FC's newest telemetry instant
+        self.last_telemetry_s: float | None = None          # when it arrived (our clock)
         self._foreign = 0
         self._next_heartbeat_s = 0.0
         self._intervals: list[tuple[int, float]] = []      # (msg id, interval us) still to be acked
         self._sent_at_s: float | None = None
         self._attempts = 0
         self.intervals_acked = 0
-        self._signing = link.mav.signing.secret_key is not None
+        self._signing = link.signing_key is not None
 
     @property
     def locked(self) -> bool:
         return self.fc_address is not None
 
     # -- in ----------------------------------------------------------------------------------------
-    def receive(self) -> list[mavlink.MAVLink_message]:
-        """The messages from the flight controller that have arrived; the rest is counted."""
+    def receive(self, now_s: float) -> Received:
+        """The messages from the flight controller that have arrived (the rest is counted), and
+        what they, or their absence until now_s, mean."""
+        events: set[LinkEvent] = set()
         out = []
         for sender, msgs in self.link.receive_from():
             for msg in msgs:
-                if (msg.get_srcSystem(), msg.get_srcComponent()) != self.fc_ids:
+                if (msg.get_srcSystem(), msg.get_srcComponent()) != self.fc_ids or \
+                        (self.locked and sender != self.fc_address):     # the transport may read ahead of the lock
                     self._foreign += 1
                     continue
                 if not self.locked:
@@ -81,10 +135,36 @@ class FcLink:
                         continue
                     self.fc_address = sender
                     self.link.lock_peer(sender)
+                    events.add(LinkEvent.LOCKED)
                 if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_COMMAND_ACK:
                     self._on_ack(msg)
+                elif msg.get_msgId() in STREAMS:
+                    events |= self._on_telemetry(int(msg.time_boot_ms), now_s)
                 out.append(msg)
-        return out
+        if self.connected and now_s >= self.loss_deadline_s():
+            self.connected = False
+            events.add(LinkEvent.LOST)
+        return Received(tuple(e for e in LinkEvent if e in events), out)
+
+    def _on_telemetry(self, time_ms: int, now_s: float) -> set[LinkEvent]:
+        events = set()
+        if not self.connected:
+            self.connected = True
+            events.add(LinkEvent.TELEMETRY)
+        silent_s = None if self.last_telemetry_s is None else now_s - self.last_telemetry_s
+        if self.fc_time_ms is not None and time_ms < self.fc_time_ms and silent_s >= self.telemetry_timeout_s:
+            events.add(LinkEvent.REBOOTED)
+            self.fc_time_ms = time_ms
+        elif self.fc_time_ms is None or time_ms > self.fc_time_ms:
+            self.fc_time_ms = time_ms
+        self.last_telemetry_s = now_s
+        return events
+
+    def loss_deadline_s(self) -> float:
+        """When the telemetry counts as lost if nothing more comes (inf while not flowing)."""
+        if not self.connected or self.last_telemetry_s is None:
+            return float("inf")
+        return self.last_telemetry_s + self.telemetry_timeout_s
 
     def _on_ack(self, msg) -> None:
         if msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL and self._intervals and self._sent_at_s is not None:
@@ -123,10 +203,10 @@ class FcLink:
             self._attempts += 1
 
     def next_due_s(self, now_s: float) -> float:
-        """When tick() has something to do next."""
+        """When tick() or the loss watchdog in receive() has something to do next."""
         if not (self.locked or self.heartbeat_before_lock):
             return now_s + HEARTBEAT_PERIOD_S          # nothing to send before the FC shows up
-        due = self._next_heartbeat_s
+        due = min(self._next_heartbeat_s, self.loss_deadline_s())
         if self._intervals:
             due = min(due, now_s if self._sent_at_s is None else self._sent_at_s + COMMAND_RETRY_S)
         return due
@@ -135,7 +215,7 @@ class FcLink:
     def send_setpoint(self, time_ms: int, period_ms: int, sp: Setpoint) -> None:
         flags = mavlink.M4_SETPOINT_FLAG_THRUST_CUT if sp.thrust_cut else 0
         self.link.send(mavlink.MAVLink_m4_setpoint_message(
-            *self.fc_ids, int(time_ms), int(period_ms), _floats(sp.thrust_n), _floats(sp.hip_angle_rad),
+            *self.fc_ids, int(time_ms), int(period_ms), _floats(sp.thrust_n), _floats(sp.hip_rad),
             _floats(sp.hip_rate_rad_s), flags))
 
     def send_fault_status(self, time_ms: int, status: FaultStatus) -> None:

@@ -5,8 +5,8 @@ M4_JOINT_STATE, M4_THRUSTER_STATUS) with the companion's monotonic clock to `add
 for `snapshot()` and `rom_state()`.
 
 Each stream keeps its newest sample by the FC's `time_boot_ms`: a duplicate or an older
-stamp is dropped and counted, except after a reboot of the FC (its clock jumps back after
-the stream was silent for `reboot_gap_s`), which clears every stream. A message with a
+stamp is dropped and counted. After a reboot of the FC (which the link notices:
+companion.fc_link) `clear()` starts every stream over. A message with a
 non-finite field (or a quaternion that is not a unit one) is rejected and counted; in
 M4_THRUSTER_STATUS a NaN means "the FC cannot tell" (contract) and is kept as NaN.
 
@@ -79,7 +79,6 @@ class TelemetryCounters:
     accepted: int = 0
     stale: int = 0            # duplicate or older time_boot_ms than the stream's newest
     nonfinite: int = 0        # NaN/inf field or a quaternion that is not a unit one
-    reboots: int = 0
 
 
 @dataclass(frozen=True)
@@ -100,8 +99,7 @@ class VehicleSnapshot:
 
 
 class TelemetryAssembler:
-    def __init__(self, reboot_gap_s: float = 0.3):
-        self.reboot_gap_s = reboot_gap_s
+    def __init__(self):
         self.counters = TelemetryCounters()
         self._samples: dict[int, Sample] = {}
 
@@ -117,14 +115,15 @@ class TelemetryAssembler:
         t_ms = int(msg.time_boot_ms)
         newest = self._samples.get(msg_id)
         if newest is not None and t_ms <= newest.time_ms:
-            if t_ms == newest.time_ms or now_s - newest.received_s < self.reboot_gap_s:
-                self.counters.stale += 1
-                return False
-            self._samples.clear()
-            self.counters.reboots += 1
+            self.counters.stale += 1
+            return False
         self._samples[msg_id] = Sample(t_ms, now_s, values)
         self.counters.accepted += 1
         return True
+
+    def clear(self) -> None:
+        """Forget every stream (the FC rebooted: its clock started over)."""
+        self._samples.clear()
 
     def age_s(self, msg_id: int, now_s: float) -> float | None:
         """Companion seconds since the stream's newest sample arrived (None: never)."""

@@ -20,6 +20,7 @@ import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
 from m4.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from m4.setpoint import Setpoint
 from sitl.commands import CommandHandler
 from sitl.failsafe import Failsafe, FailsafeMode
 from sitl.state import PlantState
@@ -48,13 +49,10 @@ _ANNOUNCE = {
 
 
 @dataclass(frozen=True)
-class Setpoint:
-    time_ms: int
+class ReceivedSetpoint:
+    time_ms: int                  # the telemetry instant it answers (our clock)
     period_ms: int
-    thrust_n: np.ndarray
-    hip_rad: np.ndarray
-    hip_rate_rad_s: np.ndarray
-    thrust_cut: bool
+    command: Setpoint
 
     @property
     def stale_after_ms(self) -> int:
@@ -77,9 +75,9 @@ class FlightController:
         self.schedule = StreamSchedule()
         self.failsafe = Failsafe(airframe)
         self.counters = FcCounters()
-        self.setpoint: Setpoint | None = None
+        self.setpoint: ReceivedSetpoint | None = None
         self.mode: FcMode | None = None
-        self._applied: Setpoint | None = None
+        self._applied: ReceivedSetpoint | None = None
         self._outbox: list[mavlink.MAVLink_message] = []
         self._measured: tuple[int, PlantState] | None = None
         self._commands = CommandHandler(self)
@@ -113,11 +111,11 @@ class FlightController:
         """Choose who flies (companion or failsafe) and command the plant accordingly."""
         if self._fresh(now_ms):
             self._set_mode(FcMode.COMPANION)
-            sp = self.setpoint
-            if sp is not self._applied:
+            if self.setpoint is not self._applied:
+                sp = self.setpoint.command
                 thrust = np.zeros(ROTOR_COUNT) if sp.thrust_cut else sp.thrust_n
                 self._command_plant(thrust, sp.hip_rad, sp.hip_rate_rad_s)
-                self._applied = sp
+                self._applied = self.setpoint
             return
         state = self.measured_state(now_ms)
         if self.mode in (None, FcMode.COMPANION):
@@ -152,12 +150,11 @@ class FlightController:
             return
         af = self.airframe
         thrust, hip, rate = values
-        self.setpoint = Setpoint(
-            time_ms=msg.time_boot_ms, period_ms=msg.period_ms,
+        self.setpoint = ReceivedSetpoint(msg.time_boot_ms, msg.period_ms, Setpoint(
             thrust_n=np.clip(thrust, af.thrust_min_n, af.thrust_max_n),
             hip_rad=np.clip(hip, af.hip_min_rad, af.hip_max_rad),
             hip_rate_rad_s=np.clip(rate, -af.hip_rate_max_rad_s, af.hip_rate_max_rad_s),
-            thrust_cut=bool(msg.flags & mavlink.M4_SETPOINT_FLAG_THRUST_CUT))
+            thrust_cut=bool(msg.flags & mavlink.M4_SETPOINT_FLAG_THRUST_CUT)))
         self.counters.setpoints_accepted += 1
         self.tick(now_ms)
 

@@ -42,12 +42,12 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, fields
-from enum import IntEnum
 
 import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
 from companion.core import rom
+from companion.core.control_types import FaultState, FaultStatus
 from companion.core.fault_residual import (
     CHANNELS,
     IntervalFit,
@@ -60,24 +60,6 @@ from companion.core.fault_residual import (
 # A residual of pure noise has a chi2 of about one per channel and interval; the best rotor may
 # leave this many times that unexplained on top of its share.
 _NOISE_CHI2_MARGIN = 3.0
-
-
-class FaultState(IntEnum):
-    """Values as in M4_FAULT_STATUS.state."""
-
-    HEALTHY = 0
-    SUSPECT = 1
-    CONFIRMED = 2
-
-
-@dataclass(frozen=True)
-class FaultStatus:
-    state: FaultState
-    rotor: int | None                  # 1..4 (suspect or confirmed), None when healthy
-    thrust_max_estimate_n: np.ndarray  # (4,) bounds for the NMPC: the limits, the estimate on the lost rotor
-    detected_at_s: float | None        # time of confirmation
-    message: str                       # "thrust loss rotor 4" once confirmed
-    deficit_n: np.ndarray              # (4,) latest deficit estimate per rotor hypothesis (diagnostics)
 
 
 @dataclass(frozen=True)

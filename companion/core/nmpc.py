@@ -32,6 +32,7 @@ from companion.core.condensing import (
     sensitivities,
     state_rows,
 )
+from companion.core.control_types import thrust_bounds
 from companion.core.nmpc_config import NmpcConfig
 from companion.core.nmpc_targets import hover_targets
 from companion.core.rom import ND, NU, NX
@@ -56,14 +57,6 @@ class NmpcResult:
     ok: bool
     cost: float
     fallback: bool
-
-
-def thrust_bounds(af: Airframe, thrust_max_n) -> np.ndarray:
-    """Per-rotor upper bounds: finite entries clipped into [thrust_min, thrust_max], the rest the maximum."""
-    t_max = np.asarray(thrust_max_n, dtype=float).reshape(-1)
-    if t_max.size != ROTOR_COUNT:
-        raise ValueError(f"thrust_max_n must have {ROTOR_COUNT} entries, got {t_max.size}")
-    return np.clip(np.where(np.isfinite(t_max), t_max, af.thrust_max_n), af.thrust_min_n, af.thrust_max_n)
 
 
 class Nmpc:

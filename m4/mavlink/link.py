@@ -72,6 +72,11 @@ class MavlinkLink:
         """Every message that has arrived; rejected and garbled packets are counted, not returned."""
         return [msg for _, msgs in self.receive_from() for msg in msgs]
 
+    @property
+    def signing_key(self) -> bytes | None:
+        """The signing key (None: the link neither signs nor checks signatures)."""
+        return self.mav.signing.secret_key
+
     def signing_counters(self) -> SigningCounters:
         return SigningCounters.of(self.mav)
 

@@ -16,39 +16,16 @@ import pytest
 from m4.airframe import load_airframe
 from companion.app import CompanionApp
 from companion.config import parse_config
-from companion.controller import Controller
+from companion.controller import Controller, ControllerSettings
 from companion.fc_link import FcLink
 from companion.feed_publisher import Feed
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
-from m4.mavlink.link import UdpLink
+from support.fake_transport import FakeTransport
 
 AF = load_airframe()
 CONFIG = parse_config({"control": {"rate_hz": 50.0}, "link": {"fc_url": "udpin:127.0.0.1:0"}}, "test")
 FC_ADDRESS = ("127.0.0.1", 9)            # never written to: the link below captures what it sends
 FUZZ_FRAMES = 100_000
-
-
-class ScriptedLink(UdpLink):
-    """A udpin link whose datagrams come from a queue and whose packets go to a list."""
-
-    def __init__(self):
-        super().__init__("udpin:127.0.0.1:0", FC_SYSTEM_ID, COMPANION_COMPONENT_ID)
-        self.inbox: deque[tuple[bytes, tuple[str, int]]] = deque()
-        self.sent: list[bytes] = []
-
-    def write(self, packet: bytes) -> None:
-        self.sent.append(bytes(packet))
-
-    def receive_from(self):
-        out = []
-        while self.inbox:
-            data, sender = self.inbox.popleft()
-            out.append((sender, self.ingest(data, sender)))
-        return out
-
-    def sent_messages(self) -> list:
-        parser = new_mav(None, 255, 0)
-        return [m for p in self.sent for m in parser.parse_buffer(p) or ()]
 
 
 class Clock:
@@ -62,7 +39,7 @@ class Clock:
 class FakeFc:
     """Packs what a flight controller would send: heartbeat and telemetry frames."""
 
-    def __init__(self, link: ScriptedLink):
+    def __init__(self, link: FakeTransport):
         self.link = link
         self.mav = new_mav(None, FC_SYSTEM_ID, FC_COMPONENT_ID)
 
@@ -83,19 +60,19 @@ class FakeFc:
 
 @pytest.fixture(scope="module")
 def controller():
-    return Controller(CONFIG)
+    return Controller(ControllerSettings.of(CONFIG))
 
 
 @pytest.fixture
 def rig(controller):
     controller.restart()
-    link, clock = ScriptedLink(), Clock()
+    link, clock = FakeTransport(FC_SYSTEM_ID, COMPANION_COMPONENT_ID), Clock()
     app = CompanionApp(CONFIG, FcLink(link), controller, clock=clock)
     yield app, FakeFc(link), link, clock
     link.close()
 
 
-def setpoint_times(link: ScriptedLink) -> list[int]:
+def setpoint_times(link: FakeTransport) -> list[int]:
     return [m.time_boot_ms for m in link.sent_messages() if m.get_type() == "M4_SETPOINT"]
 
 
@@ -133,7 +110,7 @@ def test_telemetry_loss_is_noticed_within_0_3_s_setpoints_stop_and_control_resum
     fly(app, fc, clock, 0, 10)
     last_frame_s = clock.now - 0.02
     answered = len(setpoint_times(link))
-    while app.connected:
+    while app.fc.connected:
         clock.now += 0.01
         app.poll()
     assert 0.3 <= clock.now - last_frame_s <= 0.31
@@ -146,7 +123,7 @@ def test_telemetry_loss_is_noticed_within_0_3_s_setpoints_stop_and_control_resum
     app.poll()
     assert len(setpoint_times(link)) == answered               # nothing went out while lost
     fly(app, fc, clock, 2000, 5)                               # the FC's clock moved on 1.8 s
-    assert app.connected and len(resumes) == 1
+    assert app.fc.connected and len(resumes) == 1
     assert setpoint_times(link)[answered:] == [2000, 2020, 2040, 2060, 2080]
     severities = {m.severity for m in link.sent_messages() if m.get_type() == "STATUSTEXT"}
     assert severities.isdisjoint({mavlink.MAV_SEVERITY_EMERGENCY, mavlink.MAV_SEVERITY_ALERT,
@@ -163,9 +140,9 @@ def test_a_short_wall_clock_gap_in_lockstep_does_not_reset_the_controller(rig, m
     fly(app, fc, clock, 0, 5)
     clock.now += 0.5
     app.poll()
-    assert not app.connected
+    assert not app.fc.connected
     fly(app, fc, clock, 100, 3)
-    assert app.connected and resumes == []
+    assert app.fc.connected and resumes == []
     assert setpoint_times(link) == list(range(0, 160, 20))
 
 
@@ -186,14 +163,13 @@ def test_after_a_reboot_of_the_fc_the_mission_starts_over_on_its_new_clock(rig):
     app, fc, link, clock = rig
     fc.heartbeat()
     fly(app, fc, clock, 5000, 3)
-    first_reference = app.controller.reference
+    first_reference = app.controller.flight.reference
     clock.now += 0.5
     app.poll()
     fc.heartbeat()
     fly(app, fc, clock, 0, 3)
     assert setpoint_times(link) == [5000, 5020, 5040, 0, 20, 40]
-    assert app.telemetry.counters.reboots == 1
-    assert app.controller.reference is not first_reference
+    assert app.controller.flight.reference is not first_reference
 
 
 # -------------------------------------------------------------------------------------------------
@@ -288,7 +264,7 @@ def test_a_fuzzed_byte_stream_never_raises_and_never_lets_a_bad_setpoint_out(rig
     setpoints = [m for m in sent if m.get_type() == "M4_SETPOINT"]
     print(f"\nfuzz: {FUZZ_FRAMES} frames {fuzz.counts}; link: bad CRC {health.bad_crc}, foreign {health.foreign}; "
           f"telemetry: accepted {telemetry.accepted}, stale {telemetry.stale}, non-finite {telemetry.nonfinite}, "
-          f"reboots {telemetry.reboots}; {len(setpoints)} setpoints sent")
+          f"{len(setpoints)} setpoints sent")
     assert sum(fuzz.counts.values()) == FUZZ_FRAMES >= 100_000
     assert health.bad_crc > 0.1 * FUZZ_FRAMES and health.foreign > 0.2 * FUZZ_FRAMES
     assert telemetry.nonfinite > 0 and telemetry.stale > 0 and telemetry.accepted > 0

@@ -12,15 +12,19 @@ from hypothesis import strategies as st
 
 from m4.airframe import ROTOR_COUNT, load_airframe
 from companion.config import parse_config
-from companion.controller import Controller, Setpoint, safe_setpoint, thrust_bounds
+from companion.controller import Controller, ControllerSettings
 from companion.core import rom
-from companion.core.fault_detector import FaultState
+from companion.core.control_types import FaultState, safe_setpoint, thrust_bounds
+from companion.core.fault_detector import FaultDetector
 from companion.core.nmpc import Nmpc
-from m4.mission import Landing, Mission
+from companion.core.reference import MissionReference
 from companion.telemetry import VehicleSnapshot, rom_state
+from m4.mission import Landing, Mission, Waypoint
+from m4.setpoint import Setpoint
 
 AF = load_airframe()
 CONFIG = parse_config({"control": {"rate_hz": 50.0}}, "test")
+SETTINGS = ControllerSettings.of(CONFIG)
 PERIOD = CONFIG.control_period_s
 HOVER_N = AF.hover_thrust_per_rotor_n
 _NMPC = None
@@ -32,20 +36,27 @@ def controller(**changes) -> Controller:
     if _NMPC is None:
         _NMPC = Nmpc(AF, CONFIG.nmpc)
     _NMPC.reset()
-    return Controller(dataclasses.replace(CONFIG, **changes), nmpc=_NMPC)
+    return Controller(dataclasses.replace(SETTINGS, **changes), nmpc=_NMPC)
+
+
+def step(c: Controller, time_s: float, x, *telemetry):
+    """One step as the app takes it: the flight starts at the first plausible state."""
+    if not c.started:
+        c.start(time_s, x)
+    return c.step(time_s, x, *telemetry)
 
 
 def assert_safe(sp: Setpoint, thrust_max_n) -> None:
     """Finite and within every bound, also as the float32 values MAVLink carries."""
-    values = np.r_[sp.thrust_n, sp.hip_angle_rad, sp.hip_rate_rad_s]
+    values = np.r_[sp.thrust_n, sp.hip_rad, sp.hip_rate_rad_s]
     assert values.shape == (12,) and np.all(np.isfinite(values))
     assert np.array_equal(values.astype(np.float32).astype(float), values)
     bound = thrust_bounds(AF, thrust_max_n)
     assert np.all(sp.thrust_n >= (0.0 if sp.thrust_cut else AF.thrust_min_n))
     assert np.all(sp.thrust_n <= bound + 1e-9)
-    assert np.all(sp.hip_angle_rad >= AF.hip_min_rad) and np.all(sp.hip_angle_rad <= AF.hip_max_rad)
+    assert np.all(sp.hip_rad >= AF.hip_min_rad) and np.all(sp.hip_rad <= AF.hip_max_rad)
     for a, b in AF.same_side_pairs:
-        assert sp.hip_angle_rad[a] + sp.hip_angle_rad[b] <= AF.same_side_sum_max_rad + 1e-9
+        assert sp.hip_rad[a] + sp.hip_rad[b] <= AF.same_side_sum_max_rad + 1e-9
     assert np.all(np.abs(sp.hip_rate_rad_s) <= AF.hip_rate_max_rad_s)
 
 
@@ -81,7 +92,7 @@ replacements = st.lists(st.tuples(st.integers(0, rom.NX - 1),
 def test_every_control_step_gives_a_finite_setpoint_within_bounds(steps):
     c = controller()
     for k, (changes, delivered, limits) in enumerate(steps):
-        out = c.step(k * PERIOD, _state(changes), delivered, limits)
+        out = step(c, k * PERIOD, _state(changes), delivered, limits)
         assert_safe(out.setpoint, out.fault.thrust_max_estimate_n)
 
 
@@ -108,17 +119,17 @@ def test_every_snapshot_through_the_frame_conversion_gives_a_safe_setpoint(steps
     c = controller()
     for k, (changes, limits) in enumerate(steps):
         snap = _snapshot(changes)
-        out = c.step(k * PERIOD, rom_state(snap, AF), snap.thrust_n, limits)
+        out = step(c, k * PERIOD, rom_state(snap, AF), snap.thrust_n, limits)
         assert_safe(out.setpoint, out.fault.thrust_max_estimate_n)
 
 
 def test_hover_at_rest_gives_hover_thrust_and_still_legs():
     c = controller()
     for k in range(5):
-        out = c.step(k * PERIOD, rom.hover_state(AF), [HOVER_N] * 4, [AF.thrust_max_n] * 4)
+        out = step(c, k * PERIOD, rom.hover_state(AF), [HOVER_N] * 4, [AF.thrust_max_n] * 4)
     sp = out.setpoint
     assert np.allclose(sp.thrust_n, HOVER_N, atol=0.2)
-    assert np.allclose(sp.hip_angle_rad, AF.nominal_hip_rad, atol=math.radians(1.0))
+    assert np.allclose(sp.hip_rad, AF.nominal_hip_rad, atol=math.radians(1.0))
     assert np.allclose(sp.hip_rate_rad_s, 0.0, atol=0.05)
     assert not sp.thrust_cut and out.nmpc.ok
 
@@ -130,9 +141,9 @@ def test_hip_goal_is_a_continuous_trajectory_from_setpoint_to_setpoint():
     x[rom.EULER] = (0.2, -0.1, 0.0)
     previous = None
     for k in range(6):
-        sp = c.step(k * PERIOD, x).setpoint
+        sp = step(c, k * PERIOD, x).setpoint
         if previous is not None:
-            assert np.allclose(sp.hip_angle_rad, previous.hip_angle_rad + previous.hip_rate_rad_s * PERIOD)
+            assert np.allclose(sp.hip_rad, previous.hip_rad + previous.hip_rate_rad_s * PERIOD)
         previous = sp
 
 
@@ -151,8 +162,8 @@ def test_a_rotor_delivering_nothing_is_confirmed_once_and_bounds_the_nmpc():
             average = target + (delivered - target) * AF.motor_time_constant_s / PERIOD * (1 - decay)
             delivered = target + (delivered - target) * decay
             x = np.array(plant(x, np.r_[average, np.zeros(4)], np.zeros(rom.ND))).ravel()
-            x[rom.HIP], x[rom.HIP_RATE] = sp.hip_angle_rad + sp.hip_rate_rad_s * PERIOD, sp.hip_rate_rad_s
-        out = c.step(k * PERIOD, x, delivered, [AF.thrust_max_n] * 4)
+            x[rom.HIP], x[rom.HIP_RATE] = sp.hip_rad + sp.hip_rate_rad_s * PERIOD, sp.hip_rate_rad_s
+        out = step(c, k * PERIOD, x, delivered, [AF.thrust_max_n] * 4)
         announced += [k * PERIOD] if out.fault_confirmed_now else []
     assert len(announced) == 1 and announced[0] <= 0.1 + 0.2
     assert out.fault.state is FaultState.CONFIRMED and out.fault.rotor == 4
@@ -164,18 +175,18 @@ def test_one_rotor_limit_dropping_at_the_fc_is_not_taken_as_known():
     """The FC's per-rotor limit counts only as a common cap: a lowered single limit is what
     the detector must find, so the bound stays at the cap until it does."""
     c = controller()
-    out = c.step(0.0, rom.hover_state(AF), [HOVER_N] * 4, [AF.thrust_max_n] * 3 + [0.0])
-    out = c.step(PERIOD, rom.hover_state(AF), [HOVER_N] * 4, [AF.thrust_max_n] * 3 + [0.0])
+    out = step(c, 0.0, rom.hover_state(AF), [HOVER_N] * 4, [AF.thrust_max_n] * 3 + [0.0])
+    out = step(c, PERIOD, rom.hover_state(AF), [HOVER_N] * 4, [AF.thrust_max_n] * 3 + [0.0])
     assert np.allclose(out.fault.thrust_max_estimate_n, AF.thrust_max_n)
-    capped = c.step(2 * PERIOD, rom.hover_state(AF), [HOVER_N] * 4, [24.0] * 4)
+    capped = step(c, 2 * PERIOD, rom.hover_state(AF), [HOVER_N] * 4, [24.0] * 4)
     assert np.allclose(capped.fault.thrust_max_estimate_n, 24.0)
 
 
 def test_thrust_is_cut_after_touchdown_during_the_landing():
     c = controller(mission=Mission(land=Landing(at_s=0.0, descent_speed_m_s=0.5)))
-    c.step(0.0, rom.hover_state(AF, p_ned_m=(0.0, 0.0, -1.0)))
-    ground = rom.hover_state(AF, p_ned_m=(0.0, 0.0, c.reference.ground_com_z_ned_m))
-    outs = [c.step(k * PERIOD, ground) for k in range(1, 30)]
+    step(c, 0.0, rom.hover_state(AF, p_ned_m=(0.0, 0.0, -1.0)))
+    ground = rom.hover_state(AF, p_ned_m=(0.0, 0.0, c.flight.reference.ground_com_z_ned_m))
+    outs = [step(c, k * PERIOD, ground) for k in range(1, 30)]
     cut = [o.setpoint.thrust_cut for o in outs]
     assert not cut[0] and cut[-1]
     first = cut.index(True)
@@ -189,23 +200,23 @@ def test_resume_restarts_the_hip_goal_at_the_measured_joints():
     x = rom.hover_state(AF)
     x[rom.P] += (0.5, 0.3, 0.0)
     for k in range(3):
-        c.step(k * PERIOD, x)
+        step(c, k * PERIOD, x)
     moved = x.copy()
     moved[rom.HIP] = np.radians([30.0, 60.0, 35.0, 55.0])
     c.resume()
-    sp = c.step(10.0, moved).setpoint
-    assert np.allclose(sp.hip_angle_rad, moved[rom.HIP])
+    sp = step(c, 10.0, moved).setpoint
+    assert np.allclose(sp.hip_rad, moved[rom.HIP])
 
 
 def test_the_fixed_posture_variant_holds_its_angle_from_anywhere():
     fixed = math.radians(30.0)
     nmpc = Nmpc(AF, dataclasses.replace(CONFIG.nmpc, fixed_hip_rad=fixed))
-    c = Controller(CONFIG, nmpc=nmpc)
+    c = Controller(SETTINGS, nmpc=nmpc)
     x = rom.hover_state(AF)
     x[rom.HIP] = np.radians([40.0, 35.0, 25.0, 38.0])
     for k in range(3):
-        sp = c.step(k * PERIOD, x).setpoint
-        assert np.allclose(sp.hip_angle_rad, fixed, atol=1e-6) and np.allclose(sp.hip_rate_rad_s, 0.0)
+        sp = step(c, k * PERIOD, x).setpoint
+        assert np.allclose(sp.hip_rad, fixed, atol=1e-6) and np.allclose(sp.hip_rate_rad_s, 0.0)
 
 
 @pytest.mark.parametrize("bad", [math.nan, math.inf])
@@ -213,8 +224,46 @@ def test_an_unusable_state_gives_hover_thrust_and_held_legs(bad):
     c = controller()
     x = rom.hover_state(AF)
     x[rom.V.start] = bad
-    out = c.step(0.0, x)
+    out = step(c, 0.0, x)
     assert out.nmpc is None
     assert np.allclose(out.setpoint.thrust_n, HOVER_N)
     assert np.allclose(out.setpoint.hip_rate_rad_s, 0.0)
     assert_safe(out.setpoint, [AF.thrust_max_n] * ROTOR_COUNT)
+
+
+def test_before_the_flight_starts_no_solve_runs_and_the_answer_is_the_fallback():
+    c = controller()
+    out = c.step(0.0, rom.hover_state(AF))
+    assert not c.started and out.nmpc is None and out.reference is None
+    assert np.allclose(out.setpoint.thrust_n, HOVER_N)
+
+
+def test_an_implausible_state_does_not_start_the_flight():
+    c = controller()
+    x = rom.hover_state(AF)
+    x[rom.P.start] = math.nan
+    assert not c.start(0.0, x) and not c.started
+    assert c.start(0.1, rom.hover_state(AF)) and c.started
+
+
+def test_the_injected_reference_and_detector_are_the_ones_flown_and_a_restart_builds_new_ones():
+    anchors, detectors = [], []
+    mission = Mission(waypoints=(Waypoint((5.0, 0.0, -2.0), 2.0, 0.0),))
+
+    def new_reference(t0_s, start_ned_m):
+        anchors.append((t0_s, tuple(start_ned_m)))
+        return MissionReference(mission, start_ned_m, AF, t0_s=t0_s)
+
+    def new_detector():
+        detectors.append(FaultDetector(AF, CONFIG.fault_detector))
+        return detectors[-1]
+
+    _NMPC.reset()
+    c = Controller(SETTINGS, nmpc=_NMPC, new_detector=new_detector, new_reference=new_reference)
+    x = rom.hover_state(AF, p_ned_m=(0.0, 0.0, -2.0))
+    assert c.start(3.0, x)
+    out = c.step(3.0 + PERIOD, x)
+    assert anchors == [(3.0, (0.0, 0.0, -2.0))] and c.detector is detectors[0]
+    assert out.reference[-1, rom.P.start] > 0.0          # heading for the waypoint
+    c.restart()
+    assert not c.started and len(detectors) == 2 and c.detector is detectors[1]

@@ -1,4 +1,5 @@
-"""The companion's link to its FC over loopback UDP: lock-on, strays, signing, interval requests."""
+"""The companion's link to its FC: lock-on, strays, signing, interval requests over loopback UDP;
+its events (locked, telemetry, lost, rebooted) on a socket-free transport."""
 
 from __future__ import annotations
 
@@ -7,14 +8,15 @@ import time
 import numpy as np
 import pytest
 
-from companion.controller import Setpoint
-from companion.fc_link import FcLink
-from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
-from m4.mavlink.link import UdpLink
+from companion.fc_link import FcLink, LinkEvent
 from companion.telemetry import STREAMS
+from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
+from m4.mavlink.link import UdpLink
+from m4.setpoint import Setpoint
+from support.fake_transport import FakeTransport
 
 KEY = bytes(range(32))
-SETPOINT = Setpoint(thrust_n=np.full(4, 14.7), hip_angle_rad=np.full(4, 0.8), hip_rate_rad_s=np.zeros(4))
+SETPOINT = Setpoint(thrust_n=np.full(4, 14.7), hip_rad=np.full(4, 0.8), hip_rate_rad_s=np.zeros(4))
 
 
 def heartbeat():
@@ -23,6 +25,11 @@ def heartbeat():
 
 def position(t_ms, x=0.0):
     return mavlink.MAVLink_local_position_ned_message(t_ms, x, 0.0, -2.0, 0.0, 0.0, 0.0)
+
+
+def received(fc_link: FcLink):
+    """fc_link.receive as a function of nothing, giving the messages (for drain)."""
+    return lambda: fc_link.receive(time.monotonic()).messages
 
 
 def drain(receive, want: int = 1, timeout_s: float = 2.0) -> list:
@@ -51,10 +58,10 @@ def test_nothing_is_heard_or_sent_before_the_fc_heartbeat(links):
     companion, fc, _ = links
     fc.send(position(10))
     time.sleep(0.05)
-    assert companion.receive() == [] and not companion.locked
+    assert companion.receive(time.monotonic()).messages == [] and not companion.locked
     companion.tick(0.0)
     fc.send(heartbeat())
-    assert [m.get_type() for m in drain(companion.receive)] == ["HEARTBEAT"]
+    assert [m.get_type() for m in drain(received(companion))] == ["HEARTBEAT"]
     assert companion.locked
 
 
@@ -71,7 +78,7 @@ def test_on_a_link_with_a_fixed_peer_our_heartbeat_goes_first_so_the_fc_learns_o
         companion.tick(0.0)
         assert [m.get_type() for m in drain(fc.receive)] == ["HEARTBEAT"]
         fc.send(heartbeat())                # a udpin FC answers whoever wrote: us
-        drain(companion.receive)
+        drain(received(companion))
         assert companion.locked
     finally:
         fc.close()
@@ -81,12 +88,12 @@ def test_on_a_link_with_a_fixed_peer_our_heartbeat_goes_first_so_the_fc_learns_o
 def test_a_stray_sender_with_the_fc_ids_is_ignored_and_cannot_redirect_our_replies(links):
     companion, fc, stray = links
     fc.send(heartbeat())
-    drain(companion.receive)
+    drain(received(companion))
     for t_ms in (20, 40):
         stray.send(heartbeat())
         stray.send(position(t_ms, x=99.0))
     fc.send(position(60, x=1.0))
-    got = drain(companion.receive)
+    got = drain(received(companion))
     assert [(m.get_type(), m.x) for m in got] == [("LOCAL_POSITION_NED", 1.0)]
     assert companion.health().foreign == 4
     companion.send_setpoint(60, 20, SETPOINT)
@@ -103,7 +110,7 @@ def test_other_systems_and_components_are_dropped_and_counted(links):
         other.send(heartbeat())
         gimbal.send(heartbeat())
         time.sleep(0.05)
-        assert companion.receive() == [] and not companion.locked
+        assert companion.receive(time.monotonic()).messages == [] and not companion.locked
         assert companion.health().foreign == 2
     finally:
         other.close()
@@ -119,17 +126,17 @@ def test_with_a_key_unsigned_and_badly_signed_traffic_is_dropped_and_counted(lin
     try:
         unsigned.send(heartbeat())          # unsigned heartbeats pass signing, but do not lock us on
         time.sleep(0.05)
-        companion.receive()
+        companion.receive(time.monotonic())
         assert not companion.locked
         fc.send(heartbeat())
-        drain(companion.receive)
+        drain(received(companion))
         assert companion.locked and companion.fc_address[1] == fc.local_port
         liar.send(position(20, x=5.0))      # another key, and from another address
         fc.mav.signing.sign_outgoing = False
         fc.send(position(40, x=6.0))        # the FC's own address, unsigned
         fc.mav.signing.sign_outgoing = True
         fc.send(position(60, x=7.0))
-        got = drain(companion.receive)
+        got = drain(received(companion))
         assert [m.x for m in got] == [7.0]
         health = companion.health()
         assert health.bad_signature == 1 and health.foreign >= 1
@@ -142,7 +149,7 @@ def test_with_a_key_unsigned_and_badly_signed_traffic_is_dropped_and_counted(lin
 def test_our_setpoints_are_signed_with_the_key(links):
     companion, fc, _ = links
     fc.send(heartbeat())
-    drain(companion.receive)
+    drain(received(companion))
     companion.send_setpoint(0, 20, SETPOINT)
     got = drain(fc.receive)
     assert [m.get_type() for m in got] == ["M4_SETPOINT"] and got[0].get_signed()
@@ -152,7 +159,7 @@ def test_our_setpoints_are_signed_with_the_key(links):
 def test_heartbeat_once_a_second_as_an_onboard_controller(links):
     companion, fc, _ = links
     fc.send(heartbeat())
-    drain(companion.receive)
+    drain(received(companion))
     for now in (0.0, 0.5, 0.99, 1.0, 1.5):
         companion.tick(now)
     beats = [m for m in drain(fc.receive, want=20, timeout_s=0.3) if m.get_type() == "HEARTBEAT"]
@@ -164,7 +171,7 @@ def test_heartbeat_once_a_second_as_an_onboard_controller(links):
 def test_message_intervals_are_requested_one_at_a_time_until_acked(links):
     companion, fc, _ = links
     fc.send(heartbeat())
-    drain(companion.receive)
+    drain(received(companion))
     companion.request_intervals(0.02)
     asked = []
     now = 0.0
@@ -176,7 +183,7 @@ def test_message_intervals_are_requested_one_at_a_time_until_acked(links):
             asked.append((int(m.param1), m.param2))
             if len(asked) != 2:             # the second request goes unanswered once: resent
                 fc.send(mavlink.MAVLink_command_ack_message(m.command, mavlink.MAV_RESULT_ACCEPTED, 0, 0, 1, 191))
-        drain(companion.receive, want=1, timeout_s=0.05)
+        drain(received(companion), want=1, timeout_s=0.05)
         now += 0.3
         if companion.health().intervals_pending == 0:
             break
@@ -184,3 +191,55 @@ def test_message_intervals_are_requested_one_at_a_time_until_acked(links):
     assert ids[:3] == [STREAMS[0], STREAMS[1], STREAMS[1]]
     assert sorted(set(ids)) == sorted(STREAMS) and {us for _, us in asked} == {20000.0}
     assert companion.health().intervals_acked == len(STREAMS)
+
+
+# -- events, on a socket-free transport ----------------------------------------------------------------
+FC = ("10.0.0.1", 14555)
+FC_MAV = new_mav(None, FC_SYSTEM_ID, FC_COMPONENT_ID)
+
+
+@pytest.fixture
+def fake():
+    transport = FakeTransport(FC_SYSTEM_ID, COMPANION_COMPONENT_ID)
+    return FcLink(transport, telemetry_timeout_s=0.3), transport
+
+
+def test_the_events_of_a_flight_locked_telemetry_lost_and_back(fake):
+    fc_link, transport = fake
+    transport.deliver(FC, heartbeat(), mav=FC_MAV)
+    assert fc_link.receive(10.0).events == (LinkEvent.LOCKED,)
+    transport.deliver(FC, position(100), mav=FC_MAV)
+    got = fc_link.receive(10.02)
+    assert got.events == (LinkEvent.TELEMETRY,) and [m.x for m in got.messages] == [0.0]
+    transport.deliver(FC, position(120), mav=FC_MAV)
+    assert fc_link.receive(10.04).events == ()
+    assert fc_link.next_due_s(10.05) <= 10.34
+    assert fc_link.receive(10.33).events == ()
+    assert fc_link.receive(10.34).events == (LinkEvent.LOST,) and not fc_link.connected
+    assert fc_link.receive(10.5).events == ()
+    transport.deliver(FC, position(900), mav=FC_MAV)
+    assert fc_link.receive(11.0).events == (LinkEvent.TELEMETRY,) and fc_link.fc_time_ms == 900
+
+
+def test_a_clock_that_goes_back_after_a_silence_is_a_reboot_and_within_the_stream_it_is_not(fake):
+    fc_link, transport = fake
+    transport.deliver(FC, heartbeat(), position(5000), mav=FC_MAV)
+    fc_link.receive(10.0)
+    transport.deliver(FC, position(4000), mav=FC_MAV)          # out of order, no silence
+    assert fc_link.receive(10.1).events == () and fc_link.fc_time_ms == 5000
+    assert fc_link.receive(10.4).events == (LinkEvent.LOST,)
+    transport.deliver(FC, position(20), mav=FC_MAV)            # after 0.4 s of silence: a new boot
+    assert fc_link.receive(10.5).events == (LinkEvent.REBOOTED, LinkEvent.TELEMETRY)
+    assert fc_link.fc_time_ms == 20
+
+
+def test_nothing_from_another_address_passes_once_locked_even_in_the_same_read(fake):
+    fc_link, transport = fake
+    stray = ("10.0.0.66", 14555)
+    transport.deliver(FC, heartbeat(), mav=FC_MAV)
+    transport.deliver(stray, heartbeat(), position(40, x=9.0), mav=FC_MAV)
+    transport.deliver(FC, position(60, x=1.0), mav=FC_MAV)
+    got = fc_link.receive(10.0)
+    assert [m.get_type() for m in got.messages] == ["HEARTBEAT", "LOCAL_POSITION_NED"]
+    assert got.messages[1].x == 1.0 and fc_link.fc_address == FC
+    assert fc_link.health().foreign == 2             # both of the stray's messages

@@ -1,0 +1,96 @@
+"""The control step's plain types and checks, free of CasADi and Zenoh: what the link, the
+feed and the tests share with the controller without loading a solver.
+
+- FaultState, FaultStatus: the fault detector's answer (M4_FAULT_STATUS's content).
+- plausible_state: whether a measured ROM state can be planned from.
+- thrust_bounds, safe_setpoint: the last word on a setpoint before it leaves the process
+  (every value finite, thrusts within [thrust_min, bound], hips within the joint range and
+  the same-side sum, rates within the servo's limit; what is not finite becomes a safe value).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+
+import numpy as np
+
+from companion.core import rom_layout as rom
+from m4.airframe import ROTOR_COUNT, Airframe
+from m4.setpoint import Setpoint
+
+_HIP_MARGIN_RAD = 0.5            # measured hips beyond the joint range by more than this are broken
+_PLAUSIBLE = ((rom.P, 1e5), (rom.EULER, 2 * np.pi), (rom.V, 100.0), (rom.RATES, 100.0), (rom.HIP_RATE, 100.0))
+
+
+class FaultState(IntEnum):
+    """Values as in M4_FAULT_STATUS.state."""
+
+    HEALTHY = 0
+    SUSPECT = 1
+    CONFIRMED = 2
+
+
+@dataclass(frozen=True)
+class FaultStatus:
+    state: FaultState
+    rotor: int | None                  # 1..4 (suspect or confirmed), None when healthy
+    thrust_max_estimate_n: np.ndarray  # (4,) bounds for the NMPC: the limits, the estimate on the lost rotor
+    detected_at_s: float | None        # time of confirmation
+    message: str                       # "thrust loss rotor 4" once confirmed
+    deficit_n: np.ndarray              # (4,) latest deficit estimate per rotor hypothesis (diagnostics)
+
+
+def plausible_state(af: Airframe, x) -> bool:
+    """Finite and physically possible (a state outside this is a broken measurement: the
+    controller falls back instead of planning from it)."""
+    x = np.asarray(x, dtype=float)
+    if not np.all(np.isfinite(x)):
+        return False
+    hip = x[rom.HIP]
+    hip_ok = np.all(hip >= af.hip_min_rad - _HIP_MARGIN_RAD) and np.all(hip <= af.hip_max_rad + _HIP_MARGIN_RAD)
+    return bool(hip_ok and all(np.all(np.abs(x[part]) <= limit) for part, limit in _PLAUSIBLE))
+
+
+def thrust_bounds(af: Airframe, thrust_max_n) -> np.ndarray:
+    """Per-rotor upper bounds: finite entries clipped into [thrust_min, thrust_max], the rest the maximum."""
+    t_max = np.asarray(thrust_max_n, dtype=float).reshape(-1)
+    if t_max.size != ROTOR_COUNT:
+        raise ValueError(f"thrust_max_n must have {ROTOR_COUNT} entries, got {t_max.size}")
+    return np.clip(np.where(np.isfinite(t_max), t_max, af.thrust_max_n), af.thrust_min_n, af.thrust_max_n)
+
+
+def safe_setpoint(af: Airframe, thrust_n, hip_rad, hip_rate_rad_s, thrust_max_n, measured_hip_rad=None,
+                  thrust_cut: bool = False) -> Setpoint:
+    """A setpoint that is finite and within every bound, whatever goes in (NaN, inf, out of range)."""
+    bound = thrust_bounds(af, thrust_max_n)
+    thrust = np.asarray(thrust_n, dtype=float).reshape(ROTOR_COUNT)
+    thrust = np.clip(np.where(np.isfinite(thrust), thrust, af.hover_thrust_per_rotor_n), af.thrust_min_n, bound)
+    if thrust_cut:
+        thrust = np.zeros(ROTOR_COUNT)
+    fallback_hip = np.full(ROTOR_COUNT, af.nominal_hip_rad)
+    if measured_hip_rad is not None:
+        measured = np.asarray(measured_hip_rad, dtype=float).reshape(ROTOR_COUNT)
+        fallback_hip = np.where(np.isfinite(measured), measured, fallback_hip)
+    hip = np.asarray(hip_rad, dtype=float).reshape(ROTOR_COUNT)
+    hip = np.clip(np.where(np.isfinite(hip), hip, fallback_hip), af.hip_min_rad, af.hip_max_rad)
+    for pair in af.same_side_pairs:
+        excess = hip[list(pair)].sum() - af.same_side_sum_max_rad
+        if excess > 0:
+            hip[list(pair)] = np.maximum(hip[list(pair)] - excess / 2, af.hip_min_rad)
+    rate = np.asarray(hip_rate_rad_s, dtype=float).reshape(ROTOR_COUNT)
+    rate = np.clip(np.where(np.isfinite(rate), rate, 0.0), -af.hip_rate_max_rad_s, af.hip_rate_max_rad_s)
+    return Setpoint(thrust_n=_float32_within(thrust, 0.0 if thrust_cut else af.thrust_min_n, bound),
+                    hip_rad=_float32_within(hip, af.hip_min_rad, hip),
+                    hip_rate_rad_s=_float32_within(rate, -af.hip_rate_max_rad_s, af.hip_rate_max_rad_s),
+                    thrust_cut=thrust_cut)
+
+
+def _float32_within(values: np.ndarray, lo, hi) -> np.ndarray:
+    """Values that stay within [lo, hi] as the float32 MAVLink carries (rounding to the nearest
+    float32 may step past a bound such as pi/2); the hips pass hi = themselves, so they never
+    round up and a pair's sum stays within its bound."""
+    v32 = values.astype(np.float32)
+    v32 = np.where(v32.astype(float) > hi, np.nextafter(v32, np.float32(-np.inf)), v32)
+    v32 = np.where(v32.astype(float) < lo, np.nextafter(v32, np.float32(np.inf)), v32)
+    return v32.astype(float)

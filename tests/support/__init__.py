@@ -1,0 +1,1 @@
+"""Test doubles and tools shared by the test suites (on the path through pyproject's pythonpath)."""
