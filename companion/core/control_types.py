@@ -1,7 +1,7 @@
 """The control step's plain types and checks, free of CasADi and Zenoh: what the link, the
 feed and the tests share with the controller without loading a solver.
 
-- FaultState, FaultStatus: the fault detector's answer (M4_FAULT_STATUS's content).
+- FaultState, FaultKind, FaultStatus: the fault detector's answer (M4_FAULT_STATUS's content).
 - plausible_state: whether a measured ROM state can be planned from.
 - thrust_bounds, safe_setpoint: the last word on a setpoint before it leaves the process
   (every value finite, thrusts within [thrust_min, bound], hips within the joint range and
@@ -31,13 +31,25 @@ class FaultState(IntEnum):
     CONFIRMED = 2
 
 
+class FaultKind(IntEnum):
+    """Values as in M4_FAULT_STATUS.kind (M4_FAULT_KIND)."""
+
+    UNKNOWN = 0         # thrust lost, no ESC evidence to say how
+    MOTOR = 1           # motor/ESC stopped
+    PROPELLER = 2       # propeller lost: the motor turns unloaded
+    DAMAGE = 3          # propeller damaged: less thrust at the same speed
+    DEGRADED = 4        # the motor cannot reach the speed asked: a lower ceiling
+
+
 @dataclass(frozen=True)
 class FaultStatus:
     state: FaultState
     rotor: int | None                  # 1..4 (suspect or confirmed), None when healthy
-    thrust_max_estimate_n: np.ndarray  # (4,) bounds for the NMPC: the limits, the estimate on the lost rotor
-    detected_at_s: float | None        # time of confirmation
-    message: str                       # "thrust loss rotor 4" once confirmed
+    kind: FaultKind
+    thrust_max_estimate_n: np.ndarray  # (4,) what each rotor can still give: the limits, the estimate on the faulty one
+    thrust_bound_n: np.ndarray         # (4,) the NMPC's bounds: the estimate plus the probe on the faulty rotor
+    detected_at_s: float | None        # time of the latest confirmation
+    message: str                       # "thrust loss rotor 4 (propeller)" once confirmed
     deficit_n: np.ndarray              # (4,) latest deficit estimate per rotor hypothesis (diagnostics)
 
 

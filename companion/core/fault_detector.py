@@ -1,36 +1,40 @@
-"""Rotor thrust-loss detection, isolation and sizing, handed to the NMPC as a thrust bound.
+"""Rotor fault detection, isolation, kind and sizing, handed to the NMPC as a thrust bound.
 
-Each telemetry frame the detector weighs the evidence of the interval since the previous
-frame (companion.core.fault_residual: the reduced-order model's prediction error explained
-by one rotor's thrust deficit; or, when the flight controller reports each thruster's
-delivered thrust, that deficit directly). An interval "votes" for rotor i when the best
-hypothesis is a deficit of at least deficit_min_n, the residual is significant (chi2 it
-explains >= chi2_min) and one rotor explains it (what it leaves is small next to what it
-explains). The evidence of the last window_s is pooled before voting.
+It reads only what a flight controller reports: the measured state, the command we sent, the
+FC's configured thrust limits and, where the FC has them, its ESCs' RPM, current and voltage
+(companion.core.esc_evidence). Three kinds of evidence, fused each telemetry frame:
 
-The direct path compares each rotor's delivered thrust with its command passed through the
-motor's first-order lag (airframe motor_time_constant_s), so a fast command step that the
-motor is still following is no deficit. A frame votes for rotor i when its shortfall is at
-least deficit_min_n, or at least half that and shortfall_min of the lagged command, while
-every other rotor delivers what it is asked. Delivered thrust is a measurement, not an
-inference: votes in a row that cover direct_confirm_s confirm at once (at 50 Hz two frames;
-at 10 Hz one frame already spans three motor time constants, and waiting for a second would
-cost 0.1 s of an unchecked fall).
+- ESC evidence: a rotor whose speed-implied thrust (0 when it turns unloaded) falls short of
+  its command passed through the motor lag, while every other rotor gives what it is asked
+  (a rotor held at the battery's common ceiling is not short). Votes in a row covering
+  direct_confirm_s confirm. It tells the kind: speed collapsed = motor, overspeed without
+  load = propeller, slow but loaded = degraded.
+- Thrust saturation (the paper's criterion): a rotor commanded at its bound while the
+  vehicle departs from the plan, i.e. the reduced-order model's one-step prediction
+  (companion.core.fault_residual) misses by what that rotor's deficit alone explains.
+  Votes in a row covering saturated_confirm_s confirm.
+- The model residual alone (a deficit one rotor explains, significant, large): votes for
+  rotor i during confirm_s confirm. With the ESCs reporting that rotor turning normally,
+  the kind is a damaged propeller (less thrust at the same speed).
 
-    healthy --vote i--> suspect(i) --votes for i during confirm_s--> confirmed(i)
-    suspect(i) --direct votes for i in a row covering direct_confirm_s--> confirmed(i)
+A deficit counts only below the common ceiling (the battery's, from the ESC voltage, else
+sag_floor_share of the limit): a sagging battery lowers every rotor's ceiling together and
+is no rotor's fault.
+
+    healthy --vote i--> suspect(i) --confirm rule--> confirmed(i, kind)
     suspect(i) --no vote--> healthy;  suspect(i) --vote j--> suspect(j)
+    confirmed(i) --estimate back within probe_n of the limit--> healthy (a new fault can follow)
+    confirmed(i) --estimate near a hover share, delivers all it is asked for recover_s--> healthy
 
-Confirmed is final (one rotor fault per flight). At confirmation the rotor's ceiling is
-estimated as the thrust it delivered over the window (commanded - deficit), or on the
-direct path as the thrust its lagged response is heading to (the level it saturates at,
-from its last two delivered thrusts); afterwards it
-is lowered whenever the rotor, commanded at its ceiling, clearly delivers less (a
-significant residual it alone explains), never raised by noise. It is handed out in
-thrust_max_estimate_n: a partial loss is a ceiling the rotor never exceeds, a total loss a
-ceiling near 0. The NMPC keeps its cost and model and only sees a tighter bound (no
-controller switch). While healthy, the residual the model always shows (mass, drag, trim)
-is learnt slowly and removed.
+Confirmed: the rotor is modelled as min(effectiveness x command, ceiling estimate). At
+confirmation the ceiling is what the rotor delivers (from the ESC: the level its lag heads
+to; from the residual: the interval average), 0 for a lost motor or propeller; a damaged
+propeller keeps its full range at a lower effectiveness (ceiling = effectiveness x limit).
+Afterwards the NMPC's bound on that rotor is the estimate plus probe_n: a rotor commanded
+there that delivers less lowers the estimate, one that delivers more raises it (it came
+back, an intermittent fault), so the bound climbs back to the limit and the state returns
+to healthy, ready for the next fault. One rotor at a time: while one is confirmed, evidence
+about the others is not weighed.
 
 Time and frames: time_s is the telemetry time; the state is the ROM state of the measured
 robot (centre of mass, see companion.core.rom); thrust_cmd_n is the command in force during
@@ -42,12 +46,14 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, fields
+from enum import IntEnum
 
 import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
 from companion.core import rom
-from companion.core.control_types import FaultState, FaultStatus
+from companion.core.control_types import FaultKind, FaultState, FaultStatus
+from companion.core.esc_evidence import EscReading, EscSample, PropellerModel, RotorCondition, read_escs
 from companion.core.fault_residual import (
     CHANNELS,
     IntervalFit,
@@ -60,6 +66,8 @@ from companion.core.fault_residual import (
 # A residual of pure noise has a chi2 of about one per channel and interval; the best rotor may
 # leave this many times that unexplained on top of its share.
 _NOISE_CHI2_MARGIN = 3.0
+_KIND_OF_CONDITION = {RotorCondition.STOPPED: FaultKind.MOTOR, RotorCondition.UNLOADED: FaultKind.PROPELLER,
+                      RotorCondition.SLOW: FaultKind.DEGRADED, RotorCondition.NORMAL: FaultKind.DEGRADED}
 
 
 @dataclass(frozen=True)
@@ -73,12 +81,18 @@ class FaultDetectorConfig:
     chi2_min: float = 25.0                # smallest residual chi2 explained (about 5 sigma)
     unexplained_max: float = 0.3          # chi2 the best rotor may leave, as a share of what it explains
     window_s: float = 0.1                 # evidence pooled over this much time before voting
-    confirm_s: float = 0.1                # votes for one rotor during this long confirm it
-    direct_confirm_s: float = 0.03        # delivered-thrust votes in a row covering this long confirm (~ motor lag)
-    shortfall_min: float = 0.3            # share of its lagged command a rotor may fall short by (direct path)
-    saturation_margin_n: float = 0.5      # a rotor commanded within this of its ceiling is at its ceiling
-    ceiling_deficit_min_n: float = 0.5    # a deficit this large of the lost rotor at its ceiling lowers the estimate
+    confirm_s: float = 0.1                # residual votes for one rotor during this long confirm it
+    saturated_confirm_s: float = 0.04     # residual votes of a rotor at its bound, in a row, covering this confirm
+    direct_confirm_s: float = 0.03        # ESC votes in a row covering this long confirm (~ motor lag)
+    shortfall_min: float = 0.3            # share of its lagged command a rotor may fall short by (ESC path)
+    saturation_margin_n: float = 0.5      # a rotor commanded within this of its bound is at its bound
+    sag_floor_share: float = 0.6          # no ESC voltage: a battery may lower every ceiling to this share of the limit
+    ceiling_deficit_min_n: float = 0.5    # a deficit this large of the faulty rotor lowers its estimate
     estimate_gain: float = 0.3            # weight of each such observation after confirmation
+    probe_n: float = 2.0                  # the NMPC may ask the faulty rotor this much above its estimate
+    rise_gain: float = 0.8                # weight of an observation above the estimate (the rotor came back)
+    recover_s: float = 0.3                # a rotor near a hover share delivering all it is asked this long: healthy
+    esc_max_age_s: float = 0.1            # ESC frames older than this (FC clock) are not evidence
     bias_time_constant_s: float = 2.0     # learning time of the residual the model always shows
     max_gap_s: float = 0.5                # frames further apart restart the evidence
 
@@ -88,60 +102,86 @@ class FaultDetectorConfig:
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"FaultDetectorConfig.{f.name} must be finite and >= 0, got {value}")
         for name in ("velocity_noise_m_s", "rates_noise_rad_s", "deficit_min_n", "window_s",
-                     "bias_time_constant_s", "max_gap_s"):
+                     "bias_time_constant_s", "max_gap_s", "probe_n"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"FaultDetectorConfig.{name} must be > 0")
-        if self.estimate_gain > 1:
-            raise ValueError(f"FaultDetectorConfig.estimate_gain must be <= 1, got {self.estimate_gain}")
+        for name in ("estimate_gain", "rise_gain", "sag_floor_share"):
+            if getattr(self, name) > 1:
+                raise ValueError(f"FaultDetectorConfig.{name} must be <= 1, got {getattr(self, name)}")
+
+
+class _Path(IntEnum):
+    ESC = 0
+    SATURATED = 1
+    RESIDUAL = 2
 
 
 @dataclass(frozen=True)
 class _Evidence:
     rotor: int | None                  # 0-based rotor voted for, None: no vote
-    consistent: int | None             # 0-based rotor that alone explains a significant residual (any size)
-    deficit_n: np.ndarray              # (4,) expected - delivered thrust of each rotor over the interval
-    ceiling_n: np.ndarray              # (4,) thrust each rotor delivers (direct: the level its lag heads to)
-    direct: bool                       # from delivered-thrust telemetry
+    path: _Path
+    kind: FaultKind
+    delivered_n: np.ndarray            # (4,) what each rotor delivered (ESC: the level its lag heads to)
+    expected_n: np.ndarray             # (4,) what the model expected of each rotor over the interval
+    short: np.ndarray                  # (4,) bool: clearly delivered less than expected (this rotor alone)
+    significant: np.ndarray            # (4,) bool: what it delivered is measured, not noise
 
 
 class FaultDetector:
-    def __init__(self, af: Airframe, config: FaultDetectorConfig = FaultDetectorConfig()):
+    def __init__(self, af: Airframe, config: FaultDetectorConfig = FaultDetectorConfig(),
+                 propeller: PropellerModel | None = None):
         config.validate()
         self._af, self._c = af, config
+        self._propeller = propeller or PropellerModel.from_airframe(af)
         self._model = ThrustResidualModel(af, ResidualNoise(
             velocity_m_s=config.velocity_noise_m_s, rates_rad_s=config.rates_noise_rad_s,
             force_n=config.force_model_error_n, torque_n_m=config.torque_model_error_n_m,
             torque_share=config.torque_model_share))
         self._limit_n = np.full(ROTOR_COUNT, af.thrust_max_n)
-        self._estimate_n: float | None = None
         self._prev: tuple[float, np.ndarray] | None = None
-        self._lag_n = np.zeros(ROTOR_COUNT)        # thrust the motors deliver (as reported, else modelled)
-        self._cmd_lag_n = np.zeros(ROTOR_COUNT)    # the command through the motor lag: what healthy motors deliver
-        self._direct_votes_s = 0.0                 # time covered by the direct votes in a row for the suspect rotor
+        self._lag_n = np.zeros(ROTOR_COUNT)        # thrust the model says the motors deliver
+        self._cmd_lag_n = np.zeros(ROTOR_COUNT)    # the command through the motor lag: what the ESCs are asked for
+        self._esc_time_s = -math.inf               # newest ESC frame used
+        self._esc_thrust_n = np.zeros(ROTOR_COUNT)     # its speed-implied thrusts
+        self._esc_rpm: np.ndarray | None = None
+        self._esc_heading_n = np.zeros(ROTOR_COUNT)    # the level those thrusts head to through the lag
+        self._run: tuple[_Path, int, float] | None = None   # (path, rotor, time covered) of the votes in a row
         self._window: deque[tuple[float, IntervalFit]] = deque()
         self._bias_per_s = np.zeros(len(CHANNELS))
-        self._rotor: int | None = None
-        self._state = FaultState.HEALTHY
-        self._suspect_since_s = 0.0
-        self._detected_at_s: float | None = None
         self._deficit_n = np.zeros(ROTOR_COUNT)
+        self._clear()
+        self._detected_at_s: float | None = None
+
+    def _clear(self) -> None:
+        self._state, self._rotor, self._kind = FaultState.HEALTHY, None, FaultKind.UNKNOWN
+        self._healthy_s = 0.0                      # confirmed rotor delivering all it is asked for this long
+        self._window.clear()
+        self._suspect_since_s = 0.0
+        self._estimate_n = math.inf                # ceiling of the confirmed rotor
+        self._effectiveness = 1.0                  # thrust per command of the confirmed rotor
 
     @property
     def status(self) -> FaultStatus:
-        bounds = self._limit_n.copy()
-        if self._state is FaultState.CONFIRMED:
-            bounds[self._rotor] = self._estimate_n
+        estimate, bound = self._limit_n.copy(), self._limit_n.copy()
+        confirmed = self._state is FaultState.CONFIRMED
+        if confirmed:
+            estimate[self._rotor] = self._estimate_n
+            bound[self._rotor] = min(self._estimate_n + self._c.probe_n, self._limit_n[self._rotor])
         rotor = None if self._rotor is None else self._rotor + 1
-        message = f"thrust loss rotor {rotor}" if self._state is FaultState.CONFIRMED else ""
-        return FaultStatus(state=self._state, rotor=rotor, thrust_max_estimate_n=bounds,
-                           detected_at_s=self._detected_at_s, message=message, deficit_n=self._deficit_n.copy())
+        message = ""
+        if confirmed:
+            known = "" if self._kind is FaultKind.UNKNOWN else f" ({self._kind.name.lower()})"
+            message = f"thrust loss rotor {rotor}{known}"
+        return FaultStatus(state=self._state, rotor=rotor, kind=self._kind, thrust_max_estimate_n=estimate,
+                           thrust_bound_n=bound, detected_at_s=self._detected_at_s if confirmed else None,
+                           message=message, deficit_n=self._deficit_n.copy())
 
     def update(self, time_s: float, state_measured, thrust_cmd_n, thrust_limit_n=None,
-               thrust_delivered_n=None) -> FaultStatus:
+               esc: EscSample | None = None) -> FaultStatus:
         """One telemetry frame. thrust_limit_n (4,): each rotor's limit as known without this
-        detector (default and NaN entries: the airframe's thrust_max_n); thrust_delivered_n
-        (4,): the flight controller's per-thruster thrust, NaN (or None) when unknown. A frame
-        with a non-finite state or command is skipped and restarts the evidence."""
+        detector (default and NaN entries: the airframe's thrust_max_n); esc: the newest ESC
+        telemetry (None: the FC has none). A frame with a non-finite state or command is
+        skipped and restarts the evidence."""
         x = np.asarray(state_measured, dtype=float).reshape(rom.NX)
         cmd = np.asarray(thrust_cmd_n, dtype=float).reshape(ROTOR_COUNT)
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(cmd))):
@@ -150,92 +190,168 @@ class FaultDetector:
         if thrust_limit_n is not None:
             limit = np.asarray(thrust_limit_n, dtype=float).reshape(ROTOR_COUNT)
             self._limit_n = np.where(np.isfinite(limit), limit, self._af.thrust_max_n)
-        ceiling = self._limit_n.copy()
-        if self._state is FaultState.CONFIRMED:
-            ceiling[self._rotor] = min(self._estimate_n, ceiling[self._rotor])
-        target = np.clip(cmd, self._af.thrust_min_n, ceiling)
-        delivered = None if thrust_delivered_n is None else np.asarray(thrust_delivered_n, dtype=float)
+        asked = np.clip(cmd, self._af.thrust_min_n, self._limit_n)
+        target = self._expected_response(asked)
         prev, self._prev = self._prev, (time_s, x)
         dt = None if prev is None else time_s - prev[0]
         if dt is None or not 0 < dt <= self._c.max_gap_s:
             self._window.clear()
-            self._lag_n = self._cmd_lag_n = target
+            self._lag_n, self._cmd_lag_n = target, asked
+            self._run = None
             return self.status
-        average_n, end_n = self._model.motor_response(self._lag_n, target, dt)
-        self._cmd_lag_n = self._model.motor_response(self._cmd_lag_n, target, dt)[1]
-        if delivered is not None and np.all(np.isfinite(delivered)):
-            evidence = self._direct_evidence(delivered, dt)
-            if evidence.rotor is None:
-                self._direct_votes_s = 0.0
-            else:                                # a vote: extends the run when it is for the same rotor
-                self._direct_votes_s = dt + (self._direct_votes_s if evidence.rotor == self._rotor else 0.0)
-            self._deficit_n = evidence.deficit_n
-            self._lag_n = delivered
-        else:
-            evidence = self._model_evidence(time_s, prev[1], x, average_n, dt)
-            self._lag_n = end_n
-            self._direct_votes_s = 0.0
-        self._decide(time_s, evidence, target)
+        average_n, self._lag_n = self._model.motor_response(self._lag_n, target, dt)
+        self._cmd_lag_n = self._model.motor_response(self._cmd_lag_n, asked, dt)[1]
+        reading = self._esc_reading(time_s, esc)
+        evidence = self._residual_evidence(time_s, prev[1], x, average_n, cmd, dt, reading)
+        if reading is not None:
+            direct = self._esc_evidence(reading)
+            confirmed = self._state is FaultState.CONFIRMED
+            if direct.rotor is not None and not confirmed or confirmed and self._kind is not FaultKind.DAMAGE:
+                evidence = direct              # the ESC measures its rotor; only a damaged propeller hides from it
+        self._count_run(evidence, dt)
+        self._decide(time_s, evidence, cmd, dt)
         return self.status
 
-    def _direct_evidence(self, delivered_n: np.ndarray, dt: float) -> _Evidence:
+    # -- models ----------------------------------------------------------------------------------
+    def _expected_response(self, asked_n: np.ndarray) -> np.ndarray:
+        """What each rotor delivers for the command as far as the detector knows (the faulty
+        rotor: its effectiveness and ceiling)."""
+        target = asked_n.copy()
+        if self._state is FaultState.CONFIRMED:
+            i = self._rotor
+            target[i] = min(self._effectiveness * target[i], self._estimate_n)
+        return np.maximum(target, self._af.thrust_min_n)
+
+    def _common_floor_n(self, reading: EscReading | None) -> float:
+        """The ceiling a sagging battery may give every rotor: below it a shortfall is a rotor's."""
+        if reading is not None and math.isfinite(reading.battery_ceiling_n):
+            return (1.0 - self._c.shortfall_min / 3) * reading.battery_ceiling_n
+        return self._c.sag_floor_share * float(np.max(self._limit_n))
+
+    def _esc_reading(self, time_s: float, esc: EscSample | None) -> EscReading | None:
+        """The newest ESC frame, once (None: none new, too old, or without any speed)."""
+        if esc is None or not esc.time_s > self._esc_time_s or time_s - esc.time_s > self._c.esc_max_age_s:
+            return None
+        esc_dt, self._esc_time_s = esc.time_s - self._esc_time_s, esc.time_s
+        if not np.any(np.isfinite(esc.rpm)):
+            return None
+        reading = read_escs(esc, self._cmd_lag_n, self._propeller)
+        self._esc_thrust_n = np.where(np.isfinite(reading.thrust_n), reading.thrust_n, self._cmd_lag_n)
+        # The rotor speed follows its first-order lag: speed = heading + decay (previous - heading).
+        rpm = np.where(np.isfinite(reading.rpm), reading.rpm, self._propeller.rpm(self._esc_thrust_n))
+        previous, self._esc_rpm = self._esc_rpm, rpm
+        decay = self._model.motor_decay(esc_dt) if math.isfinite(esc_dt) else 1.0
+        heading = rpm if previous is None or decay >= 1 else np.maximum((rpm - decay * previous) / (1 - decay), 0.0)
+        self._esc_heading_n = np.minimum(self._esc_thrust_n, self._propeller.thrust_n(heading))
+        return reading
+
+    # -- evidence ----------------------------------------------------------------------------------
+    def _esc_evidence(self, reading: EscReading) -> _Evidence:
         c = self._c
         expected = self._cmd_lag_n
-        deficit = expected - delivered_n
+        if math.isfinite(reading.battery_ceiling_n):
+            expected = np.minimum(expected, self._common_floor_n(reading))
+        deficit = expected - self._esc_thrust_n
         i = int(np.argmax(deficit))
         alone = bool(np.all(np.delete(deficit, i) < c.deficit_min_n / 2))
         large = deficit[i] >= c.deficit_min_n or (deficit[i] >= c.deficit_min_n / 2
                                                    and deficit[i] >= c.shortfall_min * expected[i])
-        decay = self._model.motor_decay(dt)       # delivered = heading + decay (previous - heading)
-        heading_n = (delivered_n - decay * self._lag_n) / (1 - decay)
-        return _Evidence(rotor=i if alone and large else None, consistent=i if alone else None, deficit_n=deficit,
-                         ceiling_n=np.minimum(heading_n, delivered_n), direct=True)
+        self._deficit_n = deficit
+        return _Evidence(rotor=i if alone and large else None, path=_Path.ESC,
+                         kind=_KIND_OF_CONDITION[reading.condition[i]],
+                         delivered_n=np.maximum(self._esc_heading_n, self._af.thrust_min_n), expected_n=expected,
+                         short=deficit >= c.ceiling_deficit_min_n, significant=np.ones(ROTOR_COUNT, dtype=bool))
 
-    def _model_evidence(self, time_s: float, x_prev: np.ndarray, x: np.ndarray, average_n: np.ndarray,
-                        dt: float) -> _Evidence:
+    def _residual_evidence(self, time_s: float, x_prev: np.ndarray, x: np.ndarray, average_n: np.ndarray,
+                           cmd: np.ndarray, dt: float, reading: EscReading | None) -> _Evidence:
         c = self._c
         fit, raw = self._model.fit(x_prev, x, average_n, dt, self._bias_per_s)
         self._window.append((time_s, fit))
         while self._window[0][0] <= time_s - c.window_s + 1e-9:
             self._window.popleft()
         pooled = combine([f for _, f in self._window])
-        self._deficit_n = pooled.deficit_n
         i, explained, left = best_hypothesis(pooled)
         noise_chi2 = _NOISE_CHI2_MARGIN * len(CHANNELS) * len(self._window)   # what noise alone leaves
         consistent = explained >= c.chi2_min and left <= c.unexplained_max * explained + noise_chi2
-        votes = consistent and pooled.deficit_n[i] >= c.deficit_min_n
+        expected = pooled.expected_thrust_n
+        delivered = expected - pooled.deficit_size_n
+        short = min(expected[i], self._common_floor_n(reading)) - delivered[i]
+        votes = consistent and pooled.deficit_n[i] >= c.deficit_min_n and short >= c.deficit_min_n
         if self._state is FaultState.HEALTHY and not votes:
             self._bias_per_s += min(dt / c.bias_time_constant_s, 1.0) * (raw / dt - self._bias_per_s)
-        return _Evidence(rotor=i if votes else None, consistent=i if consistent else None,
-                         deficit_n=pooled.deficit_size_n,
-                         ceiling_n=pooled.expected_thrust_n - pooled.deficit_size_n, direct=False)
+        if reading is None:
+            self._deficit_n = pooled.deficit_size_n
+        saturated = cmd[i] >= self.status.thrust_bound_n[i] - c.saturation_margin_n
+        kind = FaultKind.UNKNOWN
+        if reading is not None and reading.condition[i] is RotorCondition.NORMAL:
+            kind = FaultKind.DAMAGE
+        short = np.zeros(ROTOR_COUNT, dtype=bool)
+        short[i] = consistent and pooled.deficit_size_n[i] >= c.ceiling_deficit_min_n
+        return _Evidence(rotor=i if votes else None, path=_Path.SATURATED if saturated else _Path.RESIDUAL,
+                         kind=kind, delivered_n=delivered, expected_n=expected, short=short,
+                         significant=pooled.b**2 / pooled.a >= c.chi2_min)
 
-    def _decide(self, time_s: float, evidence: _Evidence, target_n: np.ndarray) -> None:
+    def _count_run(self, evidence: _Evidence, dt: float) -> None:
+        """The time covered by votes in a row for one rotor on one fast path (ESC, saturation)."""
+        if evidence.rotor is None or evidence.path is _Path.RESIDUAL:
+            self._run = None
+            return
+        same = self._run is not None and self._run[:2] == (evidence.path, evidence.rotor)
+        self._run = (evidence.path, evidence.rotor, dt + (self._run[2] if same else 0.0))
+
+    # -- decisions ----------------------------------------------------------------------------------
+    def _decide(self, time_s: float, evidence: _Evidence, cmd: np.ndarray, dt: float) -> None:
         if self._state is FaultState.CONFIRMED:
-            self._refine(evidence, target_n)
+            self._refine(evidence, cmd, dt)
             return
         if evidence.rotor is None:
-            self._state, self._rotor = FaultState.HEALTHY, None
+            self._clear()
             return
         if self._state is FaultState.HEALTHY or evidence.rotor != self._rotor:
             self._state, self._rotor, self._suspect_since_s = FaultState.SUSPECT, evidence.rotor, time_s
-        fast = evidence.direct and self._direct_votes_s >= self._c.direct_confirm_s - 1e-9
-        if fast or time_s - self._suspect_since_s >= self._c.confirm_s - 1e-9:
-            self._state, self._detected_at_s = FaultState.CONFIRMED, time_s
-            self._estimate_n = self._clip(evidence.ceiling_n[self._rotor])
+        c = self._c
+        fast_s = {_Path.ESC: c.direct_confirm_s, _Path.SATURATED: c.saturated_confirm_s}.get(evidence.path)
+        fast = fast_s is not None and self._run is not None and self._run[2] >= fast_s - 1e-9
+        if fast or time_s - self._suspect_since_s >= c.confirm_s - 1e-9:
+            self._confirm(time_s, evidence)
 
-    def _refine(self, evidence: _Evidence, target_n: np.ndarray) -> None:
-        """Lower the ceiling estimate towards what the rotor delivered when, commanded at its
-        ceiling, it clearly delivered less (a significant residual that this rotor alone
-        explains). A rotor that delivers what it is asked says only that its ceiling is at
-        least that: no update, so noise and model errors cannot ratchet the estimate down."""
+    def _confirm(self, time_s: float, evidence: _Evidence) -> None:
         i = self._rotor
-        if target_n[i] < self._estimate_n - self._c.saturation_margin_n:
+        self._state, self._detected_at_s, self._kind = FaultState.CONFIRMED, time_s, evidence.kind
+        delivered, expected = evidence.delivered_n[i], evidence.expected_n[i]
+        if self._kind in (FaultKind.MOTOR, FaultKind.PROPELLER):
+            self._estimate_n = self._af.thrust_min_n
+        elif self._kind is FaultKind.DAMAGE and expected > self._c.deficit_min_n:
+            self._effectiveness = float(np.clip(delivered / expected, 0.0, 1.0))
+            self._estimate_n = self._effectiveness * self._limit_n[i]
+        else:
+            self._estimate_n = self._clip(delivered)
+        self._window.clear()                   # the evidence was read against the healthy model
+        self._run = None
+
+    def _refine(self, evidence: _Evidence, cmd: np.ndarray, dt: float) -> None:
+        """Move the confirmed rotor's model towards what it delivers: lower when it clearly gives
+        less than the model says, higher when, asked above its estimate, it measurably gives more."""
+        c, i = self._c, self._rotor
+        delivered, expected = evidence.delivered_n[i], evidence.expected_n[i]
+        if self._kind is FaultKind.DAMAGE:
+            if evidence.short[i] and expected > c.deficit_min_n:
+                share = self._effectiveness * delivered / expected
+                self._effectiveness += c.estimate_gain * (share - self._effectiveness)
+                self._estimate_n = self._effectiveness * self._limit_n[i]
             return
-        if evidence.consistent != i or evidence.deficit_n[i] < self._c.ceiling_deficit_min_n:
-            return
-        observed = evidence.ceiling_n[i]
-        self._estimate_n = self._clip(self._estimate_n + self._c.estimate_gain * (observed - self._estimate_n))
+        asked = min(float(np.clip(cmd[i], self._af.thrust_min_n, self._limit_n[i])), self._estimate_n + c.probe_n)
+        at_ceiling = asked >= self._estimate_n - c.saturation_margin_n
+        if evidence.short[i] and at_ceiling:
+            self._estimate_n = self._clip(self._estimate_n + c.estimate_gain * (delivered - self._estimate_n))
+        elif at_ceiling and evidence.significant[i] and min(delivered, asked) >= self._estimate_n + c.probe_n / 2:
+            self._estimate_n = self._clip(self._estimate_n + c.rise_gain * (min(delivered, asked) - self._estimate_n))
+        # Healthy again: back within probe_n of its limit, or near a hover share and delivering
+        # all it is asked for recover_s (the NMPC need not ask it for more to show it).
+        near_hover = self._estimate_n >= self._af.hover_thrust_per_rotor_n - c.probe_n
+        self._healthy_s = self._healthy_s + dt if near_hover and not evidence.short[i] else 0.0
+        if self._estimate_n >= self._limit_n[i] - c.probe_n or self._healthy_s >= c.recover_s - 1e-9:
+            self._clear()
 
     def _clip(self, thrust_n: float) -> float:
         return float(np.clip(thrust_n, self._af.thrust_min_n, self._limit_n[self._rotor]))

@@ -22,7 +22,7 @@ import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
 from companion.core import rom
-from companion.core.fault_detector import FaultState, FaultStatus
+from companion.core.control_types import FaultKind, FaultState, FaultStatus
 
 
 @dataclass(frozen=True)
@@ -62,6 +62,7 @@ class ThrustLossCheck:
         confirmed = self._detected_at_s is not None
         return FaultStatus(state=FaultState.CONFIRMED if confirmed else
                            FaultState.SUSPECT if self._since_s is not None else FaultState.HEALTHY,
-                           rotor=None, thrust_max_estimate_n=limit.copy(), detected_at_s=self._detected_at_s,
+                           rotor=None, kind=FaultKind.UNKNOWN, thrust_max_estimate_n=limit.copy(),
+                           thrust_bound_n=limit.copy(), detected_at_s=self._detected_at_s,
                            message="potential thrust loss" if confirmed else "",
                            deficit_n=np.full(ROTOR_COUNT, math.nan))

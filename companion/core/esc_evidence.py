@@ -1,0 +1,132 @@
+"""What the ESCs' own telemetry says about each rotor: the thrust its speed and load imply.
+
+An ESC reports rotor speed (RPM), current and voltage (ArduPilot's ESC_TELEMETRY_1_TO_4),
+never thrust. A propeller's thrust is k_t * omega^2 at the speed it turns, so long as it is
+on the shaft and whole; its aerodynamic load shows in the motor's power, current * voltage,
+which grows as omega^3 (torque k_q omega^2 times speed). Per rotor:
+
+- stopped (motor or ESC dead): the speed collapses, and with it the thrust k_t omega^2;
+- unloaded (propeller lost): the motor overspeeds, its thrust is 0 whatever it turns at,
+  and its load index current * voltage / rpm^3 falls far below the other rotors' (the
+  serial current comes at a tenth of the RPM's rate, so the overspeed alone also tells);
+- a rotor that turns slower than the voltage and command ask (a weak motor) delivers the
+  thrust of the speed it reaches;
+- a chipped propeller turns normally: the ESC cannot see it (the model residual must).
+
+The load index is compared with the median of the other rotors', not with a constant, so an
+unknown motor constant, a sagging battery or a temperature drift cancel. The thrust a full
+command can give at the ESC's voltage (the speed scales with voltage) is the battery's
+common ceiling: a rotor held there is not a faulty rotor. Pure functions, no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import IntEnum
+
+import numpy as np
+
+from m4.airframe import ROTOR_COUNT, Airframe
+
+_RAD_S_PER_RPM = 2.0 * math.pi / 60.0
+
+
+class RotorCondition(IntEnum):
+    NORMAL = 0          # turns as asked, loaded: the ESC sees nothing wrong
+    STOPPED = 1         # speed collapsed
+    UNLOADED = 2        # turning with no aerodynamic load: the propeller is gone
+    SLOW = 3            # turning, loaded, but slower than the command asks
+
+
+@dataclass(frozen=True)
+class EscSample:
+    """One ESC_TELEMETRY frame of the four rotors (NaN: not reported)."""
+
+    time_s: float                  # the flight controller's clock
+    rpm: np.ndarray                # (4,)
+    current_a: np.ndarray          # (4,)
+    voltage_v: np.ndarray          # (4,)
+
+
+@dataclass(frozen=True)
+class PropellerModel:
+    """The airframe's propeller and motor figures the ESC evidence needs."""
+
+    thrust_coefficient_n_s2: float     # k_t: thrust = k_t omega^2, omega in rad/s
+    speed_max_rad_s: float             # at the nominal voltage, full command
+    voltage_nominal_v: float
+
+    @classmethod
+    def from_airframe(cls, af: Airframe) -> "PropellerModel":
+        return cls(thrust_coefficient_n_s2=af.thrust_coefficient_n_s2,
+                   speed_max_rad_s=math.sqrt(af.thrust_max_n / af.thrust_coefficient_n_s2),
+                   voltage_nominal_v=af.battery_voltage_nominal_v)
+
+    def thrust_n(self, rpm: np.ndarray) -> np.ndarray:
+        return self.thrust_coefficient_n_s2 * (np.asarray(rpm, dtype=float) * _RAD_S_PER_RPM) ** 2
+
+    def rpm(self, thrust_n: np.ndarray) -> np.ndarray:
+        return np.sqrt(np.maximum(thrust_n, 0.0) / self.thrust_coefficient_n_s2) / _RAD_S_PER_RPM
+
+    def ceiling_n(self, voltage_v: float) -> float:
+        """The thrust a full command gives at this supply voltage (speed proportional to it)."""
+        omega = self.speed_max_rad_s * min(voltage_v / self.voltage_nominal_v, 1.0)
+        return self.thrust_coefficient_n_s2 * omega**2
+
+
+@dataclass(frozen=True)
+class EscThresholds:
+    stopped_share: float = 0.3        # turning below this share of the expected speed: stopped
+    slow_share: float = 0.9           # below this share (and loaded): slow
+    unloaded_load_share: float = 0.4  # load index below this share of the other rotors' median: unloaded
+    overspeed_share: float = 1.15     # this far above the expected speed: unloaded
+    speed_min_rpm: float = 500.0      # below this the load index means nothing
+
+
+@dataclass(frozen=True)
+class EscReading:
+    """Per rotor: what the ESC frame says it delivers and how it behaves."""
+
+    rpm: np.ndarray                        # (4,) as reported (NaN: not reported)
+    thrust_n: np.ndarray                   # (4,) k_t omega^2, 0 when unloaded; NaN when the ESC says nothing
+    condition: tuple[RotorCondition, ...]  # (4,)
+    battery_ceiling_n: float               # what a full command gives at the reported voltage (inf: unknown)
+
+
+def read_escs(sample: EscSample, expected_n: np.ndarray, model: PropellerModel,
+              th: EscThresholds = EscThresholds()) -> EscReading:
+    """The thrusts and conditions of one ESC frame, against the thrust the rotors should give now
+    (the command through the motor lag, within the battery's ceiling)."""
+    rpm = np.asarray(sample.rpm, dtype=float).reshape(ROTOR_COUNT)
+    current = np.asarray(sample.current_a, dtype=float).reshape(ROTOR_COUNT)
+    voltage = np.asarray(sample.voltage_v, dtype=float).reshape(ROTOR_COUNT)
+    volts = voltage[np.isfinite(voltage) & (voltage > 0)]
+    ceiling = model.ceiling_n(float(np.median(volts))) if volts.size else math.inf
+    expected_rpm = model.rpm(np.minimum(expected_n, ceiling))
+    turning = np.isfinite(rpm) & (rpm >= th.speed_min_rpm)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        load = np.where(turning & np.isfinite(current), current * np.where(np.isfinite(voltage), voltage, 1.0)
+                        / np.maximum(rpm, th.speed_min_rpm) ** 3, np.nan)
+        speed_share = np.where(expected_rpm >= th.speed_min_rpm, rpm / expected_rpm, np.nan)
+    thrust = model.thrust_n(rpm)
+    conditions = []
+    for i in range(ROTOR_COUNT):
+        others = np.delete(load, i)
+        others = others[np.isfinite(others)]
+        unloaded = bool(speed_share[i] > th.overspeed_share)
+        if np.isfinite(load[i]) and others.size:
+            unloaded |= bool(load[i] < th.unloaded_load_share * float(np.median(others)))
+        conditions.append(_condition(speed_share[i], unloaded, th) if np.isfinite(rpm[i]) else RotorCondition.NORMAL)
+    thrust = np.where([c is RotorCondition.UNLOADED for c in conditions], 0.0, thrust)
+    return EscReading(rpm=rpm, thrust_n=thrust, condition=tuple(conditions), battery_ceiling_n=ceiling)
+
+
+def _condition(speed_share: float, unloaded: bool, th: EscThresholds) -> RotorCondition:
+    if not np.isfinite(speed_share):                  # nothing expected (rotor commanded idle)
+        return RotorCondition.UNLOADED if unloaded else RotorCondition.NORMAL
+    if speed_share < th.stopped_share:
+        return RotorCondition.STOPPED
+    if unloaded:
+        return RotorCondition.UNLOADED
+    return RotorCondition.SLOW if speed_share < th.slow_share else RotorCondition.NORMAL

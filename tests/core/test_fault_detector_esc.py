@@ -1,0 +1,165 @@
+"""The fault detector on synthetic ESC telemetry (RPM, current, voltage) at 50 Hz: the rotor,
+the kind, the ceiling, a sagging battery, an intermittent fault and a second one."""
+
+import math
+
+import numpy as np
+import pytest
+
+from m4.airframe import ROTOR_COUNT, load_airframe
+from companion.core import rom
+from companion.core.esc_evidence import EscSample, PropellerModel, RotorCondition, read_escs
+from companion.core.fault_detector import FaultDetector, FaultKind, FaultState
+
+AF = load_airframe()
+HOVER_N = AF.hover_thrust_per_rotor_n
+DT = 0.02
+PROP = PropellerModel(thrust_coefficient_n_s2=4.4e-5, speed_max_rad_s=math.sqrt(30.0 / 4.4e-5), voltage_nominal_v=14.8)
+LOAD = 9.0e-10          # current * voltage / rpm^3 of a loaded propeller (about 150 W at hover)
+
+
+class Escs:
+    """Four rotors whose speed follows the command (as thrust) through the motor lag, within a
+    per-rotor speed ceiling; a propeller can be missing (the motor then runs 25 % faster, unloaded)."""
+
+    def __init__(self, voltage_v=14.8):
+        self.rpm = PROP.rpm(np.full(ROTOR_COUNT, HOVER_N))
+        self.rpm_max = np.full(ROTOR_COUNT, np.inf)
+        self.unloaded = np.zeros(ROTOR_COUNT, dtype=bool)
+        self.voltage_v = voltage_v
+
+    def step(self, t_s, cmd_n) -> EscSample:
+        ceiling_rpm = PROP.rpm(np.full(ROTOR_COUNT, PROP.ceiling_n(self.voltage_v)))
+        goal = np.minimum(np.minimum(PROP.rpm(cmd_n), self.rpm_max), ceiling_rpm) * np.where(self.unloaded, 1.25, 1.0)
+        self.rpm = goal + (self.rpm - goal) * math.exp(-DT / AF.motor_time_constant_s)
+        current = np.where(self.unloaded, 1.0, LOAD * self.rpm**3 / self.voltage_v)
+        return EscSample(time_s=t_s, rpm=self.rpm.copy(), current_a=current, voltage_v=np.full(ROTOR_COUNT, self.voltage_v))
+
+    def thrust_n(self):
+        return np.where(self.unloaded, 0.0, PROP.thrust_n(self.rpm))
+
+
+STEP = rom.build_rom(AF, DT, 4).step
+
+
+def flown(x, before_n, after_n):
+    """The ROM moved over one frame by the thrusts the rotors delivered (their average)."""
+    u = np.zeros(rom.NU)
+    u[rom.THRUST] = (before_n + after_n) / 2
+    return np.array(STEP(x, u, np.zeros(rom.ND))).ravel()
+
+
+def fly(escs, commands, events=()):
+    """The robot moved by what the rotors deliver, the detector reading it and the ESCs;
+    events: {frame: fn(escs)}, applied at the start of that frame's interval."""
+    det = FaultDetector(AF, propeller=PROP)
+    x, statuses = rom.hover_state(AF), []
+    for k, cmd in enumerate(commands):
+        if k in events:
+            events[k](escs)
+        before = escs.thrust_n()
+        sample = escs.step(k * DT, cmd)
+        x = flown(x, before, escs.thrust_n())
+        statuses.append(det.update(k * DT, x, cmd, esc=sample))
+    return statuses
+
+
+def hover(n):
+    return [np.full(ROTOR_COUNT, HOVER_N)] * n
+
+
+def first_confirmed(statuses):
+    return next((k, s) for k, s in enumerate(statuses) if s.state is FaultState.CONFIRMED)
+
+
+def test_a_stopped_motor_is_confirmed_within_two_frames_with_its_kind_and_a_zero_ceiling():
+    def stop(e):
+        e.rpm_max[2] = 0.0
+    statuses = fly(Escs(), hover(20), {5: stop})
+    k, s = first_confirmed(statuses)
+    assert s.rotor == 3 and s.kind is FaultKind.MOTOR and s.message == "thrust loss rotor 3 (motor)"
+    assert (k - 5 + 1) * DT <= 0.05 + 1e-9               # the fault acts during the interval ending at frame 5
+    assert s.thrust_max_estimate_n[2] == pytest.approx(0.0, abs=0.5)
+    assert s.thrust_bound_n[2] == pytest.approx(s.thrust_max_estimate_n[2] + 2.0)
+    assert np.allclose(np.delete(s.thrust_max_estimate_n, 2), AF.thrust_max_n)
+
+
+def test_a_lost_propeller_overspeeds_its_motor_and_is_told_from_a_stopped_one():
+    def lose(e):
+        e.unloaded[0] = True
+    statuses = fly(Escs(), hover(20), {5: lose})
+    k, s = first_confirmed(statuses)
+    assert s.rotor == 1 and s.kind is FaultKind.PROPELLER
+    assert (k - 5 + 1) * DT <= 0.10 + 1e-9
+    assert s.thrust_max_estimate_n[0] == pytest.approx(AF.thrust_min_n)
+
+
+def test_a_motor_that_cannot_reach_its_speed_is_sized_by_the_speed_it_reaches():
+    ceiling_n = 0.5 * HOVER_N
+    def weaken(e):
+        e.rpm_max[1] = PROP.rpm(ceiling_n)
+    statuses = fly(Escs(), hover(20), {5: weaken})
+    _, s = first_confirmed(statuses)
+    assert s.rotor == 2 and s.kind is FaultKind.DEGRADED
+    assert s.thrust_max_estimate_n[1] == pytest.approx(ceiling_n, abs=0.1 * HOVER_N)
+
+
+def test_a_sagging_battery_that_caps_every_rotor_is_no_rotors_fault():
+    """Rotor 1 asked for 28 N while the pack has sagged so far that a full command gives 21 N:
+    it falls 7 N short, alone, but at the ceiling every rotor shares."""
+    escs = Escs(voltage_v=14.8 * math.sqrt(21.0 / 30.0))
+    cmd = np.array([28.0, HOVER_N, HOVER_N, 10.0])
+    statuses = fly(escs, [cmd] * 30)
+    assert escs.thrust_n()[0] == pytest.approx(21.0, abs=0.1)
+    assert all(s.state is FaultState.HEALTHY for s in statuses)
+
+
+def test_fast_command_steps_the_motor_lag_delays_raise_no_alarm():
+    step = np.full(ROTOR_COUNT, HOVER_N)
+    step[0] = AF.thrust_max_n
+    statuses = fly(Escs(), hover(5) + [step] * 10 + hover(10))
+    assert all(s.state is FaultState.HEALTHY for s in statuses)
+
+
+def test_an_intermittent_fault_is_followed_back_up_and_a_second_fault_is_caught():
+    """Rotor 4 stops, comes back 0.4 s later and the estimate climbs back while the controller
+    asks it for its bound up to a hover share; healthy again, then rotor 2 loses its propeller."""
+    det = FaultDetector(AF, propeller=PROP)
+    escs = Escs()
+    events = {5: lambda e: e.rpm_max.__setitem__(3, 0.0), 25: lambda e: e.rpm_max.__setitem__(3, np.inf),
+              80: lambda e: e.unloaded.__setitem__(1, True)}
+    statuses = []
+    for k in range(100):
+        if k in events:
+            events[k](escs)
+        bound = det.status.thrust_bound_n
+        cmd = np.minimum(np.full(ROTOR_COUNT, HOVER_N), bound)
+        cmd[3] = min(bound[3], HOVER_N)
+        sample = escs.step(k * DT, cmd)   # the robot held level: the ESCs' evidence decides
+        statuses.append(det.update(k * DT, rom.hover_state(AF), cmd, esc=sample))
+    assert statuses[10].state is FaultState.CONFIRMED and statuses[10].rotor == 4
+    back = next(k for k in range(25, 100) if statuses[k].state is FaultState.HEALTHY)
+    assert (back - 25) * DT <= 0.8
+    assert all(s.state is FaultState.HEALTHY for s in statuses[back:80])
+    k, s = first_confirmed(statuses[80:])
+    assert s.rotor == 2 and s.kind is FaultKind.PROPELLER and k * DT <= 0.1
+
+
+def test_esc_frames_without_speed_or_too_old_are_not_evidence():
+    det = FaultDetector(AF, propeller=PROP)
+    cmd = np.full(ROTOR_COUNT, HOVER_N)
+    dead = EscSample(time_s=0.0, rpm=np.zeros(ROTOR_COUNT), current_a=np.zeros(ROTOR_COUNT),
+                     voltage_v=np.full(ROTOR_COUNT, 14.8))
+    for k in range(20):                       # the same old frame, repeated: read once, then too old
+        status = det.update(k * DT, rom.hover_state(AF), cmd, esc=dead)
+    assert status.state is FaultState.HEALTHY
+
+
+def test_the_load_index_marks_an_unloaded_rotor_even_before_it_overspeeds():
+    rpm = PROP.rpm(np.full(ROTOR_COUNT, HOVER_N))
+    current = LOAD * rpm**3 / 14.8
+    current[2] = 1.0
+    reading = read_escs(EscSample(0.0, rpm, current, np.full(ROTOR_COUNT, 14.8)), np.full(ROTOR_COUNT, HOVER_N), PROP)
+    assert reading.condition == (RotorCondition.NORMAL, RotorCondition.NORMAL, RotorCondition.UNLOADED,
+                                 RotorCondition.NORMAL)
+    assert reading.thrust_n[2] == 0.0 and reading.thrust_n[0] == pytest.approx(HOVER_N)
