@@ -75,10 +75,12 @@ def _compare(args) -> int:
 
 def add_campaign(sub) -> None:
     from sitl.campaign import DEFAULT_OUT
+    from sitl.detection_campaign import DEFAULT_OUT as DETECTION_OUT, KINDS
     from sitl.parallel import ENGINES
 
     p = sub.add_parser("campaign", help="many faulted flights in parallel: survival, altitude loss, detection")
-    p.add_argument("--out", type=Path, default=DEFAULT_OUT, metavar="DIR", help=f"output folder (default {DEFAULT_OUT})")
+    p.add_argument("--out", type=Path, metavar="DIR",
+                   help=f"output folder (default {DEFAULT_OUT}; with --kind {DETECTION_OUT})")
     p.add_argument("--samples", type=int, default=20, metavar="N", help="random flights (default 20)")
     p.add_argument("--grid", action="store_true", help="the full grid of rotors, losses, speeds, fault times instead")
     p.add_argument("--loss", type=_loss, action="append", metavar="X",
@@ -88,16 +90,50 @@ def add_campaign(sub) -> None:
     _rate(p)
     p.add_argument("--engine", choices=ENGINES, default="local", help="local processes (default) or Dask (cluster extra)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler, e.g. tcp://HOST:8786 (default: a local cluster)")
+    p.add_argument("--kind", type=_choices(KINDS), metavar="K,...",
+                   help=f"the detection campaign instead: these failure kinds ({','.join(KINDS)}) x every rotor")
+    p.add_argument("--esc", type=_choices(("on", "off")), default=("on", "off"), metavar="on,off",
+                   help="detection campaign: with and/or without ESC telemetry (default on,off)")
+    p.add_argument("--speed", type=_speeds, default=(0.0, 3.0), metavar="V,...",
+                   help="detection campaign: speeds at the fault in m/s (default 0,3)")
+    p.add_argument("--false-alarm-minutes", type=float, default=0.0, metavar="MIN",
+                   help="detection campaign: minutes of fault-free agile flight on a sagging battery (default 0)")
     p.set_defaults(func=_campaign)
 
 
+def _choices(allowed):
+    def parse(text: str) -> tuple[str, ...]:
+        items = tuple(t.strip() for t in text.split(",") if t.strip())
+        bad = [t for t in items if t not in allowed]
+        if bad or not items:
+            raise argparse.ArgumentTypeError(f"expected a comma-separated list of {', '.join(allowed)}, got {text!r}")
+        return items
+    return parse
+
+
+def _speeds(text: str) -> tuple[float, ...]:
+    try:
+        speeds = tuple(float(t) for t in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated speeds in m/s, got {text!r}") from None
+    if not all(0.0 <= v <= 5.0 for v in speeds):
+        raise argparse.ArgumentTypeError(f"speeds must be within 0..5 m/s, got {text!r}")
+    return speeds
+
+
 def _campaign(args) -> int:
-    from sitl.campaign import LOSS_LEVELS, run_campaign
+    from sitl.campaign import DEFAULT_OUT, LOSS_LEVELS, run_campaign
+    from sitl.detection_campaign import DEFAULT_OUT as DETECTION_OUT, run_detection_campaign
 
     losses = tuple(args.loss) if args.loss else LOSS_LEVELS
     try:
-        summary = run_campaign(args.out, args.samples, args.seed, args.grid, args.jobs, args.rate_hz, losses,
-                               args.engine, args.scheduler)
+        if args.kind:
+            summary = run_detection_campaign(args.out or DETECTION_OUT, args.kind, args.speed, tuple(e == "on" for e in args.esc), args.seed,
+                                             args.false_alarm_minutes, args.jobs, args.rate_hz, args.engine,
+                                             args.scheduler)
+        else:
+            summary = run_campaign(args.out or DEFAULT_OUT, args.samples, args.seed, args.grid, args.jobs, args.rate_hz, losses,
+                                   args.engine, args.scheduler)
     except FlightError as e:
         raise BadInput(str(e)) from None
     print(summary, end="")
