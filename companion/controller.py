@@ -17,10 +17,12 @@ apart by more than HIP_RESYNC_RAD (a blocked leg) or after a gap, the goal resta
 the measured joints. Every setpoint passes `safe_setpoint` (companion.core.control_types)
 before it leaves.
 
-Fault detection input: the FC's per-rotor delivered thrust when it reports one (NaN: the
-model residual is used instead) and the command in force over the last period (ours). The
-FC's per-rotor limits count only as a common cap (the largest of them): a limit that drops
-on one rotor is exactly what the detector must find itself, so it is not handed to it.
+Fault detection input: the measured state, the command in force over the last period (ours)
+and the FC's ESC telemetry when it has any (None: saturation and the model residual alone).
+The FC's per-rotor limits count only as a common cap (the largest of them): a limit that drops
+on one rotor is exactly what the detector must find itself, so it is not handed to it. The
+NMPC's bounds are the detector's (thrust_bound_n); a fault is announced at each confirmation
+(after a recovery, a second fault is announced too).
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ import numpy as np
 from companion.core import rom
 from companion.core.control_types import FaultState, FaultStatus, plausible_state, safe_setpoint, thrust_bounds
 from companion.core.disturbance import DisturbanceEstimator
+from companion.core.esc_evidence import EscSample
 from companion.core.fault_detector import FaultDetector, FaultDetectorConfig
 from companion.core.nmpc import Nmpc, NmpcResult
 from companion.core.nmpc_config import NmpcConfig
@@ -167,31 +170,30 @@ class Controller:
         self.detector = self._new_detector()
         self.flight = None
 
-    def step(self, time_s: float, x_measured, thrust_delivered_n=None, thrust_limit_n=None) -> ControlStep:
+    def step(self, time_s: float, x_measured, esc: EscSample | None = None, thrust_limit_n=None) -> ControlStep:
         """The setpoint answering the telemetry instant time_s for the measured ROM state."""
         af = self.af
         x = np.asarray(x_measured, dtype=float).reshape(rom.NX)
-        thrust_delivered_n = self._thrust_telemetry(thrust_delivered_n)
         thrust_limit_n = self._thrust_telemetry(thrust_limit_n)
         usable = plausible_state(af, x)
         if usable:
             x = self._with_hip_goal(x)
-        fault, confirmed_now = self._detect(time_s, x, usable, thrust_delivered_n, thrust_limit_n)
+        fault, confirmed_now = self._detect(time_s, x, usable, esc, thrust_limit_n)
         if confirmed_now:
             self.disturbance.reset()      # it held the lost rotor's effect, which the bound now models
             self.flight.reference.fault_detected(time_s, x[rom.P])
-        d = self._estimate_disturbance(time_s, x, usable, fault.thrust_max_estimate_n)
+        d = self._estimate_disturbance(time_s, x, usable, fault.thrust_bound_n)
         if self.flight is None or not usable:
             return self._fallback(time_s, x, fault, confirmed_now, d)
         if self._touched_down(time_s, x):
             sp = safe_setpoint(af, np.zeros(ROTOR_COUNT), x[rom.HIP], np.zeros(ROTOR_COUNT),
-                               fault.thrust_max_estimate_n, x[rom.HIP], thrust_cut=True)
+                               fault.thrust_bound_n, x[rom.HIP], thrust_cut=True)
             self._last = self._hip_goal = None
             return ControlStep(time_s, sp, x, None, None, fault, confirmed_now, d)
         c = self.nmpc.config
         x_ref = self.flight.reference.reference(time_s, c.horizon, c.dt_s)
-        res = self.nmpc.solve(x, x_ref, fault.thrust_max_estimate_n, d)
-        sp = self._setpoint(x, res, fault.thrust_max_estimate_n)
+        res = self.nmpc.solve(x, x_ref, fault.thrust_bound_n, d)
+        sp = self._setpoint(x, res, fault.thrust_bound_n)
         self._last = LastCommand(time_s, x, np.r_[sp.thrust_n, res.u[rom.HIP_ACCEL]])
         return ControlStep(time_s, sp, x, x_ref, res, fault, confirmed_now, d)
 
@@ -210,15 +212,17 @@ class Controller:
         dt = time_s - self._last.time_s
         return abs(dt - self.period_s) <= _CONSECUTIVE_TOLERANCE * self.period_s
 
-    def _detect(self, time_s, x, usable, delivered_n, limit_n) -> tuple[FaultStatus, bool]:
-        """The detector's status after this frame; True the first time it is confirmed in a flight."""
+    def _detect(self, time_s, x, usable, esc, limit_n) -> tuple[FaultStatus, bool]:
+        """The detector's status after this frame; True at each new confirmation in a flight."""
         if not usable or self._last is None:
             return self.detector.status, False
         cap = self.af.thrust_max_n
         if limit_n is not None and np.any(np.isfinite(limit_n)):          # already a (4,) array (_thrust_telemetry)
             cap = float(np.clip(np.nanmax(limit_n), self.af.thrust_min_n, self.af.thrust_max_n))
-        status = self.detector.update(time_s, x, self._last.thrust_n, np.full(ROTOR_COUNT, cap), delivered_n)
+        status = self.detector.update(time_s, x, self._last.thrust_n, np.full(ROTOR_COUNT, cap), esc)
         flight = self.flight
+        if flight is not None and status.state is FaultState.HEALTHY:
+            flight.fault_announced = False    # recovered: the next confirmation is a new fault
         confirmed_now = status.state is FaultState.CONFIRMED and flight is not None and not flight.fault_announced
         if confirmed_now:
             flight.fault_announced = True
@@ -269,6 +273,6 @@ class Controller:
         """No usable state or no flight yet: hover thrust within the bounds, hips held where they
         are, legs stopped."""
         sp = safe_setpoint(self.af, np.full(ROTOR_COUNT, np.nan), x[rom.HIP], np.zeros(ROTOR_COUNT),
-                           fault.thrust_max_estimate_n, x[rom.HIP])
+                           fault.thrust_bound_n, x[rom.HIP])
         self._last = self._hip_goal = None
         return ControlStep(time_s, sp, x, None, None, fault, confirmed_now, d)

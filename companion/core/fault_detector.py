@@ -132,7 +132,7 @@ class FaultDetector:
                  propeller: PropellerModel | None = None):
         config.validate()
         self._af, self._c = af, config
-        self._propeller = propeller or PropellerModel.from_airframe(af)
+        self._propeller = propeller                # None: no ESC model, ESC frames are not read
         self._model = ThrustResidualModel(af, ResidualNoise(
             velocity_m_s=config.velocity_noise_m_s, rates_rad_s=config.rates_noise_rad_s,
             force_n=config.force_model_error_n, torque_n_m=config.torque_model_error_n_m,
@@ -230,7 +230,8 @@ class FaultDetector:
 
     def _esc_reading(self, time_s: float, esc: EscSample | None) -> EscReading | None:
         """The newest ESC frame, once (None: none new, too old, or without any speed)."""
-        if esc is None or not esc.time_s > self._esc_time_s or time_s - esc.time_s > self._c.esc_max_age_s:
+        if (self._propeller is None or esc is None or not esc.time_s > self._esc_time_s
+                or time_s - esc.time_s > self._c.esc_max_age_s):
             return None
         esc_dt, self._esc_time_s = esc.time_s - self._esc_time_s, esc.time_s
         if not np.any(np.isfinite(esc.rpm)):
@@ -281,6 +282,9 @@ class FaultDetector:
             self._bias_per_s += min(dt / c.bias_time_constant_s, 1.0) * (raw / dt - self._bias_per_s)
         if reading is None:
             self._deficit_n = pooled.deficit_size_n
+        if self._state is FaultState.SUSPECT:   # sized from the intervals since the suspicion (after the fault)
+            since = combine([f for t, f in self._window if t > self._suspect_since_s - dt - 1e-9])
+            expected, delivered = since.expected_thrust_n, since.expected_thrust_n - since.deficit_size_n
         saturated = cmd[i] >= self.status.thrust_bound_n[i] - c.saturation_margin_n
         kind = FaultKind.UNKNOWN
         if reading is not None and reading.condition[i] is RotorCondition.NORMAL:

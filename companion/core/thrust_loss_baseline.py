@@ -41,9 +41,8 @@ class ThrustLossCheck:
         self._since_s: float | None = None
         self._detected_at_s: float | None = None
 
-    def update(self, time_s: float, state_measured, thrust_cmd_n, thrust_limit_n=None,
-               thrust_delivered_n=None) -> FaultStatus:
-        """Same signature as FaultDetector.update; the check has no use for delivered thrust."""
+    def update(self, time_s: float, state_measured, thrust_cmd_n, thrust_limit_n=None, esc=None) -> FaultStatus:
+        """Same signature as FaultDetector.update; the check has no use for ESC telemetry."""
         x = np.asarray(state_measured, dtype=float)
         cmd = np.asarray(thrust_cmd_n, dtype=float)
         limit = np.full(ROTOR_COUNT, self._af.thrust_max_n) if thrust_limit_n is None else np.asarray(thrust_limit_n)

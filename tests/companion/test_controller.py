@@ -14,6 +14,7 @@ from m4.airframe import ROTOR_COUNT, load_airframe
 from companion.config import parse_config
 from companion.controller import Controller, ControllerSettings
 from companion.core import rom
+from companion.core.esc_evidence import EscSample
 from companion.core.control_types import FaultState, safe_setpoint, thrust_bounds
 from companion.core.fault_detector import FaultDetector
 from companion.core.nmpc import Nmpc
@@ -91,9 +92,10 @@ replacements = st.lists(st.tuples(st.integers(0, rom.NX - 1),
 @given(steps=st.lists(st.tuples(replacements, four, four), min_size=1, max_size=5))
 def test_every_control_step_gives_a_finite_setpoint_within_bounds(steps):
     c = controller()
-    for k, (changes, delivered, limits) in enumerate(steps):
-        out = step(c, k * PERIOD, _state(changes), delivered, limits)
-        assert_safe(out.setpoint, out.fault.thrust_max_estimate_n)
+    for k, (changes, rpm, limits) in enumerate(steps):
+        esc = EscSample(k * PERIOD, np.asarray(rpm, dtype=float), np.full(4, 10.0), np.full(4, 14.8))
+        out = step(c, k * PERIOD, _state(changes), esc, limits)
+        assert_safe(out.setpoint, out.fault.thrust_bound_n)
 
 
 SNAPSHOT_FIELDS = ("euler_rad", "rates_frd_rad_s", "pos_ned_m", "vel_ned_m_s", "hip_rad", "hip_rate_rad_s")
@@ -119,14 +121,14 @@ def test_every_snapshot_through_the_frame_conversion_gives_a_safe_setpoint(steps
     c = controller()
     for k, (changes, limits) in enumerate(steps):
         snap = _snapshot(changes)
-        out = step(c, k * PERIOD, rom_state(snap, AF), snap.thrust_n, limits)
-        assert_safe(out.setpoint, out.fault.thrust_max_estimate_n)
+        out = step(c, k * PERIOD, rom_state(snap, AF), None, limits)
+        assert_safe(out.setpoint, out.fault.thrust_bound_n)
 
 
 def test_hover_at_rest_gives_hover_thrust_and_still_legs():
     c = controller()
     for k in range(5):
-        out = step(c, k * PERIOD, rom.hover_state(AF), [HOVER_N] * 4, [AF.thrust_max_n] * 4)
+        out = step(c, k * PERIOD, rom.hover_state(AF), None, [AF.thrust_max_n] * 4)
     sp = out.setpoint
     assert np.allclose(sp.thrust_n, HOVER_N, atol=0.2)
     assert np.allclose(sp.hip_rad, AF.nominal_hip_rad, atol=math.radians(1.0))
@@ -149,7 +151,7 @@ def test_hip_goal_is_a_continuous_trajectory_from_setpoint_to_setpoint():
 
 def test_a_rotor_delivering_nothing_is_confirmed_once_and_bounds_the_nmpc():
     """The ROM as plant with the motors' first-order lag, rotor 4 delivering nothing from
-    t = 0.1 s; the FC reports what each rotor delivers."""
+    t = 0.1 s; no ESC telemetry: the model residual finds it."""
     c = controller()
     plant = rom.build_rom(AF, PERIOD, substeps=4).step
     decay = math.exp(-PERIOD / AF.motor_time_constant_s)
@@ -163,22 +165,23 @@ def test_a_rotor_delivering_nothing_is_confirmed_once_and_bounds_the_nmpc():
             delivered = target + (delivered - target) * decay
             x = np.array(plant(x, np.r_[average, np.zeros(4)], np.zeros(rom.ND))).ravel()
             x[rom.HIP], x[rom.HIP_RATE] = sp.hip_rad + sp.hip_rate_rad_s * PERIOD, sp.hip_rate_rad_s
-        out = step(c, k * PERIOD, x, delivered, [AF.thrust_max_n] * 4)
+        out = step(c, k * PERIOD, x, None, [AF.thrust_max_n] * 4)
         announced += [k * PERIOD] if out.fault_confirmed_now else []
     assert len(announced) == 1 and announced[0] <= 0.1 + 0.2
     assert out.fault.state is FaultState.CONFIRMED and out.fault.rotor == 4
     assert out.fault.message == "thrust loss rotor 4"
-    assert out.setpoint.thrust_n[3] <= out.fault.thrust_max_estimate_n[3] < 1.0
+    assert out.fault.thrust_max_estimate_n[3] < 1.0
+    assert out.setpoint.thrust_n[3] <= out.fault.thrust_bound_n[3]
 
 
 def test_one_rotor_limit_dropping_at_the_fc_is_not_taken_as_known():
     """The FC's per-rotor limit counts only as a common cap: a lowered single limit is what
     the detector must find, so the bound stays at the cap until it does."""
     c = controller()
-    out = step(c, 0.0, rom.hover_state(AF), [HOVER_N] * 4, [AF.thrust_max_n] * 3 + [0.0])
-    out = step(c, PERIOD, rom.hover_state(AF), [HOVER_N] * 4, [AF.thrust_max_n] * 3 + [0.0])
+    out = step(c, 0.0, rom.hover_state(AF), None, [AF.thrust_max_n] * 3 + [0.0])
+    out = step(c, PERIOD, rom.hover_state(AF), None, [AF.thrust_max_n] * 3 + [0.0])
     assert np.allclose(out.fault.thrust_max_estimate_n, AF.thrust_max_n)
-    capped = step(c, 2 * PERIOD, rom.hover_state(AF), [HOVER_N] * 4, [24.0] * 4)
+    capped = step(c, 2 * PERIOD, rom.hover_state(AF), None, [24.0] * 4)
     assert np.allclose(capped.fault.thrust_max_estimate_n, 24.0)
 
 

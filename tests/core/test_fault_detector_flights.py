@@ -19,6 +19,7 @@ import pytest
 from m4.airframe import ROTOR_COUNT, load_airframe
 from companion.core import rom
 from companion.core.disturbance import DisturbanceEstimator
+from companion.core.esc_evidence import EscSample, PropellerModel
 from companion.core.fault_detector import FaultDetector, FaultState
 from companion.core.nmpc import Nmpc
 from companion.core.nmpc_config import NmpcConfig
@@ -34,6 +35,8 @@ NOISE = ((rom.P, 0.02), (rom.EULER, 0.005), (rom.HIP, 0.002), (rom.V, 0.05), (ro
 # A plant the detector's model does not know exactly: 8 % heavier hull, 15 % more inertia.
 MISMATCHED_AF = dataclasses.replace(AF, body_mass_kg=1.08 * AF.body_mass_kg,
                                     body_inertia_diag_kg_m2=tuple(1.15 * np.array(AF.body_inertia_diag_kg_m2)))
+PROP = PropellerModel(thrust_coefficient_n_s2=4.4e-5, speed_max_rad_s=math.sqrt(30.0 / 4.4e-5), voltage_nominal_v=14.8)
+LOAD = 9.0e-10          # current * voltage / rpm^3 of a loaded propeller (about 150 W at hover)
 STEPS = {AF: rom.build_rom(AF, PLANT_DT_S).step, MISMATCHED_AF: rom.build_rom(MISMATCHED_AF, PLANT_DT_S).step}
 
 
@@ -114,16 +117,16 @@ class NmpcController:
 
 
 def fly(controller, duration_s, *, fault=None, noise=False, seed=0, plant=AF, detector=None, stop_tilt_deg=70.0,
-        later_faults=(), control_dt_s=CONTROL_DT_S, report_delivered=False):
+        later_faults=(), control_dt_s=CONTROL_DT_S, esc=False):
     """Fly with controller(t, measured state, thrust bounds) -> input (8,) every control_dt_s;
     fault = (at_s, rotor 1..4, loss), later_faults more of them. Returns the detector's status
-    at each control instant [(t, status)] and the time the run stopped. report_delivered: the
-    flight controller reports each rotor's thrust (with 0.3 N of noise when noise is on)."""
+    at each control instant [(t, status)] and the time the run stopped. esc: the flight
+    controller reports each ESC's speed (0.3 % noise when noise is on), current and voltage."""
     rng = np.random.default_rng(seed)
     p0, _ = controller.reference.state(0.0)
     x = rom.hover_state(AF, p0)
     thrust = np.full(ROTOR_COUNT, plant.hover_thrust_per_rotor_n)
-    detector = FaultDetector(AF) if detector is None else detector
+    detector = FaultDetector(AF, propeller=PROP) if detector is None else detector
     statuses = []
     u = np.r_[thrust, np.zeros(ROTOR_COUNT)]
     per_control = round(control_dt_s / PLANT_DT_S)
@@ -137,12 +140,13 @@ def fly(controller, duration_s, *, fault=None, noise=False, seed=0, plant=AF, de
             if noise:
                 for sl, sigma in NOISE:
                     measured[sl] += rng.normal(0.0, sigma, sl.stop - sl.start)
-            delivered = None
-            if report_delivered:
-                delivered = thrust + (rng.normal(0.0, 0.3, ROTOR_COUNT) if noise else 0.0)
-            status = detector.update(t, measured, u[rom.THRUST], thrust_delivered_n=delivered)
+            sample = None
+            if esc:
+                rpm = PROP.rpm(thrust) * (1.0 + (rng.normal(0.0, 0.003, ROTOR_COUNT) if noise else 0.0))
+                sample = EscSample(t, rpm, LOAD * rpm**3 / 14.8, np.full(ROTOR_COUNT, 14.8))
+            status = detector.update(t, measured, u[rom.THRUST], esc=sample)
             statuses.append((t, status))
-            u = controller(t, measured, status.thrust_max_estimate_n)
+            u = controller(t, measured, status.thrust_bound_n)
         ceiling = np.full(ROTOR_COUNT, AF.thrust_max_n)
         for at_s, rotor, loss in faults:
             if t >= at_s:
@@ -344,9 +348,10 @@ def test_at_50_hz_telemetry_the_detector_keeps_its_latency_and_stays_quiet(nmpc)
                               control_dt_s=0.02)
             c = first_confirmed(statuses)
             ok = c is not None and c.rotor == rotor
-            err = c.thrust_max_estimate_n[rotor - 1] - (1 - loss) * HOVER_N if ok else math.nan
+            err = statuses[-1][1].thrust_max_estimate_n[rotor - 1] - (1 - loss) * HOVER_N if ok else math.nan
             rows.append(f"  {name} rotor {rotor} loss {loss:4.2f}: "
-                        + (f"after {c.detected_at_s - at_s:.2f} s, estimate error {err:+.2f} N" if ok else "MISSED"))
+                        + (f"after {c.detected_at_s - at_s:.2f} s, estimate error {err:+.2f} N 1 s after the fault"
+                           if ok else "MISSED"))
             if not ok or c.detected_at_s - at_s > 0.3 or abs(err) > 0.1 * HOVER_N:
                 failures.append(rows[-1])
     statuses, _ = fly(PdController(agile_reference()), 15.0, noise=True, control_dt_s=0.02)
@@ -358,12 +363,12 @@ def test_at_50_hz_telemetry_the_detector_keeps_its_latency_and_stays_quiet(nmpc)
     assert not failures, "\n".join(failures)
 
 
-def test_with_per_thruster_telemetry_the_deficit_is_read_directly(nmpc):
+def test_with_esc_telemetry_the_deficit_is_read_from_the_rotor_speed(nmpc):
     rows, failures = [], []
     for name, ref_fn, at_s in (("hover", hover_reference, 1.03), ("3 m/s", forward_reference, 3.03)):
         for rotor, loss in ((4, 1.0), (2, 0.66), (3, 0.33)):
             statuses, _ = fly(NmpcController(nmpc, ref_fn()), at_s + 2.0, fault=(at_s, rotor, loss), noise=True,
-                              report_delivered=True, stop_tilt_deg=85.0)
+                              esc=True, stop_tilt_deg=85.0)
             c = first_confirmed(statuses)
             ok = c is not None and c.rotor == rotor
             err = statuses[-1][1].thrust_max_estimate_n[rotor - 1] - (1 - loss) * HOVER_N if ok else math.nan
@@ -371,10 +376,10 @@ def test_with_per_thruster_telemetry_the_deficit_is_read_directly(nmpc):
                         + (f"after {c.detected_at_s - at_s:.2f} s, estimate error {err:+.2f} N" if ok else "MISSED"))
             if not ok or c.detected_at_s - at_s > 0.3 or abs(err) > 0.1 * HOVER_N:
                 failures.append(rows[-1])
-    statuses, _ = fly(NmpcController(nmpc, agile_reference()), 15.0, noise=True, report_delivered=True)
+    statuses, _ = fly(NmpcController(nmpc, agile_reference()), 15.0, noise=True, esc=True)
     states = [s.state for _, s in statuses]
     rows.append(f"  agile fault-free 15 s: final {states[-1].name}, "
                 f"{sum(1 for st in states if st is FaultState.SUSPECT)} suspect frames")
-    print("\nper-thruster thrust telemetry (0.3 N noise), NMPC in the loop:\n" + "\n".join(rows))
+    print("\nESC telemetry (RPM with 0.3 % noise), NMPC in the loop:\n" + "\n".join(rows))
     assert states[-1] is FaultState.HEALTHY
     assert not failures, "\n".join(failures)

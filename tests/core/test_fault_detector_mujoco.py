@@ -59,7 +59,7 @@ def fly(nmpc, reference, duration_s, fault=None, seed=0):
         status = detector.update(t, x, u[rom.THRUST])
         statuses.append((t, status))
         d = np.zeros(rom.ND) if last is None else estimator.update(*last, x)
-        result = nmpc.solve(x, reference.reference(t, cfg.horizon, cfg.dt_s), status.thrust_max_estimate_n, d)
+        result = nmpc.solve(x, reference.reference(t, cfg.horizon, cfg.dt_s), status.thrust_bound_n, d)
         u, last = result.u, (x, result.u)
         plant.command(u[rom.THRUST], result.x_pred[1][rom.HIP], result.x_pred[1][rom.HIP_RATE])
         if fault is not None and t < fault[0] <= t + PERIOD_S:
