@@ -55,6 +55,14 @@ def _add_watch(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=watch.run)
 
 
+def _add_dashboard(sub: argparse._SubParsersAction) -> None:
+    from companion.dashboard import command
+
+    p = sub.add_parser("dashboard", help="serve a web dashboard of the live Zenoh feed, or replay a recorded flight")
+    command.add_arguments(p)
+    p.set_defaults(func=command.run)
+
+
 def _add_run(sub: argparse._SubParsersAction) -> None:
     from companion import run
 
@@ -67,6 +75,7 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
 SUBCOMMANDS = (
     _add_bench,
     _add_watch,
+    _add_dashboard,
     _add_run,
 )
 

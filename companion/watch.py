@@ -18,6 +18,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, TextIO
 
+import zenoh
+
 from m4.feed.payloads import KEY_PREFIX, TOPICS, check_vehicle
 from m4.feed.transport import (FeedError, config_from_endpoints, config_from_file,
                                       open_session)
@@ -157,13 +159,32 @@ def _vec(values: Any, spec: str) -> str:
     return " ".join(_num(v, spec) for v in values)
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
+def add_connection_arguments(parser: argparse.ArgumentParser) -> argparse._MutuallyExclusiveGroup:
+    """--zenoh-config or --connect (one group, returned for a caller to add alternatives), --vehicle."""
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--zenoh-config", metavar="FILE",
                        help="a Zenoh config file (json5), used as written")
     where.add_argument("--connect", metavar="ENDPOINT", action="append",
                        help=f"connect as a Zenoh client to ENDPOINT, scouting off (default {DEFAULT_CONNECT}); repeatable")
     parser.add_argument("--vehicle", default="m4", help="vehicle name in the keys m4/<vehicle>/<topic> (default m4)")
+    return where
+
+
+def connect(args: argparse.Namespace) -> tuple[str, zenoh.Session]:
+    """The checked vehicle name and a session opened as add_connection_arguments' options say.
+    Raises ValueError or FeedError with one line saying what is wrong."""
+    vehicle = check_vehicle(args.vehicle)
+    if args.zenoh_config:
+        return vehicle, open_session(config_from_file(args.zenoh_config), args.zenoh_config)
+    endpoints = tuple(args.connect or [DEFAULT_CONNECT])
+    try:
+        return vehicle, open_session(config_from_endpoints("client", connect=endpoints), ", ".join(endpoints))
+    except FeedError as e:
+        raise FeedError(f"{e} (is a Zenoh router, or the companion, listening there?)") from None
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_connection_arguments(parser)
     parser.add_argument("--once", action="store_true",
                         help="print one snapshot when every topic has arrived (or at --timeout) and exit")
     parser.add_argument("--timeout", type=float, default=5.0, metavar="S",
@@ -173,16 +194,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace, out: TextIO | None = None) -> int:
     out = out or sys.stdout
     try:
-        vehicle = check_vehicle(args.vehicle)
-        if args.zenoh_config:
-            cfg, what = config_from_file(args.zenoh_config), args.zenoh_config
-        else:
-            endpoints = tuple(args.connect or [DEFAULT_CONNECT])
-            cfg, what = config_from_endpoints("client", connect=endpoints), ", ".join(endpoints)
-        session = open_session(cfg, what)
+        vehicle, session = connect(args)
     except (ValueError, FeedError) as e:
-        hint = "" if args.zenoh_config else " (is a Zenoh router, or the companion, listening there?)"
-        print(f"m4-companion watch: {e}{hint}", file=sys.stderr)
+        print(f"m4-companion watch: {e}", file=sys.stderr)
         return 2
     latest = Latest()
     try:
