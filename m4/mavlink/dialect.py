@@ -6,10 +6,12 @@ anything else imports pymavlink. The dialect module (generated from `mavlink_def
 by `python -m m4.mavlink.generate`) is registered as `pymavlink.dialects.v20.m4`, so
 `mavutil.mavlink_connection(..., dialect="m4")` finds it without regenerating anything into
 site-packages; `new_mav()` gives the bare protocol object for a transport of one's own.
+pymavlink's own log lines (one per rejected signature) are rate-limited (m4/log_limit.py).
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import sys
 
@@ -19,12 +21,16 @@ os.environ["MAVLINK20"] = "1"
 import pymavlink.dialects.v20 as _v20
 from pymavlink import mavutil
 
+from m4.log_limit import RepeatFilter
 from m4.mavlink import m4_generated as mavlink
 
 DIALECT = "m4"
 sys.modules[f"{_v20.__name__}.{DIALECT}"] = mavlink
 setattr(_v20, DIALECT, mavlink)
 mavutil.set_dialect(DIALECT)
+# pymavlink logs every rejected signature ("sig mismatch", "bad new stream") at INFO: a peer
+# with the wrong key would flood the log of any process that shows INFO.
+logging.getLogger(mavlink.__name__).addFilter(RepeatFilter())
 
 FC_SYSTEM_ID = 1
 FC_COMPONENT_ID = 1                                  # MAV_COMP_ID_AUTOPILOT1

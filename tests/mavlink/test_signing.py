@@ -98,3 +98,10 @@ def test_bad_key_file_names_the_problem(tmp_path, content):
 def test_missing_key_file_is_a_config_error(tmp_path):
     with pytest.raises(ConfigError, match="cannot read"):
         load_key(tmp_path / "nope")
+
+
+def test_a_peer_with_the_wrong_key_does_not_flood_the_log(caplog):
+    packets = _packets(bytes(32), *[_setpoint()] * 500)       # signed with another key
+    with caplog.at_level("INFO"):
+        assert _types(_receiver(), packets) == ["BAD_DATA"] * 500
+    assert 1 <= len(caplog.records) <= 2
