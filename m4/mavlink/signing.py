@@ -3,10 +3,19 @@
 With a key, every outgoing packet is signed and an incoming one is accepted only with a good
 signature; unsigned or badly signed packets are dropped and counted, except HEARTBEAT and
 RADIO_STATUS (harmless, and sent unsigned by radios and some ground stations).
+
+Replay across a restart: pymavlink accepts a new stream (link id, system, component) whose
+timestamp is at most a minute behind its own clock, so a packet captured before a restart
+would pass again. `StreamTimestamps` keeps the last timestamp of each stream in a file (as
+the MAVLink signing spec asks), saved every `SAVE_PERIOD_S` and on close; on load each is
+advanced by that period (what may have been accepted after the last save), so no packet
+signed before the restart is accepted after it.
 """
 
 from __future__ import annotations
 
+import json
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,6 +26,8 @@ from m4.toml_fields import ConfigError
 KEY_BYTES = 32
 UNSIGNED_ALLOWED_IDS = frozenset({mavlink.MAVLINK_MSG_ID_HEARTBEAT, mavlink.MAVLINK_MSG_ID_RADIO_STATUS})
 _SIGNING_EPOCH_UNIX_S = 1420070400         # MAVLink signing timestamps count 10 us from 2015-01-01
+_TICKS_PER_S = 100_000
+SAVE_PERIOD_S = 1.0
 
 
 def load_key(path: str | Path) -> bytes:
@@ -36,6 +47,11 @@ def load_key(path: str | Path) -> bytes:
     return key
 
 
+def _wall_timestamp() -> int:
+    """Now, in signing timestamp units (10 us since 2015-01-01)."""
+    return int((time.time() - _SIGNING_EPOCH_UNIX_S) * _TICKS_PER_S)
+
+
 def _allow_unsigned(_mav, msg_id: int) -> bool:
     return msg_id in UNSIGNED_ALLOWED_IDS
 
@@ -49,7 +65,7 @@ def setup_signing(mav: mavlink.MAVLink, key: bytes, link_id: int = 0) -> None:
     s.sign_outgoing = True
     s.allow_unsigned_callback = _allow_unsigned
     s.link_id = link_id
-    s.timestamp = max(s.timestamp, int((time.time() - _SIGNING_EPOCH_UNIX_S) * 100_000))
+    s.timestamp = max(s.timestamp, _wall_timestamp())
 
 
 @dataclass(frozen=True)
@@ -64,3 +80,46 @@ class SigningCounters:
         s = mav.signing
         return cls(signed_ok=s.goodsig_count, bad_signature=s.badsig_count,
                    unsigned_allowed=s.unsigned_count, rejected=s.reject_count)
+
+
+class StreamTimestamps:
+    """The last accepted signing timestamp of every stream the protocol objects `mavs` (the
+    links of one process) have heard, kept in `path`. ConfigError if it cannot be read or written."""
+
+    def __init__(self, mavs: list[mavlink.MAVLink], path: str | Path):
+        self.mavs = mavs
+        self.path = Path(path)
+        try:
+            stored = json.loads(self.path.read_text()) if self.path.exists() else {}
+            streams = {tuple(int(x) for x in k.split(",")): int(v) for k, v in stored.get("streams", {}).items()}
+        except (OSError, ValueError, AttributeError) as e:
+            raise ConfigError(f"signing timestamps {self.path}: cannot read ({e})") from None
+        ahead = round(SAVE_PERIOD_S * _TICKS_PER_S)
+        for mav in mavs:
+            for stream, timestamp in streams.items():
+                mav.signing.stream_timestamps[stream] = timestamp + ahead
+            mav.signing.timestamp = max([mav.signing.timestamp, *mav.signing.stream_timestamps.values()])
+        self._saved_at = 0.0
+        self.save(force=True)
+
+    def save(self, force: bool = False) -> None:
+        """Write the timestamps (at most every SAVE_PERIOD_S unless `force`), atomically. A
+        timestamp far ahead of the wall clock is not kept (pymavlink records a stream's
+        timestamp before it checks the signature: a forger must not lock a stream out for good)."""
+        now = time.monotonic()
+        if not force and now - self._saved_at < SAVE_PERIOD_S:
+            return
+        self._saved_at = now
+        ceiling = _wall_timestamp() + 60 * _TICKS_PER_S
+        streams: dict[str, int] = {}
+        for mav in self.mavs:
+            for stream, timestamp in mav.signing.stream_timestamps.items():
+                key = ",".join(map(str, stream))
+                if timestamp <= ceiling:
+                    streams[key] = max(streams.get(key, 0), timestamp)
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        try:
+            tmp.write_text(json.dumps({"streams": streams}))
+            os.replace(tmp, self.path)
+        except OSError as e:
+            raise ConfigError(f"signing timestamps {self.path}: cannot write ({e.strerror})") from None
