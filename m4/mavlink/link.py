@@ -6,7 +6,9 @@ packet sent and each packet received (good or rejected) goes to the tlog when on
 Nothing here blocks: `receive()` drains what has arrived, `wait_readable()` waits.
 `lock_peer(address)` pins a udpin link to one sender (e.g. the flight controller once its
 HEARTBEAT came): datagrams from anyone else are then dropped and counted (`foreign_datagrams`)
-and can no longer redirect the replies.
+and can no longer redirect the replies. Short of that, `peer_filter` says which messages may
+redirect a udpin link's replies to their sender (default: any good message; garbage never).
+`receive_from(max_datagrams)` bounds the work of one call, so a flood cannot starve the caller.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from __future__ import annotations
 import select
 import socket
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from m4.mavlink.dialect import mavlink, new_mav
@@ -89,6 +92,7 @@ class UdpLink(MavlinkLink):
         self.peer: tuple[str, int] | None = None
         self.locked_peer: tuple[str, int] | None = None
         self.foreign_datagrams = 0
+        self.peer_filter: Callable[[mavlink.MAVLink_message], bool] = lambda msg: True
         self._batch: list[bytes] | None = None
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
@@ -145,10 +149,12 @@ class UdpLink(MavlinkLink):
         if datagram:
             self._send_datagram(datagram)
 
-    def receive_from(self) -> list[tuple[tuple[str, int], list[mavlink.MAVLink_message]]]:
-        """Like `receive()`, with each datagram's sender: [(address, its messages), ...]."""
+    def receive_from(self, max_datagrams: int | None = None
+                     ) -> list[tuple[tuple[str, int], list[mavlink.MAVLink_message]]]:
+        """Like `receive()`, with each datagram's sender: [(address, its messages), ...]; at most
+        `max_datagrams` datagrams (None: all that have arrived), the rest stays queued."""
         out = []
-        while True:
+        while max_datagrams is None or len(out) < max_datagrams:
             try:
                 data, sender = self.sock.recvfrom(_DATAGRAM_MAX)
             except (BlockingIOError, InterruptedError):
@@ -156,16 +162,17 @@ class UdpLink(MavlinkLink):
             except OSError:
                 continue
             out.append((sender, self.ingest(data, sender)))
+        return out
 
     def ingest(self, data: bytes, sender: tuple[str, int]) -> list[mavlink.MAVLink_message]:
         """The messages of one datagram from `sender` (what `receive()` does with each)."""
         if self.locked_peer is not None and sender != self.locked_peer:
             self.foreign_datagrams += 1
             return []
-        if self.endpoint.mode == "udpin":
-            self.peer = sender
         out, bad = parse_bytes(self.mav, data, self.tlog)
         self.bad_packets += bad
+        if self.endpoint.mode == "udpin" and any(map(self.peer_filter, out)):
+            self.peer = sender
         return out
 
     def lock_peer(self, address: tuple[str, int] | None) -> None:
