@@ -1,7 +1,8 @@
 """`m4-sitl`: the simulator's command line.
 
     m4-sitl serve [--scenario SCENARIO] [--mavlink URL]... [--realtime] [--viewer] [--tlog PATH] [--truth-log PATH]
-                  [--signing-key FILE] [--seed N] [--duration S] [--lockstep-timeout S]
+                  [--signing-key FILE] [--signing-state FILE] [--companion SYS:COMP] [--seed N] [--duration S]
+                  [--lockstep-timeout S]
     m4-sitl list
     m4-sitl fly SCENARIO [--out DIR] [--controller nmpc|fixed-posture] [--seed N] [--port N] [--rate-hz HZ]
                 [--realtime] [--viewer]
@@ -24,6 +25,7 @@ import sys
 from pathlib import Path
 
 from m4 import extras
+from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID
 from m4.mavlink.link import LinkError
 from m4.mavlink.signing import load_key
 from sitl.scenario import Scenario
@@ -45,6 +47,11 @@ def _add_serve(sub) -> None:
     p.add_argument("--viewer", action="store_true", help="show MuJoCo's passive viewer")
     p.add_argument("--tlog", type=Path, metavar="PATH", help="write every packet, both directions, as a tlog")
     p.add_argument("--signing-key", type=Path, metavar="FILE", help="MAVLink 2 signing key (64 hex digits or 32 bytes)")
+    p.add_argument("--signing-state", type=Path, metavar="FILE",
+                   help="where the signing timestamps are kept across restarts, so no captured packet can be "
+                        "replayed (default: the key file's path + .timestamps)")
+    p.add_argument("--companion", type=_ids, default=(FC_SYSTEM_ID, COMPANION_COMPONENT_ID), metavar="SYS:COMP",
+                   help="the one system and component whose setpoints and commands are obeyed (default 1:191)")
     p.add_argument("--truth-log", type=Path, metavar="PATH", help="write the plant's true state at 100 Hz (.npz)")
     p.add_argument("--seed", type=seed_number, default=0, help="sensor noise seed (default 0)")
     p.add_argument("--duration", type=positive_number, metavar="S",
@@ -52,6 +59,13 @@ def _add_serve(sub) -> None:
     p.add_argument("--lockstep-timeout", type=positive_number, default=5.0, metavar="S",
                    help="wall-clock wait for a setpoint before going on in failsafe (default 5)")
     p.set_defaults(func=_serve)
+
+
+def _ids(text: str) -> tuple[int, int]:
+    sys_id, _, comp_id = text.partition(":")
+    if not (sys_id.isdigit() and comp_id.isdigit() and 1 <= int(sys_id) <= 255 and 1 <= int(comp_id) <= 255):
+        raise argparse.ArgumentTypeError(f"expected SYS:COMP, each 1..255, got {text!r}")
+    return int(sys_id), int(comp_id)
 
 
 def _serve(args) -> int:
@@ -62,7 +76,9 @@ def _serve(args) -> int:
     options = ServeOptions(scenario=scenario, mavlink_urls=tuple(args.mavlink or (DEFAULT_URL,)),
                            realtime=args.realtime, viewer=args.viewer, tlog_path=args.tlog, signing_key=key,
                            seed=args.seed, duration_s=args.duration, lockstep_timeout_s=args.lockstep_timeout,
-                           truth_log_path=args.truth_log)
+                           truth_log_path=args.truth_log, companion_ids=args.companion,
+                           signing_state_path=args.signing_state or (
+                               Path(f"{args.signing_key}.timestamps") if args.signing_key else None))
     try:
         server = Server(options)
     except ServeError as e:

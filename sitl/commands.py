@@ -6,8 +6,12 @@ COMMAND_LONG and COMMAND_INT alike (their first four params are the same floats)
   UNSUPPORTED.
 - MAV_CMD_M4_ROTOR_LOSS: rotor 1..4 or 0, loss of effectiveness 0..1 (0 restores).
 - MAV_CMD_SET_MESSAGE_INTERVAL: message id, interval in us (-1 stop, 0 default).
-- MAV_CMD_REQUEST_MESSAGE: message id; the message follows the ACCEPTED ack.
+- MAV_CMD_REQUEST_MESSAGE: message id; the message follows the ACCEPTED ack. For
+  M4_FAULT_STATUS, the last one the companion sent (MAV_RESULT_FAILED if none came yet).
+- MAV_CMD_COMPONENT_ARM_DISARM: 1 arms; 0 disarms on the ground (in the air only with
+  param2 = 21196, the force code ArduPilot and PX4 use).
 Anything else: MAV_RESULT_UNSUPPORTED. Bad parameters: MAV_RESULT_DENIED.
+The flight controller takes commands from its paired companion only (sitl/flight_controller.py).
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from m4.airframe import ROTOR_COUNT
 from m4.mavlink import mavlink
 
 m = mavlink
+FORCE_DISARM = 21196
 
 
 def _rotor(value: float) -> int | None:
@@ -35,6 +40,7 @@ class CommandHandler:
             m.MAV_CMD_M4_ROTOR_LOSS: self._rotor_loss,
             m.MAV_CMD_SET_MESSAGE_INTERVAL: self._set_message_interval,
             m.MAV_CMD_REQUEST_MESSAGE: self._request_message,
+            m.MAV_CMD_COMPONENT_ARM_DISARM: self._arm_disarm,
         }
 
     def handle(self, msg, now_ms: int) -> list[m.MAVLink_message]:
@@ -42,9 +48,12 @@ class CommandHandler:
         params = (msg.param1, msg.param2, msg.param3, msg.param4)
         handler = self._handlers.get(msg.command)
         result, extra = (m.MAV_RESULT_UNSUPPORTED, []) if handler is None else handler(params, now_ms)
+        return [self.ack(msg, result), *extra]
+
+    def ack(self, msg, result: int) -> m.MAVLink_command_ack_message:
+        """The COMMAND_ACK answering `msg` with `result`, to its sender."""
         self.fc.counters.commands_acked += 1
-        ack = m.MAVLink_command_ack_message(msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
-        return [ack, *extra]
+        return m.MAVLink_command_ack_message(msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
 
     def _apply_loss(self, rotor: int, loss: float):
         self.fc.set_rotor_loss(rotor, loss)
@@ -81,7 +90,22 @@ class CommandHandler:
         return m.MAV_RESULT_ACCEPTED, []
 
     def _request_message(self, params, now_ms):
+        if params[0] == m.MAVLINK_MSG_ID_M4_FAULT_STATUS:
+            f = self.fc.fault_status
+            if f is None:
+                return m.MAV_RESULT_FAILED, []
+            return m.MAV_RESULT_ACCEPTED, [m.MAVLink_m4_fault_status_message(
+                f.time_boot_ms, f.rotor, list(f.thrust_max_estimate_n), f.detected_time_boot_ms, f.state)]
         msg_id = self._message_id(params[0])
         if msg_id is None:
             return m.MAV_RESULT_DENIED, []
         return m.MAV_RESULT_ACCEPTED, [self.fc.telemetry_builder.build(msg_id, self.fc.snapshot(now_ms))]
+
+    def _arm_disarm(self, params, now_ms):
+        arm, force = params[0], params[1]
+        if arm not in (0.0, 1.0):
+            return m.MAV_RESULT_DENIED, []
+        if arm == 0.0 and force != FORCE_DISARM and not self.fc.measured_state(now_ms).on_ground:
+            return m.MAV_RESULT_DENIED, []
+        self.fc.set_armed(arm == 1.0)
+        return m.MAV_RESULT_ACCEPTED, []

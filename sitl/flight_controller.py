@@ -6,6 +6,21 @@ is fresh until t + max(3 P, 300 ms) on the FC's clock; then the FC holds its pos
 2 s later, lands. STATUSTEXT announces each mode change. Commands (sitl/commands.py) are
 acknowledged; telemetry streams (sitl/streams.py) are built from the measured plant state.
 
+Authority: the FC is paired with one companion (`companion_ids`, system 1 component 191 by
+default). Setpoints, commands (rotor faults, arming, stream rates, requests) and
+M4_FAULT_STATUS are taken from it only (with `require_signed`, only signed); from anyone
+else they are refused and counted, a command with COMMAND_ACK DENIED. A setpoint is judged
+by the instant it answers (time_boot_ms, the FC's clock), not by when it arrives: one from
+the future, older than max(`MAX_AGE_MIN_MS`, `MAX_AGE_PERIODS` periods), out of order, with
+a period outside 1..`MAX_PERIOD_MS` or not finite is refused and counted by reason.
+
+Arming: the FC starts armed (the scenarios start in the air). Once it has landed or applied
+a thrust cut it is disarmed: setpoints are refused (counted) and the motors stay off until
+the paired companion re-arms it with MAV_CMD_COMPONENT_ARM_DISARM(1).
+
+It keeps the last M4_FAULT_STATUS of its companion (a restarted companion asks for it with
+MAV_CMD_REQUEST_MESSAGE) and answers TIMESYNC requests (tc1 = 0) with its clock in ns.
+
 The caller (sitl/serve.py) steps the plant and calls, at each instant on the 1 ms clock:
 `handle()` for each message received, `tick()` every TICK_MS, `telemetry()` when streams
 are due, and `take_outbox()` to send what the FC has to say on its own.
@@ -13,13 +28,16 @@ are due, and `take_outbox()` to send what the FC has to say on its own.
 
 from __future__ import annotations
 
+import collections
 import enum
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
-from m4.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from m4.log_limit import RepeatLimiter
+from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from m4.setpoint import Setpoint
 from sitl.commands import CommandHandler
 from sitl.failsafe import Failsafe, FailsafeMode
@@ -30,6 +48,12 @@ from sitl.telemetry import Home, Snapshot, Telemetry, statustext
 TICK_MS = 4                       # the failsafe controller and the staleness check: 250 Hz
 STALE_PERIODS = 3
 STALE_MIN_MS = 300
+MAX_PERIOD_MS = 1000              # a setpoint claiming a longer period is refused
+MAX_AGE_MIN_MS = 150              # a setpoint answering an instant older than this (and
+MAX_AGE_PERIODS = 2               # than this many of its periods) is too old to help
+_CONTROL_IDS = frozenset({mavlink.MAVLINK_MSG_ID_M4_SETPOINT, mavlink.MAVLINK_MSG_ID_COMMAND_LONG,
+                          mavlink.MAVLINK_MSG_ID_COMMAND_INT, mavlink.MAVLINK_MSG_ID_M4_FAULT_STATUS})
+_COMMAND_IDS = (mavlink.MAVLINK_MSG_ID_COMMAND_LONG, mavlink.MAVLINK_MSG_ID_COMMAND_INT)
 
 
 class FcMode(enum.IntEnum):
@@ -62,13 +86,27 @@ class ReceivedSetpoint:
 @dataclass
 class FcCounters:
     setpoints_accepted: int = 0
-    setpoints_dropped: int = 0      # out of order, from the future, zero period, not finite
+    setpoints_dropped: int = 0      # every setpoint refused; by reason in `dropped_by_reason`
     commands_acked: int = 0
+    refused_foreign: int = 0        # setpoints, commands and fault status from anyone but the companion
+    dropped_by_reason: collections.Counter = field(default_factory=collections.Counter)
+
+    def drop(self, reason: str) -> None:
+        self.setpoints_dropped += 1
+        self.dropped_by_reason[reason] += 1
 
 
 class FlightController:
-    def __init__(self, airframe: Airframe, plant, home: Home | None = None, lockstep: bool = False):
+    def __init__(self, airframe: Airframe, plant, home: Home | None = None, lockstep: bool = False,
+                 companion_ids: tuple[int, int] = (FC_SYSTEM_ID, COMPANION_COMPONENT_ID), require_signed: bool = False,
+                 log: Callable[[str], None] = lambda text: None):
         self.airframe = airframe
+        self.companion_ids = companion_ids
+        self.require_signed = require_signed
+        self.log = log
+        self._repeats = RepeatLimiter()
+        self.armed = True
+        self.fault_status: mavlink.MAVLink_m4_fault_status_message | None = None
         self.lockstep = lockstep
         self.plant = plant
         self.telemetry_builder = Telemetry(airframe, home)
@@ -107,46 +145,104 @@ class FlightController:
     def _fresh(self, now_ms: int) -> bool:
         return self.setpoint is not None and now_ms <= self.setpoint.stale_after_ms
 
+    def set_armed(self, armed: bool) -> None:
+        """Arm (the next fresh setpoint, or the failsafe, flies) or disarm (motors off)."""
+        if armed != self.armed:
+            self.armed = armed
+            self.announce(mavlink.MAV_SEVERITY_NOTICE, "FC armed" if armed else "FC disarmed")
+            self.setpoint = None
+
     def tick(self, now_ms: int) -> None:
         """Choose who flies (companion or failsafe) and command the plant accordingly."""
+        if not self.armed:
+            self._set_mode(FcMode.LANDED)
+            self._command_plant(np.zeros(ROTOR_COUNT), self.failsafe.controller.hip_rad)
+            return
         if self._fresh(now_ms):
+            sp = self.setpoint.command
+            if sp.thrust_cut:
+                self.set_armed(False)
+                self.tick(now_ms)
+                return
             self._set_mode(FcMode.COMPANION)
             if self.setpoint is not self._applied:
-                sp = self.setpoint.command
-                thrust = np.zeros(ROTOR_COUNT) if sp.thrust_cut else sp.thrust_n
-                self._command_plant(thrust, sp.hip_rad, sp.hip_rate_rad_s)
+                self._command_plant(sp.thrust_n, sp.hip_rad, sp.hip_rate_rad_s)
                 self._applied = self.setpoint
             return
         state = self.measured_state(now_ms)
-        if self.mode in (None, FcMode.COMPANION):
+        if self.mode not in (FcMode.HOLD, FcMode.LAND):
             self.failsafe.engage(state, now_ms, may_land=self.mode is not None)
         out = self.failsafe.update(state, now_ms)
         self._set_mode(FcMode(out.mode.value))
         self._command_plant(out.thrust_n, out.hip_rad)
+        if out.mode == FailsafeMode.LANDED:
+            self.set_armed(False)
 
     # -- messages in ---------------------------------------------------------------------------
     @staticmethod
     def addressed_to_me(msg) -> bool:
         return msg.target_system in (0, FC_SYSTEM_ID) and msg.target_component in (0, FC_COMPONENT_ID)
 
+    def from_companion(self, msg) -> bool:
+        """Sent by the paired companion (and signed, when signing is required)."""
+        return ((msg.get_srcSystem(), msg.get_srcComponent()) == self.companion_ids
+                and (not self.require_signed or msg.get_signed()))
+
+    def _say(self, key, text: str) -> None:
+        self._repeats.say(key, text, self.log)
+
     def handle(self, msg, now_ms: int) -> list[mavlink.MAVLink_message]:
         """React to one received message; returns the immediate replies (acks, requested messages)."""
         msg_id = msg.get_msgId()
+        if msg_id == mavlink.MAVLINK_MSG_ID_TIMESYNC:
+            return [mavlink.MAVLink_timesync_message(now_ms * 1_000_000, msg.ts1)] if msg.tc1 == 0 else []
+        if msg_id not in _CONTROL_IDS or (msg_id != mavlink.MAVLINK_MSG_ID_M4_FAULT_STATUS
+                                          and not self.addressed_to_me(msg)):
+            return []
+        if not self.from_companion(msg):
+            return self._refuse(msg)
         if msg_id == mavlink.MAVLINK_MSG_ID_M4_SETPOINT:
             self._on_setpoint(msg, now_ms)
             return []
-        if msg_id in (mavlink.MAVLINK_MSG_ID_COMMAND_LONG, mavlink.MAVLINK_MSG_ID_COMMAND_INT):
-            return self._commands.handle(msg, now_ms) if self.addressed_to_me(msg) else []
+        if msg_id == mavlink.MAVLINK_MSG_ID_M4_FAULT_STATUS:
+            self.fault_status = msg
+            return []
+        return self._commands.handle(msg, now_ms)
+
+    def _refuse(self, msg) -> list[mavlink.MAVLink_message]:
+        self.counters.refused_foreign += 1
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        unsigned = " or unsigned" if self.require_signed else ""
+        self._say(("foreign", msg.get_msgId()),
+                  f"refused {msg.get_type()} from {src[0]}/{src[1]}: not the paired companion "
+                  f"{self.companion_ids[0]}/{self.companion_ids[1]}{unsigned}")
+        if msg.get_msgId() in _COMMAND_IDS:
+            return [self._commands.ack(msg, mavlink.MAV_RESULT_DENIED)]
         return []
 
+    def _setpoint_fault(self, msg, values: np.ndarray, now_ms: int) -> str | None:
+        """Why a setpoint from the companion cannot be applied (None: it can)."""
+        if not 1 <= msg.period_ms <= MAX_PERIOD_MS:
+            return "period"
+        if msg.time_boot_ms > now_ms:
+            return "future"
+        if now_ms - msg.time_boot_ms > max(MAX_AGE_MIN_MS, MAX_AGE_PERIODS * msg.period_ms):
+            return "too old"
+        if self.setpoint is not None and msg.time_boot_ms < self.setpoint.time_ms:
+            return "out of order"
+        if not np.all(np.isfinite(values)):
+            return "not finite"
+        if not self.armed:
+            return "disarmed"
+        return None
+
     def _on_setpoint(self, msg, now_ms: int) -> None:
-        if not self.addressed_to_me(msg):
-            return
         values = np.array([msg.thrust_n, msg.hip_angle_rad, msg.hip_rate_rad_s], dtype=float)   # (3, ROTOR_COUNT)
-        newest = self.setpoint.time_ms if self.setpoint is not None else -1
-        if (msg.time_boot_ms > now_ms or msg.time_boot_ms < newest or msg.period_ms == 0
-                or not np.all(np.isfinite(values))):
-            self.counters.setpoints_dropped += 1
+        reason = self._setpoint_fault(msg, values, now_ms)
+        if reason is not None:
+            self.counters.drop(reason)
+            self._say(("setpoint", reason), f"t={now_ms / 1000:.3f} s: setpoint for t={msg.time_boot_ms / 1000:.3f} s "
+                                            f"refused: {reason}")
             return
         af = self.airframe
         thrust, hip, rate = values
@@ -162,8 +258,7 @@ class FlightController:
     def snapshot(self, now_ms: int) -> Snapshot:
         state = self.measured_state(now_ms)
         landed = self.mode == FcMode.LANDED or bool(state.on_ground)
-        return Snapshot(t_ms=now_ms, state=state, custom_mode=int(self.mode or 0),
-                        armed=self.mode != FcMode.LANDED, landed=landed)
+        return Snapshot(t_ms=now_ms, state=state, custom_mode=int(self.mode or 0), armed=self.armed, landed=landed)
 
     def telemetry(self, now_ms: int, frame: bool = False) -> list[mavlink.MAVLink_message]:
         """The streams due at `now_ms` (with `frame`: plus the lockstep frame), in order. In

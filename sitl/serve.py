@@ -9,6 +9,12 @@ waiting, in the FC's failsafe, until a setpoint comes again.
 
 Real time (`realtime=True`): the simulated clock follows the wall clock; messages are handled
 as they arrive. Every packet in and out goes to the tlog when one is asked for.
+
+A flood cannot stall the simulation: one poll reads at most `POLL_DATAGRAMS` datagrams per
+link (the rest waits in the socket, and the kernel drops what does not fit), so the plant
+and the telemetry streams keep their pace. A udpin link answers the paired companion's
+address only (signed, with a key): nobody else can redirect the telemetry. With a key and
+`signing_state_path`, the signing timestamps survive a restart (m4.mavlink.signing).
 """
 
 from __future__ import annotations
@@ -19,8 +25,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from m4.airframe import Airframe, load_airframe
-from m4.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID
+from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID
 from m4.mavlink.link import UdpLink, wait_readable
+from m4.mavlink.signing import StreamTimestamps
 from m4.mavlink.tlog import TlogWriter
 from sitl.scenario import Scenario
 from sitl.truth import TruthRecorder
@@ -30,6 +37,7 @@ RESEND_S = 1.0
 IDLE_PERIOD_MS = 20           # control instants in lockstep before any setpoint fixed the period
 REALTIME_CHUNK_MS = 4
 VIEWER_SYNC_S = 1.0 / 60.0
+POLL_DATAGRAMS = 32           # per link and poll: bounded work per loop iteration
 
 
 @dataclass(frozen=True)
@@ -44,6 +52,8 @@ class ServeOptions:
     duration_s: float | None = None            # None: until interrupted
     lockstep_timeout_s: float = 5.0
     truth_log_path: Path | None = None         # the plant's true state (sitl.truth), written on close
+    companion_ids: tuple[int, int] = (FC_SYSTEM_ID, COMPANION_COMPONENT_ID)   # the paired companion
+    signing_state_path: Path | None = None     # signing timestamps kept across restarts (with a key)
 
 
 class ServeError(RuntimeError):
@@ -56,7 +66,8 @@ class Server:
     def __init__(self, options: ServeOptions, airframe: Airframe | None = None):
         self.options = options
         self.vehicle = Vehicle(options.scenario, airframe or load_airframe(), options.seed,
-                               lockstep=not options.realtime)
+                               lockstep=not options.realtime, companion_ids=options.companion_ids,
+                               require_signed=options.signing_key is not None)
         self._viewer = None
         self._viewer_synced = 0.0
         self._stop = False
@@ -64,6 +75,7 @@ class Server:
         if self.truth is not None:
             self.vehicle.observers.append(self.truth.observe)
         self.links: list[UdpLink] = []
+        self.timestamps: StreamTimestamps | None = None
         try:
             self.tlog = TlogWriter(options.tlog_path) if options.tlog_path else None
         except OSError as e:
@@ -72,6 +84,9 @@ class Server:
             for i, url in enumerate(options.mavlink_urls):
                 self.links.append(UdpLink(url, FC_SYSTEM_ID, FC_COMPONENT_ID, tlog=self.tlog,
                                           key=options.signing_key, link_id=i))
+                self.links[-1].peer_filter = self.vehicle.fc.from_companion
+            if options.signing_key is not None and options.signing_state_path is not None:
+                self.timestamps = StreamTimestamps([link.mav for link in self.links], options.signing_state_path)
         except Exception:
             self.close()
             raise
@@ -86,9 +101,11 @@ class Server:
     def poll(self) -> None:
         """Handle everything that has arrived, at the current simulated instant."""
         for link in self.links:
-            msgs = link.receive()
+            msgs = [msg for _, batch in link.receive_from(POLL_DATAGRAMS) for msg in batch]
             if msgs:
                 self.vehicle.handle(msgs, self.send)
+        if self.timestamps is not None:
+            self.timestamps.save()
 
     def stop(self) -> None:
         """Ask the loop to end (from another thread) at its next instant."""
@@ -134,9 +151,12 @@ class Server:
             sim = self.vehicle.now_ms / 1000.0
             c = self.vehicle.fc.counters
             rejected = sum(link.signing_counters().rejected for link in self.links)
+            reasons = ", ".join(f"{n} {reason}" for reason, n in sorted(c.dropped_by_reason.items()))
             log(f"stopped at t={sim:.3f} s after {wall:.1f} s wall ({sim / max(wall, 1e-9):.1f}x); "
-                 f"setpoints accepted {c.setpoints_accepted}, dropped {c.setpoints_dropped}; "
-                 f"commands {c.commands_acked}; unsigned/bad-signature packets rejected {rejected}")
+                 f"setpoints accepted {c.setpoints_accepted}, dropped {c.setpoints_dropped}"
+                 f"{f' ({reasons})' if reasons else ''}; commands {c.commands_acked}; "
+                 f"refused from others {c.refused_foreign}; unsigned/bad-signature packets rejected {rejected}; "
+                 f"garbled {sum(link.bad_packets for link in self.links) - rejected}")
 
     def _run_realtime(self) -> None:
         v = self.vehicle
@@ -193,6 +213,9 @@ class Server:
             wait_readable(self.links, min(deadline, resend_at, now + 0.1) - now)
 
     def close(self) -> None:
+        if self.timestamps is not None:
+            self.timestamps.save(force=True)
+            self.timestamps = None
         for link in self.links:
             link.close()
         if self.tlog is not None:

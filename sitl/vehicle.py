@@ -13,7 +13,7 @@ import sys
 from collections.abc import Callable, Iterable
 
 from m4.airframe import Airframe
-from m4.mavlink import mavlink
+from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from sitl.scenario import Scenario
 from sitl.flight_controller import TICK_MS, FlightController
 from sitl.plant import Plant
@@ -28,11 +28,13 @@ def log(text: str) -> None:
 
 
 class Vehicle:
-    def __init__(self, scenario: Scenario, airframe: Airframe, seed: int = 0, lockstep: bool = False):
+    def __init__(self, scenario: Scenario, airframe: Airframe, seed: int = 0, lockstep: bool = False,
+                 companion_ids: tuple[int, int] = (FC_SYSTEM_ID, COMPANION_COMPONENT_ID), require_signed: bool = False):
         self.scenario = scenario
         self.plant = Plant(airframe, scenario.plant, start_ned_m=scenario.start.ned_m,
                            start_yaw_rad=scenario.start.yaw_rad, seed=seed)
-        self.fc = FlightController(airframe, self.plant, lockstep=lockstep)
+        self.fc = FlightController(airframe, self.plant, lockstep=lockstep, companion_ids=companion_ids,
+                                   require_signed=require_signed, log=log)
         self.now_ms = 0
         self._faults = sorted(((round(f.at_s * 1000), f) for f in scenario.faults), key=lambda x: x[0])
         self.observers: list[Callable[[int, Plant], None]] = []     # called at every simulated instant

@@ -118,7 +118,7 @@ def test_request_message_sends_autopilot_version_and_home_position():
 
 def test_unknown_command_is_acknowledged_unsupported():
     with _fc() as companion:
-        ack = _command(companion, m.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+        ack = _command(companion, m.MAV_CMD_NAV_TAKEOFF, 0)
         assert ack.result == m.MAV_RESULT_UNSUPPORTED
         before = len(companion.of_type("COMMAND_ACK"))
         companion.send(m.MAVLink_command_int_message(1, 1, 0, m.MAV_CMD_DO_SET_MODE, 0, 0, 1, 0, 0, 0, 0, 0, 0))

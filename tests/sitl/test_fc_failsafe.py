@@ -39,7 +39,7 @@ def test_stale_setpoints_announce_hold_then_land_then_landed(silent_after_one_se
     texts = [(i, m.text) for i, m in enumerate(msgs) if m.get_type() == "STATUSTEXT"]
     assert [t for _, t in texts] == ["FC failsafe HOLD: no fresh setpoints", "FC: flying companion setpoints",
                                      "FC failsafe HOLD: no fresh setpoints", "FC failsafe LAND: setpoints stale for 2 s",
-                                     "FC LANDED: thrust cut"]
+                                     "FC LANDED: thrust cut", "FC disarmed"]
     hold_ms, land_ms = _time_of(msgs, texts[2][0]), _time_of(msgs, texts[3][0])
     last_setpoint_ms = STOP_MS - 20
     assert last_setpoint_ms + STALE_MIN_MS <= hold_ms <= last_setpoint_ms + STALE_MIN_MS + 10

@@ -52,7 +52,8 @@ def test_mavsdk_sees_an_autopilot_and_injects_a_motor_failure(tmp_path):
     port = _free_udp_port()
     tlog = tmp_path / "mavsdk.tlog"
     server = subprocess.Popen([sys.executable, "-m", "sitl.cli", "serve", "--realtime", "--duration", "30",
-                               "--mavlink", f"udpout:127.0.0.1:{port}", "--tlog", str(tlog)],
+                               "--mavlink", f"udpout:127.0.0.1:{port}", "--tlog", str(tlog),
+                               "--companion", "245:190"],            # MAVSDK as a ground station
                               stderr=subprocess.PIPE, text=True)
     try:
         attitude, position = asyncio.run(_fly_with_mavsdk(port))
