@@ -12,7 +12,8 @@ FC's configured thrust limits and, where the FC has them, its ESCs' RPM, current
 - Thrust saturation (the paper's criterion): a rotor commanded at its bound while the
   vehicle departs from the plan, i.e. the reduced-order model's one-step prediction
   (companion.core.fault_residual) misses by what that rotor's deficit alone explains.
-  Votes in a row covering saturated_confirm_s confirm.
+  Votes in a row covering saturated_confirm_s confirm; so do votes for a rotor that gives
+  less than gross_share of what it is asked (a rotor lost outright, before it saturates).
 - The model residual alone (a deficit one rotor explains, significant, large): votes for
   rotor i during confirm_s confirm. With the ESCs reporting that rotor turning normally,
   the kind is a damaged propeller (less thrust at the same speed).
@@ -66,6 +67,7 @@ from companion.core.fault_residual import (
 # A residual of pure noise has a chi2 of about one per channel and interval; the best rotor may
 # leave this many times that unexplained on top of its share.
 _NOISE_CHI2_MARGIN = 3.0
+_LAG_SPANS = 3.0          # the lag is undone in the sizing over spans up to this many motor time constants
 _KIND_OF_CONDITION = {RotorCondition.STOPPED: FaultKind.MOTOR, RotorCondition.UNLOADED: FaultKind.PROPELLER,
                       RotorCondition.SLOW: FaultKind.DEGRADED, RotorCondition.NORMAL: FaultKind.DEGRADED}
 
@@ -86,6 +88,7 @@ class FaultDetectorConfig:
     direct_confirm_s: float = 0.03        # ESC votes in a row covering this long confirm (~ motor lag)
     shortfall_min: float = 0.3            # share of its lagged command a rotor may fall short by (ESC path)
     saturation_margin_n: float = 0.5      # a rotor commanded within this of its bound is at its bound
+    gross_share: float = 0.5              # a residual vote for a rotor short of this share of its command is fast too
     sag_floor_share: float = 0.6          # no ESC voltage: a battery may lower every ceiling to this share of the limit
     ceiling_deficit_min_n: float = 0.5    # a deficit this large of the faulty rotor lowers its estimate
     estimate_gain: float = 0.3            # weight of each such observation after confirmation
@@ -105,7 +108,7 @@ class FaultDetectorConfig:
                      "bias_time_constant_s", "max_gap_s", "probe_n"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"FaultDetectorConfig.{name} must be > 0")
-        for name in ("estimate_gain", "rise_gain", "sag_floor_share"):
+        for name in ("estimate_gain", "rise_gain", "sag_floor_share", "gross_share"):
             if getattr(self, name) > 1:
                 raise ValueError(f"FaultDetectorConfig.{name} must be <= 1, got {getattr(self, name)}")
 
@@ -282,18 +285,34 @@ class FaultDetector:
             self._bias_per_s += min(dt / c.bias_time_constant_s, 1.0) * (raw / dt - self._bias_per_s)
         if reading is None:
             self._deficit_n = pooled.deficit_size_n
-        if self._state is FaultState.SUSPECT:   # sized from the intervals since the suspicion (after the fault)
-            since = combine([f for t, f in self._window if t > self._suspect_since_s - dt - 1e-9])
-            expected, delivered = since.expected_thrust_n, since.expected_thrust_n - since.deficit_size_n
-        saturated = cmd[i] >= self.status.thrust_bound_n[i] - c.saturation_margin_n
+        saturated = (cmd[i] >= self.status.thrust_bound_n[i] - c.saturation_margin_n
+                     or expected[i] - delivered[i] >= c.gross_share * expected[i])
         kind = FaultKind.UNKNOWN
         if reading is not None and reading.condition[i] is RotorCondition.NORMAL:
             kind = FaultKind.DAMAGE
+        if self._state is FaultState.SUSPECT:   # a damaged propeller loses its thrust at once: no lag to undo
+            expected, delivered = self._since_suspicion(time_s, dt, lagged=kind is not FaultKind.DAMAGE)
         short = np.zeros(ROTOR_COUNT, dtype=bool)
         short[i] = consistent and pooled.deficit_size_n[i] >= c.ceiling_deficit_min_n
         return _Evidence(rotor=i if votes else None, path=_Path.SATURATED if saturated else _Path.RESIDUAL,
                          kind=kind, delivered_n=delivered, expected_n=expected, short=short,
                          significant=pooled.b**2 / pooled.a >= c.chi2_min)
+
+    def _since_suspicion(self, time_s: float, dt: float, lagged: bool) -> tuple[np.ndarray, np.ndarray]:
+        """(expected, delivered) of each rotor over the intervals since the suspicion began (after
+        the fault). lagged: delivered as the level it heads to: a rotor that lost thrust at the
+        start of that span decays towards it through the motor lag, so its average over the span
+        is delivered + (expected - delivered) g with g = tau / span (1 - exp(-span / tau)). Only
+        over spans of a few motor time constants (a fast confirmation): the fault's instant is
+        known to a frame, which over a longer span would make the correction the larger error."""
+        since = combine([f for t, f in self._window if t > self._suspect_since_s - dt - 1e-9])
+        expected, average = since.expected_thrust_n, since.expected_thrust_n - since.deficit_size_n
+        span = time_s - self._suspect_since_s + dt
+        if not lagged or span > _LAG_SPANS * self._af.motor_time_constant_s:
+            return expected, average
+        g = self._af.motor_time_constant_s / span * (1.0 - self._model.motor_decay(span))
+        heading = (average - g * expected) / (1.0 - g) if g < 1.0 else average
+        return expected, np.maximum(np.minimum(heading, average), self._af.thrust_min_n)
 
     def _count_run(self, evidence: _Evidence, dt: float) -> None:
         """The time covered by votes in a row for one rotor on one fast path (ESC, saturation)."""
