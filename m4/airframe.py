@@ -53,7 +53,20 @@ class Airframe:
     thrust_min_n: float
     thrust_max_n: float
     thrust_max_tight_n: float
-    motor_time_constant_s: float
+    motor_time_constant_s: float        # plant only from here: the rotor's speed dynamics
+    thrust_coefficient_n_s2: float      # k_t: thrust k_t w^2 at rotor speed w (rad/s)
+    motor_kv_rpm_per_v: float
+    motor_no_load_current_a: float
+    motor_pole_pairs: int
+    battery_cells: int
+    battery_nominal_voltage_v: float    # the rotors' ratings hold at this pack voltage
+    battery_capacity_mah: float
+    battery_internal_resistance_ohm: float
+    esc_telemetry_delay_s: float
+    esc_serial_telemetry_hz: float
+    esc_ambient_temperature_c: float
+    esc_temperature_rise_c_per_w: float
+    esc_thermal_time_constant_s: float
     drag_linear_n_s_m: float
     drag_quadratic_n_s2_m2: float
     drag_rotational_linear_n_m_s: float
@@ -63,6 +76,9 @@ class Airframe:
     attitude_noise_rad: float
     rate_noise_rad_s: float
     hip_noise_rad: float
+    esc_rpm_noise_fraction: float
+    esc_current_noise_a: float
+    esc_voltage_noise_v: float
 
     # Derived quantities: computed from the fields above, never stored twice.
     @property
@@ -76,6 +92,29 @@ class Airframe:
     @property
     def hover_thrust_per_rotor_n(self) -> float:
         return self.total_mass_kg * self.gravity_m_s2 / ROTOR_COUNT
+
+    @property
+    def rotor_speed_max_rad_s(self) -> float:
+        """Rotor speed at thrust_max_n: full throttle on the nominal battery voltage."""
+        return math.sqrt(self.thrust_max_n / self.thrust_coefficient_n_s2)
+
+    @property
+    def drag_torque_coefficient_n_m_s2(self) -> float:
+        """k_q: the propeller's drag torque k_q w^2 (its reaction moment is k_m times its thrust)."""
+        return self.moment_coefficient_m * self.thrust_coefficient_n_s2
+
+    @property
+    def motor_back_emf_v_s_rad(self) -> float:
+        """k_e of the motor (V per rad/s), which is also its torque constant (N m per A)."""
+        return 60.0 / (2.0 * math.pi * self.motor_kv_rpm_per_v)
+
+    @property
+    def motor_resistance_ohm(self) -> float:
+        """Winding resistance that makes full throttle on the nominal voltage turn the propeller
+        at rotor_speed_max_rad_s: V = k_e w + R (k_q w^2 / k_e + i0)."""
+        w, k_e = self.rotor_speed_max_rad_s, self.motor_back_emf_v_s_rad
+        current_a = self.drag_torque_coefficient_n_m_s2 * w * w / k_e + self.motor_no_load_current_a
+        return (self.battery_nominal_voltage_v - k_e * w) / current_a
 
     @property
     def leg_lumps(self) -> tuple[tuple[float, float], ...]:
@@ -138,8 +177,8 @@ def load_airframe(path: str | Path | None = None) -> Airframe:
 
 def _parse(data: dict, filename: str) -> Airframe:
     top = Table(data, filename)
-    body, leg, rotors, drag, sensors = (top.table(k, required=True)
-                                        for k in ("body", "leg", "rotors", "drag", "sensors"))
+    body, leg, rotors, battery, esc, drag, sensors = (
+        top.table(k, required=True) for k in ("body", "leg", "rotors", "battery", "esc", "drag", "sensors"))
     deg = math.radians
     spins = rotors.strings("spin", ROTOR_COUNT, choices=("ccw", "cw"))
     af = Airframe(
@@ -172,7 +211,20 @@ def _parse(data: dict, filename: str) -> Airframe:
         thrust_min_n=rotors.number("thrust_min_n", lo=0.0),
         thrust_max_n=rotors.number("thrust_max_n", lo=0.0, lo_open=True),
         thrust_max_tight_n=rotors.number("thrust_max_tight_n", lo=0.0, lo_open=True),
-        motor_time_constant_s=rotors.number("motor_time_constant_s", lo=0.0),
+        motor_time_constant_s=rotors.number("motor_time_constant_s", lo=0.0, lo_open=True),
+        thrust_coefficient_n_s2=rotors.number("thrust_coefficient_n_s2", lo=0.0, lo_open=True),
+        motor_kv_rpm_per_v=rotors.number("motor_kv_rpm_per_v", lo=0.0, lo_open=True),
+        motor_no_load_current_a=rotors.number("motor_no_load_current_a", lo=0.0),
+        motor_pole_pairs=rotors.integer("motor_pole_pairs", lo=1, hi=50),
+        battery_cells=battery.integer("cells", lo=1, hi=24),
+        battery_nominal_voltage_v=battery.number("nominal_voltage_v", lo=0.0, lo_open=True),
+        battery_capacity_mah=battery.number("capacity_mah", lo=0.0, lo_open=True),
+        battery_internal_resistance_ohm=battery.number("internal_resistance_ohm", lo=0.0),
+        esc_telemetry_delay_s=esc.number("telemetry_delay_s", lo=0.0, hi=0.1),
+        esc_serial_telemetry_hz=esc.number("serial_telemetry_hz", lo=0.0, lo_open=True, hi=1000.0),
+        esc_ambient_temperature_c=esc.number("ambient_temperature_c", lo=-40.0, hi=80.0),
+        esc_temperature_rise_c_per_w=esc.number("temperature_rise_c_per_w", lo=0.0),
+        esc_thermal_time_constant_s=esc.number("thermal_time_constant_s", lo=0.0, lo_open=True),
         drag_linear_n_s_m=drag.number("linear_n_s_m", lo=0.0),
         drag_quadratic_n_s2_m2=drag.number("quadratic_n_s2_m2", lo=0.0),
         drag_rotational_linear_n_m_s=drag.number("rotational_linear_n_m_s", lo=0.0),
@@ -182,13 +234,19 @@ def _parse(data: dict, filename: str) -> Airframe:
         attitude_noise_rad=sensors.number("attitude_noise_rad", lo=0.0),
         rate_noise_rad_s=sensors.number("rate_noise_rad_s", lo=0.0),
         hip_noise_rad=sensors.number("hip_noise_rad", lo=0.0),
+        esc_rpm_noise_fraction=sensors.number("esc_rpm_noise_fraction", lo=0.0, hi=0.5),
+        esc_current_noise_a=sensors.number("esc_current_noise_a", lo=0.0),
+        esc_voltage_noise_v=sensors.number("esc_voltage_noise_v", lo=0.0),
     )
-    for t in (top, body, leg, rotors, drag, sensors):
+    for t in (top, body, leg, rotors, battery, esc, drag, sensors):
         t.finish()
     if not af.hip_min_rad < af.nominal_hip_rad < af.hip_max_rad:
         raise ConfigError(f"{filename}: [leg] nominal_hip_deg must lie between hip_min_deg and hip_max_deg")
     if af.thrust_min_n >= af.thrust_max_n:
         raise ConfigError(f"{filename}: [rotors] thrust_min_n must be below thrust_max_n")
+    if af.motor_resistance_ohm <= 0.0:
+        raise ConfigError(f"{filename}: [rotors] motor_kv_rpm_per_v is too low to reach thrust_max_n on "
+                          f"[battery] nominal_voltage_v (the motor's back-EMF alone exceeds it)")
     if np.any(af.leg_direction_signs == 0):
         raise ConfigError(f"{filename}: [rotors] hip_frd_m must put every hip off both body axes")
     return af

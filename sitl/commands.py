@@ -1,10 +1,11 @@
 """Commands the simulated flight controller understands; every one is acknowledged.
 
 COMMAND_LONG and COMMAND_INT alike (their first four params are the same floats):
-- MAV_CMD_INJECT_FAILURE: unit FAILURE_UNIT_SYSTEM_MOTOR, type FAILURE_TYPE_OFF (rotor off)
-  or FAILURE_TYPE_OK (restored), instance rotor 1..4 or 0 for all. Other units/types:
-  UNSUPPORTED.
-- MAV_CMD_M4_ROTOR_LOSS: rotor 1..4 or 0, loss of effectiveness 0..1 (0 restores).
+- MAV_CMD_INJECT_FAILURE: unit FAILURE_UNIT_SYSTEM_MOTOR, type FAILURE_TYPE_OFF (motor
+  stopped: kind MOTOR) or FAILURE_TYPE_OK (restored), instance rotor 1..4 or 0 for all. Other
+  units/types: UNSUPPORTED.
+- MAV_CMD_M4_ROTOR_LOSS: rotor 1..4 or 0, loss 0..1 (0 restores), kind M4_ROTOR_FAILURE_KIND
+  (0: DEGRADED, loss relative to hover thrust).
 - MAV_CMD_SET_MESSAGE_INTERVAL: message id, interval in us (-1 stop, 0 default).
 - MAV_CMD_REQUEST_MESSAGE: message id; the message follows the ACCEPTED ack. For
   M4_FAULT_STATUS, the last one the companion sent (MAV_RESULT_FAILED if none came yet).
@@ -20,9 +21,16 @@ import math
 
 from m4.airframe import ROTOR_COUNT
 from m4.mavlink import mavlink
+from sitl.thruster import FailureKind
 
 m = mavlink
 FORCE_DISARM = 21196
+_FAILURE_TEXT = {
+    FailureKind.DEGRADED: lambda loss: f"loss {100.0 * loss:.0f}%",
+    FailureKind.MOTOR: lambda loss: "motor stop",
+    FailureKind.PROPELLER: lambda loss: "propeller loss",
+    FailureKind.DAMAGE: lambda loss: f"propeller damage {100.0 * loss:.0f}%",
+}
 
 
 def _rotor(value: float) -> int | None:
@@ -55,10 +63,10 @@ class CommandHandler:
         self.fc.counters.commands_acked += 1
         return m.MAVLink_command_ack_message(msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
 
-    def _apply_loss(self, rotor: int, loss: float):
-        self.fc.set_rotor_loss(rotor, loss)
+    def _apply_loss(self, rotor: int, loss: float, kind: FailureKind):
+        self.fc.set_rotor_loss(rotor, loss, kind)
         which = "all rotors" if rotor == 0 else f"rotor {rotor}"
-        text = f"{which} restored" if loss == 0.0 else f"{which} loss {100.0 * loss:.0f}% injected"
+        text = f"{which} restored" if loss == 0.0 else f"{which} {_FAILURE_TEXT[kind](loss)} injected"
         self.fc.announce(m.MAV_SEVERITY_INFO, text)
         return m.MAV_RESULT_ACCEPTED, []
 
@@ -69,13 +77,13 @@ class CommandHandler:
         rotor = _rotor(instance)
         if rotor is None:
             return m.MAV_RESULT_DENIED, []
-        return self._apply_loss(rotor, 1.0 if failure_type == m.FAILURE_TYPE_OFF else 0.0)
+        return self._apply_loss(rotor, 1.0 if failure_type == m.FAILURE_TYPE_OFF else 0.0, FailureKind.MOTOR)
 
     def _rotor_loss(self, params, now_ms):
-        rotor, loss = _rotor(params[0]), params[1]
-        if rotor is None or not (math.isfinite(loss) and 0.0 <= loss <= 1.0):
+        rotor, loss, kind = _rotor(params[0]), params[1], params[2]
+        if rotor is None or not (math.isfinite(loss) and 0.0 <= loss <= 1.0) or kind not in set(FailureKind):
             return m.MAV_RESULT_DENIED, []
-        return self._apply_loss(rotor, float(loss))
+        return self._apply_loss(rotor, float(loss), FailureKind(int(kind)))
 
     def _message_id(self, value: float) -> int | None:
         if not math.isfinite(value) or value != int(value) or not self.fc.telemetry_builder.can_build(int(value)):

@@ -44,6 +44,7 @@ from sitl.failsafe import Failsafe, FailsafeMode
 from sitl.state import PlantState
 from sitl.streams import FRAME, StreamSchedule
 from sitl.telemetry import Home, Snapshot, Telemetry, statustext
+from sitl.thruster import FailureKind
 
 TICK_MS = 4                       # the failsafe controller and the staleness check: 250 Hz
 STALE_PERIODS = 3
@@ -130,10 +131,10 @@ class FlightController:
         self.plant.command(thrust_n, hip_rad, hip_rate_rad_s)
         self._measured = None
 
-    def set_rotor_loss(self, rotor: int, loss: float) -> None:
-        """Rotor 1..4 (0: all) loses `loss` of its effectiveness relative to hover thrust."""
+    def set_rotor_loss(self, rotor: int, loss: float, kind: FailureKind = FailureKind.DEGRADED) -> None:
+        """Rotor 1..4 (0: all) fails as `kind` (sitl/thruster.py); loss 0 restores it."""
         for r in range(1, ROTOR_COUNT + 1) if rotor == 0 else (rotor,):
-            self.plant.set_rotor_loss(r, loss)
+            self.plant.set_rotor_loss(r, loss, kind)
         self._measured = None
 
     # -- modes -------------------------------------------------------------------------------

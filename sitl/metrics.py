@@ -130,8 +130,8 @@ def detections(scenario: Scenario, status: FaultStatusLog, hover_thrust_n: float
             if 1 <= rotor <= status.thrust_max_estimate_n.shape[1] and status.thrust_max_estimate_n[k, rotor - 1] <= bound_n:
                 detected_at, detected_rotor = float(status.time_s[k]), rotor
                 break
-        out.append({"at_s": fault.at_s, "rotor": fault.rotor, "loss": fault.loss,
-                    "detected_at_s": detected_at, "detected_rotor": detected_rotor})
+        out.append({"at_s": fault.at_s, "rotor": fault.rotor, "loss": fault.loss, "kind": fault.kind.label,
+                    "until_s": fault.until_s, "detected_at_s": detected_at, "detected_rotor": detected_rotor})
     return out
 
 

@@ -12,11 +12,11 @@ Per leg (rotor i = 1..4): body `hip{i}` at the hip with the frontal joint (hinge
 x, 0 = flight configuration, every thrust axis along body z) and the hip block; body
 `leg{i}` with the sagittal joint (0 = folded along the body, q = 90 deg out sideways) and
 the link at mid-leg; body `wheel{i}` at the leg end with the wheel + thruster lump and the
-site `thrust{i}`. Actuators: `thrust{i}` (force along the hub axis, reaction moment
-spin k_m T, first-order lag), `hip{i}` + `hiprate{i}` (the sagittal servo: both take the
-reference rate; `hip{i}` integrates it into the reference angle and pulls the joint to it,
-`hiprate{i}` damps the joint towards the reference rate), `frontal{i}` (stiff hold of the
-flight configuration).
+site `thrust{i}`. Actuators: `thrust{i}` + `thrustsq{i}` (together the rotor's thrust
+along the hub axis with its reaction moment spin k_m T; see _actuators), `hip{i}` +
+`hiprate{i}` (the sagittal servo: both take the reference rate; `hip{i}` integrates it into
+the reference angle and pulls the joint to it, `hiprate{i}` damps the joint towards the
+reference rate), `frontal{i}` (stiff hold of the flight configuration).
 """
 
 from __future__ import annotations
@@ -102,8 +102,7 @@ def _defaults(root: ET.Element, af: Airframe) -> None:
     frontal = _sub(top, "default", class_="frontal")
     _sub(frontal, "joint", axis="1 0 0")
     thruster = _sub(top, "default", class_="thruster")
-    _sub(thruster, "general", dyntype="filterexact", dynprm=_fmt(af.motor_time_constant_s),
-         ctrlrange=_fmt(af.thrust_min_n, af.thrust_max_n))
+    _sub(thruster, "general", dyntype="filterexact")
 
 
 def _leg(hull: ET.Element, af: Airframe, i: int) -> None:
@@ -131,11 +130,15 @@ def _leg(hull: ET.Element, af: Airframe, i: int) -> None:
 
 def _actuators(root: ET.Element, af: Airframe) -> None:
     act = _sub(root, "actuator")
-    for i in range(ROTOR_COUNT):
-        # Force along the hub axis (+z of the site, up); reaction moment spin k_m T about FRD z,
-        # which is -spin k_m T about FLU z.
-        _sub(act, "general", name=f"thrust{i + 1}", class_="thruster", site=f"thrust{i + 1}",
-             gear=_fmt(0, 0, 1, 0, 0, -af.spin_sign[i] * af.moment_coefficient_m))
+    # Rotor i's thrust is the sum of `thrust{i}` and `thrustsq{i}`: force along the hub axis
+    # (+z of the site, up), reaction moment spin k_m T about FRD z (-spin k_m T about FLU z).
+    # With rotor speed w = w_s + d exp(-t / tau) the thrust k_t w^2 is k_t w_s^2 +
+    # 2 k_t w_s d exp(-t / tau) + k_t d^2 exp(-2 t / tau): two first-order filters, of time
+    # constants tau and tau / 2, whose states the plant (sitl/thruster.py) sets at every update.
+    for name, tau in (("thrust", af.motor_time_constant_s), ("thrustsq", af.motor_time_constant_s / 2)):
+        for i in range(ROTOR_COUNT):
+            _sub(act, "general", name=f"{name}{i + 1}", class_="thruster", site=f"thrust{i + 1}",
+                 dynprm=_fmt(tau), gear=_fmt(0, 0, 1, 0, 0, -af.spin_sign[i] * af.moment_coefficient_m))
     kp, kv = servo_gains(sagittal_inertia_kg_m2(af), af.servo_time_constant_s)
     for i in range(ROTOR_COUNT):
         # ctrl: reference rate; act: reference angle (integrated natively, kept in the joint range).
@@ -164,9 +167,9 @@ def _hover_key(root: ET.Element, af: Airframe) -> None:
     qpos = [0.0, 0.0, HOVER_HEIGHT_M, 1.0, 0.0, 0.0, 0.0]
     for _ in range(ROTOR_COUNT):
         qpos += [0.0, af.nominal_hip_rad]
-    ctrl = [hover] * ROTOR_COUNT + [0.0] * (3 * ROTOR_COUNT)
+    ctrl = [hover] * ROTOR_COUNT + [0.0] * (4 * ROTOR_COUNT)
     _sub(_sub(root, "keyframe"), "key", name="hover", qpos=_fmt(*qpos), ctrl=_fmt(*ctrl),
-         act=_fmt(*[hover] * ROTOR_COUNT, *[af.nominal_hip_rad] * ROTOR_COUNT))
+         act=_fmt(*[hover] * ROTOR_COUNT, *[0.0] * ROTOR_COUNT, *[af.nominal_hip_rad] * ROTOR_COUNT))
 
 
 def robot_xml(af: Airframe) -> str:
@@ -249,9 +252,12 @@ FRD, as in the airframe file.
 {rotors}
 
 ## Actuators
-- `thrust1..4`: force along the hub axis (site +z), 0..{af.thrust_max_n:g} N, first-order lag
-  {af.motor_time_constant_s * 1e3:g} ms (`filterexact`), reaction moment k_m T with
-  k_m = {af.moment_coefficient_m:g} m (+ about FRD z for ccw rotors).
+- `thrust1..4` + `thrustsq1..4`: rotor i's thrust T is the sum of the two, along the hub axis
+  (site +z), with the reaction moment k_m T, k_m = {af.moment_coefficient_m:g} m (+ about FRD z for
+  ccw rotors). The rotor speed follows its target with a first-order lag of
+  {af.motor_time_constant_s * 1e3:g} ms, so T = k_t w^2 is a constant plus two decays (time constants
+  {af.motor_time_constant_s * 1e3:g} and {af.motor_time_constant_s * 0.5e3:g} ms, `filterexact`) whose
+  states the plant sets from its rotor model (`sitl/thruster.py`).
 - `hip1..4` + `hiprate1..4`: the sagittal servo (time constant {af.servo_time_constant_s * 1e3:g} ms);
   both take the reference rate, `hip{{i}}` integrates it into the reference angle.
   The plant (`sitl/plant.py`) shapes the reference by the rate ({af.hip_rate_max_rad_s:g} rad/s) and

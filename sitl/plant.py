@@ -2,8 +2,9 @@
 
 Inputs are per-rotor thrusts (N) and sagittal hip angle targets (rad, with optional rates);
 the plant adds what the reduced-order model leaves out: three lumps per leg, the frontal
-joints and their stiff hold, motor lag, servo rate and acceleration limits, hull drag and
-ground contact. Faults and the scenario's [plant] mismatch are applied here. Frames are
+joints and their stiff hold, the thrusters' motors and propellers (sitl/thruster.py) on a
+battery (sitl/battery.py), servo rate and acceleration limits, hull drag and ground contact.
+Faults and the scenario's [plant] mismatch are applied here. Frames are
 converted in `sitl.frames` only; everything public is NED/FRD.
 """
 
@@ -18,11 +19,13 @@ from m4.airframe import ROTOR_COUNT, Airframe
 from m4.attitude import euler_from_quat_wxyz, quat_wxyz_from_euler
 from sitl.scenario import PlantOptions
 from sitl import frames
+from sitl.battery import Battery
 from sitl.drag import HullDrag
 from sitl.mjcf import PHYSICS_DT_S, compile_model
 from sitl.sensors import SensorNoise
 from sitl.servo import REFERENCE_PERIOD_S, HipReference
 from sitl.state import PlantState
+from sitl.thruster import FailureKind, Thrusters
 
 __all__ = ["Plant", "PlantOptions", "PlantState"]
 
@@ -52,9 +55,11 @@ class Plant:
         m, d = self.model, self.data
         mujoco.mj_resetDataKeyframe(m, d, m.key("hover").id)
         self._thrust = slice(m.actuator("thrust1").id, m.actuator("thrust1").id + ROTOR_COUNT)
+        self._thrust_sq = slice(m.actuator("thrustsq1").id, m.actuator("thrustsq1").id + ROTOR_COUNT)
         self._hip_ctrl = slice(m.actuator("hip1").id, m.actuator("hip1").id + ROTOR_COUNT)
         self._rate_ctrl = slice(m.actuator("hiprate1").id, m.actuator("hiprate1").id + ROTOR_COUNT)
         self._thrust_act = _contiguous(m.actuator_actadr[self._thrust], "thrust filter states")
+        self._thrust_sq_act = _contiguous(m.actuator_actadr[self._thrust_sq], "thrust filter states")
         self._hip_act = _contiguous(m.actuator_actadr[self._hip_ctrl], "hip reference states")
         # hip{i} and hiprate{i} both take the reference rate: one write for the eight of them.
         self._servo_ctrl = slice(self._hip_ctrl.start, self._rate_ctrl.stop)
@@ -72,12 +77,11 @@ class Plant:
         self._noise = SensorNoise(airframe, seed)
 
         self._thrust_max_n = airframe.thrust_max_n if options.thrust_max_n is None else options.thrust_max_n
-        m.actuator_ctrlrange[self._thrust, 1] = self._thrust_max_n
-        self._limit_n = np.full(ROTOR_COUNT, self._thrust_max_n)
         self.hover_thrust_n = m.body_subtreemass[self._hull] * airframe.gravity_m_s2 / ROTOR_COUNT
         self._thrust_request_n = np.full(ROTOR_COUNT, self.hover_thrust_n)
+        self.battery = Battery(airframe, options.battery, options.battery_charge)
+        self.thrusters = Thrusters(airframe, self.hover_thrust_n, self.battery.voltage_v)
         self._apply_thrust()
-        d.act[self._thrust_act] = d.ctrl[self._thrust]
 
         d.qpos[self._pos] = frames.flip_vector(start)
         d.qpos[self._quat] = frames.flip_quat_wxyz(quat_wxyz_from_euler((0.0, 0.0, start_yaw_rad)))
@@ -106,7 +110,21 @@ class Plant:
     def _apply_thrust(self) -> None:
         self._state = None
         self._esc_cmd_n = np.clip(self._thrust_request_n, self.airframe.thrust_min_n, self._thrust_max_n)
-        self.data.ctrl[self._thrust] = np.minimum(self._esc_cmd_n, self._limit_n)
+        self.thrusters.command(self._esc_cmd_n)
+        self._update_rotors()
+
+    def _update_rotors(self) -> None:
+        """The rotors' targets on the present pack voltage, written into the two thrust filters
+        of every rotor (sitl/mjcf.py): with w = w_s + d exp(-t / tau), k_t w^2 is
+        k_t w_s^2 + 2 k_t w_s d exp(-t / tau) + k_t d^2 exp(-2 t / tau)."""
+        rotors, d = self.thrusters, self.data
+        rotors.update(self.battery.voltage_v)
+        k_t, w_s = rotors.thrust_coefficient_n_s2, rotors.settled_rad_s
+        gap = rotors.speed_rad_s - w_s
+        d.ctrl[self._thrust] = k_t * w_s ** 2
+        d.act[self._thrust_act] = k_t * w_s * (w_s + 2.0 * gap)
+        d.ctrl[self._thrust_sq] = 0.0
+        d.act[self._thrust_sq_act] = k_t * gap ** 2
 
     def command(self, thrust_n, hip_rad, hip_rate_rad_s=None) -> None:
         """Thrusts (N, rotors 1..4) and hip targets (rad) with their rates (rad/s, default 0).
@@ -123,17 +141,16 @@ class Plant:
         self._hips.set_target(self._hip_target.tolist(), np.where(np.isfinite(rate), rate, 0.0).tolist())
         self._servo_countdown = 0           # the servo controller (and drag, gate) react at the next step
 
-    def set_rotor_loss(self, rotor: int, loss: float) -> None:
-        """Loss of effectiveness of rotor 1..4: its max thrust becomes (1 - loss) x the airframe's
-        hover thrust; loss 1.0 stops it, 0.0 restores the full range."""
+    def set_rotor_loss(self, rotor: int, loss: float, kind: FailureKind = FailureKind.DEGRADED) -> None:
+        """Rotor 1..4 fails as `kind` (sitl/thruster.py); loss 0 restores it. The default,
+        DEGRADED: its max thrust becomes (1 - loss) x the airframe's hover thrust, 1.0 stops it."""
         if isinstance(rotor, bool) or not isinstance(rotor, (int, np.integer)) or not 1 <= rotor <= ROTOR_COUNT:
             raise ValueError(f"rotor must be an integer 1..{ROTOR_COUNT}, got {rotor!r}")
         if not (isinstance(loss, (int, float)) and 0.0 <= loss <= 1.0):
             raise ValueError(f"loss must be a number in [0, 1], got {loss!r}")
-        hover_n = self.airframe.hover_thrust_per_rotor_n
-        self._limit_n[rotor - 1] = self._thrust_max_n if loss == 0.0 else min(self._thrust_max_n,
-                                                                              (1.0 - loss) * hover_n)
-        self._apply_thrust()
+        self.thrusters.set_fault(rotor - 1, FailureKind(kind), float(loss))
+        self._state = None
+        self._update_rotors()
 
     def step(self, duration_s: float) -> None:
         """Advance the physics by duration_s, a whole number of physics steps."""
@@ -154,8 +171,18 @@ class Plant:
                     self._update_servo_reference()
             k = min(n, self._servo_countdown)
             mujoco.mj_step(m, d, nstep=k)
+            self._advance_rotors(k * self.physics_dt_s)
             self._servo_countdown -= k
             n -= k
+
+    def _advance_rotors(self, dt_s: float) -> None:
+        """The rotor model follows MuJoCo's thrust filters over dt_s and the pack gives what they
+        drew; on a sagging pack the rotors then head for their targets on its new voltage."""
+        rotors = self.thrusters
+        rotors.advance(dt_s)
+        self.battery.draw(float(rotors.current_a.sum()), dt_s)
+        if self.battery.sags:
+            self._update_rotors()
 
     def _gate_contact(self) -> None:
         opt = self.model.opt
@@ -191,9 +218,14 @@ class Plant:
             hip_rad=d.qpos[self._hip_qpos].copy(),
             hip_rate_rad_s=d.qvel[self._hip_qvel].copy(),
             thrust_cmd_n=self._esc_cmd_n.copy(),
-            thrust_n=d.act[self._thrust_act].copy(),
-            thrust_limit_n=self._limit_n.copy(),
+            thrust_n=d.act[self._thrust_act] + d.act[self._thrust_sq_act],
+            thrust_limit_n=self.thrusters.thrust_ceiling_n(self._thrust_max_n),
             thrust_rated_max_n=np.full(ROTOR_COUNT, self._thrust_max_n),
+            rotor_speed_rad_s=self.thrusters.speed_rad_s.copy(),
+            esc_current_a=self.thrusters.current_a,
+            fault_kind=self.thrusters.kind.copy(),
+            battery_voltage_v=self.battery.voltage_v,
+            battery_consumed_mah=self.battery.consumed_mah,
             com_ned_m=frames.flip_vector(d.subtree_com[self._hull]),
             on_ground=bool(d.ncon > 0),
         )

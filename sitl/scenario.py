@@ -15,13 +15,16 @@ from pathlib import Path
 from m4.airframe import ROTOR_COUNT
 from m4.mission import Mission, ned_position, parse_mission
 from m4.toml_fields import ConfigError, Table, load_toml
+from sitl.thruster import FailureKind
 
 
 @dataclass(frozen=True)
 class Fault:
     at_s: float
     rotor: int                # 1..4
-    loss: float               # loss of effectiveness: max thrust becomes (1 - loss) x hover thrust
+    loss: float               # DEGRADED: max thrust becomes (1 - loss) x hover thrust; see sitl/thruster.py
+    kind: FailureKind = FailureKind.DEGRADED
+    until_s: float | None = None       # the fault ends here (None: never)
 
 
 @dataclass(frozen=True)
@@ -42,6 +45,9 @@ class PlantOptions:
     inertia_scale: float = 1.0
     thrust_max_n: float | None = None     # None: the airframe's thrust_max_n
     sensor_noise: bool = False
+    esc_telemetry: bool = True            # False: the FC has no ESC telemetry and never sends it
+    battery: bool = False                 # True: the pack sags over the flight (sitl/battery.py)
+    battery_charge: float = 1.0           # state of charge at t = 0 when the pack sags
 
 
 @dataclass(frozen=True)
@@ -81,10 +87,16 @@ def _parse_start(t: Table) -> Start:
     return s
 
 
+_KINDS = tuple(k.label for k in FailureKind)
+
+
 def _parse_fault(t: Table, duration_s: float) -> Fault:
-    f = Fault(at_s=t.number("at_s", lo=0.0, hi=duration_s),
+    at_s = t.number("at_s", lo=0.0, hi=duration_s)
+    f = Fault(at_s=at_s,
               rotor=t.integer("rotor", lo=1, hi=ROTOR_COUNT),
-              loss=t.number("loss", 1.0, lo=0.0, hi=1.0))
+              loss=t.number("loss", 1.0, lo=0.0, hi=1.0),
+              kind=FailureKind.named(t.string("kind", FailureKind.DEGRADED.label, choices=_KINDS)),
+              until_s=t.number("until_s", lo=at_s, lo_open=True, hi=duration_s) if t.has("until_s") else None)
     t.finish()
     return f
 
@@ -94,6 +106,9 @@ def _parse_plant(t: Table) -> PlantOptions:
     p = PlantOptions(mass_scale=t.number("mass_scale", 1.0, lo=0.5, hi=2.0),
                      inertia_scale=t.number("inertia_scale", 1.0, lo=0.5, hi=2.0),
                      thrust_max_n=thrust_max_n,
-                     sensor_noise=t.boolean("sensor_noise", False))
+                     sensor_noise=t.boolean("sensor_noise", False),
+                     esc_telemetry=t.boolean("esc_telemetry", True),
+                     battery=t.boolean("battery", False),
+                     battery_charge=t.number("battery_charge", 1.0, lo=0.0, hi=1.0))
     t.finish()
     return p

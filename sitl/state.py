@@ -18,8 +18,14 @@ class PlantState:
     hip_rad: np.ndarray            # (4,) sagittal angles, rotors 1..4
     hip_rate_rad_s: np.ndarray
     thrust_cmd_n: np.ndarray       # (4,) sent to the ESCs: the request clamped to [0, rated max]
-    thrust_n: np.ndarray           # (4,) delivered (after motor lag and fault)
-    thrust_limit_n: np.ndarray     # (4,) current max per rotor, fault applied (truth, for metrics)
+    thrust_n: np.ndarray           # (4,) delivered (truth)
+    thrust_limit_n: np.ndarray     # (4,) what each rotor settles at on the largest command, fault and pack
+                                   # voltage applied (truth, for metrics)
     thrust_rated_max_n: np.ndarray  # (4,) max per rotor as configured (all the FC knows)
+    rotor_speed_rad_s: np.ndarray  # (4,) truth; the FC hears it through the ESC telemetry
+    esc_current_a: np.ndarray      # (4,) drawn from the pack by each ESC (truth)
+    fault_kind: np.ndarray         # (4,) int: sitl.thruster.FailureKind, -1 healthy (truth)
+    battery_voltage_v: float
+    battery_consumed_mah: float
     com_ned_m: np.ndarray          # whole-robot centre of mass (truth, for metrics)
     on_ground: bool                # any contact with the floor

@@ -9,7 +9,7 @@ array's first axis is the sample.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, fields
+from dataclasses import MISSING, dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +33,11 @@ class Truth:
     thrust_n: np.ndarray           # (n, 4) delivered
     thrust_limit_n: np.ndarray     # (n, 4)
     on_ground: np.ndarray          # (n,) bool: any contact with the floor
+    # Every rotor's truth (None in a truth log written before the plant had them):
+    rotor_speed_rad_s: np.ndarray | None = None   # (n, 4)
+    esc_current_a: np.ndarray | None = None       # (n, 4) drawn from the pack
+    fault_kind: np.ndarray | None = None          # (n, 4) int: sitl.thruster.FailureKind, -1 healthy
+    battery_voltage_v: np.ndarray | None = None   # (n,)
 
 
 _FROM_STATE = tuple(f.name for f in fields(Truth) if f.name not in ("time_s", "wall_s"))   # PlantState's names
@@ -66,4 +71,4 @@ class TruthRecorder:
 
 def load_truth(path: str | Path) -> Truth:
     with np.load(Path(path)) as data:
-        return Truth(**{f.name: data[f.name] for f in fields(Truth)})
+        return Truth(**{f.name: data[f.name] for f in fields(Truth) if f.name in data or f.default is MISSING})

@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterable
 
 from m4.airframe import Airframe
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
-from sitl.scenario import Scenario
+from sitl.scenario import Fault, Scenario
 from sitl.flight_controller import TICK_MS, FlightController
 from sitl.plant import Plant
 from sitl.streams import FRAME
@@ -36,7 +36,7 @@ class Vehicle:
         self.fc = FlightController(airframe, self.plant, lockstep=lockstep, companion_ids=companion_ids,
                                    require_signed=require_signed, log=log)
         self.now_ms = 0
-        self._faults = sorted(((round(f.at_s * 1000), f) for f in scenario.faults), key=lambda x: x[0])
+        self._faults = sorted(_fault_events(scenario.faults), key=lambda x: x[0])
         self.observers: list[Callable[[int, Plant], None]] = []     # called at every simulated instant
 
     def start(self, send: Send) -> None:
@@ -55,9 +55,14 @@ class Vehicle:
 
     def _at_instant(self, send: Send, frame: bool) -> None:
         while self._faults and self._faults[0][0] <= self.now_ms:
-            _, fault = self._faults.pop(0)
-            self.fc.set_rotor_loss(fault.rotor, fault.loss)
-            log(f"t={self.now_ms / 1000:.3f} s: scenario fault, rotor {fault.rotor} loss {fault.loss:g}")
+            _, fault, ends = self._faults.pop(0)
+            if ends:
+                self.fc.set_rotor_loss(fault.rotor, 0.0)
+                log(f"t={self.now_ms / 1000:.3f} s: scenario fault over, rotor {fault.rotor} restored")
+            else:
+                self.fc.set_rotor_loss(fault.rotor, fault.loss, fault.kind)
+                log(f"t={self.now_ms / 1000:.3f} s: scenario fault, rotor {fault.rotor} "
+                    f"{fault.kind.label} loss {fault.loss:g}")
         if self.now_ms % TICK_MS == 0:
             self.fc.tick(self.now_ms)
         send(self.fc.take_outbox())
@@ -75,3 +80,11 @@ class Vehicle:
         snap = self.fc.snapshot(self.now_ms)
         build = self.fc.telemetry_builder.build
         return [build(i, snap) for i in (mavlink.MAVLINK_MSG_ID_HEARTBEAT, *FRAME)]
+
+
+def _fault_events(faults: Iterable[Fault]) -> list[tuple[int, Fault, bool]]:
+    """(t_ms, fault, whether it ends there) for every start and every until_s; at one instant an
+    end comes before a start, so a fault may take over the rotor another one leaves."""
+    events = [(round(f.at_s * 1000), f, False) for f in faults]
+    events += [(round(f.until_s * 1000), f, True) for f in faults if f.until_s is not None]
+    return sorted(events, key=lambda e: (e[0], not e[2]))

@@ -4,6 +4,7 @@ from m4.mission import load_mission
 from sitl.scenario import load_scenario
 from m4.toml_fields import ConfigError
 from sitl.scenarios import builtin_names, resolve, scenario_path
+from sitl.thruster import FailureKind
 
 GOOD = """
 name = "t"
@@ -23,6 +24,8 @@ at_s = 8.0
 at_s = 6.0
 rotor = 2
 loss = 0.5
+kind = "damage"
+until_s = 7.5
 [[fault]]
 at_s = 4.0
 rotor = 4
@@ -30,6 +33,9 @@ rotor = 4
 mass_scale = 1.1
 thrust_max_n = 24.0
 sensor_noise = true
+esc_telemetry = false
+battery = true
+battery_charge = 0.4
 """
 
 
@@ -45,9 +51,11 @@ def test_a_full_scenario_is_read_with_defaults_and_faults_in_time_order(tmp_path
     assert s.mission.on_fault == "continue"
     assert s.mission.waypoints[0].speed_m_s == 2.0
     assert s.mission.land.at_s == 8.0 and s.mission.land.descent_speed_m_s == 0.5
-    assert [(f.at_s, f.rotor, f.loss) for f in s.faults] == [(4.0, 4, 1.0), (6.0, 2, 0.5)]
+    assert [(f.at_s, f.rotor, f.loss, f.kind, f.until_s) for f in s.faults] == [
+        (4.0, 4, 1.0, FailureKind.DEGRADED, None), (6.0, 2, 0.5, FailureKind.DAMAGE, 7.5)]
     assert s.plant.mass_scale == 1.1 and s.plant.inertia_scale == 1.0
     assert s.plant.thrust_max_n == 24.0 and s.plant.sensor_noise is True
+    assert s.plant.esc_telemetry is False and s.plant.battery is True and s.plant.battery_charge == 0.4
 
 
 @pytest.mark.parametrize("old,new,message", [
@@ -60,6 +68,10 @@ def test_a_full_scenario_is_read_with_defaults_and_faults_in_time_order(tmp_path
     ("at_s = 6.0", "at_s = 60.0", "at_s must be <= 10"),
     ("sensor_noise = true", 'sensor_noise = "yes"', "sensor_noise must be true or false"),
     ('name = "t"', "", "name is missing"),
+    ('kind = "damage"', 'kind = "exploded"', "kind must be one of degraded, motor, propeller, damage"),
+    ("until_s = 7.5", "until_s = 5.0", "until_s must be > 6"),
+    ("until_s = 7.5", "until_s = 12.0", "until_s must be <= 10"),
+    ("battery = true", "battery = 1", "battery must be true or false"),
 ])
 def test_bad_scenarios_are_rejected_with_the_key_named(tmp_path, old, new, message):
     assert old in GOOD

@@ -53,7 +53,7 @@ def test_inject_failure_off_stops_the_rotor_and_ok_restores_it():
         assert ack.result == m.MAV_RESULT_ACCEPTED
         assert _status_after(companion, ack, lambda s: s.thrust_n[3] > 0.9 * af.hover_thrust_per_rotor_n) is not None
         texts = [t.text for t in companion.of_type("STATUSTEXT")]
-        assert "rotor 4 loss 100% injected" in texts and "rotor 4 restored" in texts
+        assert "rotor 4 motor stop injected" in texts and "rotor 4 restored" in texts
 
 
 def test_inject_failure_instance_zero_stops_every_rotor():
@@ -83,6 +83,16 @@ def test_rotor_loss_command_caps_the_rotor_relative_to_hover_thrust():
         assert status is not None and status.thrust_cmd_n[1] > expected      # the command is what was asked
         assert _command(companion, m.MAV_CMD_M4_ROTOR_LOSS, 2, 1.5).result == m.MAV_RESULT_DENIED
         assert _command(companion, m.MAV_CMD_M4_ROTOR_LOSS, 2.5, 0.5).result == m.MAV_RESULT_DENIED
+
+
+def test_rotor_loss_command_takes_the_failure_kind_and_refuses_an_unknown_one():
+    with _fc() as companion:
+        ack = _command(companion, m.MAV_CMD_M4_ROTOR_LOSS, 3, 1.0, m.M4_ROTOR_FAILURE_KIND_PROPELLER)
+        assert ack.result == m.MAV_RESULT_ACCEPTED
+        assert _status_after(companion, ack, lambda s: s.thrust_n[2] < 0.01) is not None
+        assert _command(companion, m.MAV_CMD_M4_ROTOR_LOSS, 3, 1.0, 9).result == m.MAV_RESULT_DENIED
+        assert _command(companion, m.MAV_CMD_M4_ROTOR_LOSS, 3, 1.0, 1.5).result == m.MAV_RESULT_DENIED
+        assert "rotor 3 propeller loss injected" in [t.text for t in companion.of_type("STATUSTEXT")]
 
 
 def test_set_message_interval_changes_and_stops_a_stream():

@@ -70,14 +70,15 @@ def test_lumps_sit_at_the_hip_mid_leg_and_leg_end(hover):
         assert FLIP * (data.body(f"wheel{n}").xipos - hull) == pytest.approx(ends[i], abs=1e-12)
 
 
-def test_thrust_actuators_have_the_motor_lag_limits_and_reaction_moment_sign(hover):
+def test_thrust_actuators_have_the_rotor_lag_and_its_square_and_the_reaction_moment_sign(hover):
     model, _ = hover
     for i in range(ROTOR_COUNT):
-        act = model.actuator(f"thrust{i + 1}")
-        assert act.dynprm[0] == pytest.approx(AF.motor_time_constant_s)
-        assert act.ctrlrange == pytest.approx([AF.thrust_min_n, AF.thrust_max_n])
-        # Force along site +z (up); moment spin k_m T about FRD z, i.e. -spin k_m T about FLU z.
-        assert act.gear == pytest.approx([0, 0, 1, 0, 0, -AF.spin_sign[i] * AF.moment_coefficient_m])
+        for name, tau in (("thrust", AF.motor_time_constant_s), ("thrustsq", AF.motor_time_constant_s / 2)):
+            act = model.actuator(f"{name}{i + 1}")
+            assert act.dynprm[0] == pytest.approx(tau)
+            assert not model.actuator_ctrllimited[act.id]      # the rotor model (sitl/thruster.py) limits
+            # Force along site +z (up); moment spin k_m T about FRD z, i.e. -spin k_m T about FLU z.
+            assert act.gear == pytest.approx([0, 0, 1, 0, 0, -AF.spin_sign[i] * AF.moment_coefficient_m])
 
 
 def test_hover_keyframe_holds_the_hover_thrust_and_nominal_posture(hover):

@@ -165,13 +165,16 @@ def test_rests_on_the_floor_with_zero_thrust():
     assert s.thrust_n == pytest.approx(np.zeros(ROTOR_COUNT), abs=1e-9)
 
 
-def test_motor_lag_is_first_order_with_the_airframe_time_constant():
+def test_rotor_speed_lags_the_command_by_the_airframe_time_constant_and_thrust_is_k_t_w_squared():
     plant = Plant(AF)
+    w0, w1 = math.sqrt(HOVER_N / AF.thrust_coefficient_n_s2), math.sqrt((HOVER_N + 5.0) / AF.thrust_coefficient_n_s2)
     plant.command(np.full(ROTOR_COUNT, HOVER_N + 5.0), NOMINAL)
     plant.step(AF.motor_time_constant_s)
     s = plant.state()
+    w = w0 + (w1 - w0) * (1 - math.exp(-1))
     assert s.thrust_cmd_n == pytest.approx(np.full(ROTOR_COUNT, HOVER_N + 5.0))
-    assert s.thrust_n == pytest.approx(np.full(ROTOR_COUNT, HOVER_N + 5.0 * (1 - math.exp(-1))), rel=1e-9)
+    assert s.rotor_speed_rad_s == pytest.approx(np.full(ROTOR_COUNT, w), rel=1e-9)
+    assert s.thrust_n == pytest.approx(np.full(ROTOR_COUNT, AF.thrust_coefficient_n_s2 * w * w), rel=1e-9)
 
 
 def test_rotor_loss_caps_delivered_thrust_relative_to_hover_and_can_be_restored():

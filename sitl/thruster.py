@@ -1,0 +1,152 @@
+"""The four thrusters as a real plant has them: an ESC, a DC motor and a propeller each.
+
+Rotor speed w (rad/s) heads for the speed at which the motor settles with a first-order lag
+(the airframe's motor_time_constant_s): w(t) = w_settled + (w0 - w_settled) exp(-t / tau),
+exact between updates. The propeller gives thrust k_t w^2 and drag torque k_q w^2 with
+k_q = k_m k_t. The motor (back-EMF and torque constant k_e, winding resistance R, no-load
+current i0) on ESC output voltage u settles where its torque carries the propeller's drag:
+k_e ((u - k_e w) / R - i0) = k_q w^2. Its current is (u - k_e w) / R (never below 0: an
+ESC braking the rotor reports no current), the pack sees u / V of it.
+
+The ESC command is the FC's thrust turned into the speed the nominal propeller needs for it,
+and that speed into the throttle that turns the nominal propeller at it on the present pack
+voltage V (the FC's thrust linearisation with battery-voltage compensation), at most full
+throttle. So a healthy rotor turns at the commanded speed below its ceiling, and a sagging
+pack lowers every rotor's ceiling together.
+
+Failure kinds (the dialect's M4_ROTOR_FAILURE_KIND), per rotor:
+- DEGRADED: the motor cannot exceed the speed at which the healthy propeller gives
+  (1 - loss) x hover thrust (its ESC output is capped there); loss 1 stops it.
+- MOTOR: motor or ESC dead: no drive, no current; the rotor spins down at its time constant.
+- PROPELLER: propeller lost: no thrust, no drag torque; the unloaded motor overspeeds to its
+  no-load speed for the same throttle and draws only its no-load current.
+- DAMAGE: a chipped propeller: k_t and k_q x (1 - loss) at the same speed (the lighter load
+  lets the motor turn a little faster).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+
+import numpy as np
+
+from m4.airframe import ROTOR_COUNT, Airframe
+from m4.mavlink import mavlink
+
+RAD_S_TO_RPM = 60.0 / (2.0 * math.pi)
+HEALTHY = -1                   # fault_kind of a healthy rotor (truth)
+
+
+class FailureKind(enum.IntEnum):
+    DEGRADED = mavlink.M4_ROTOR_FAILURE_KIND_DEGRADED
+    MOTOR = mavlink.M4_ROTOR_FAILURE_KIND_MOTOR
+    PROPELLER = mavlink.M4_ROTOR_FAILURE_KIND_PROPELLER
+    DAMAGE = mavlink.M4_ROTOR_FAILURE_KIND_DAMAGE
+
+    @classmethod
+    def named(cls, name: str) -> "FailureKind":
+        return cls[name.upper()]
+
+    @property
+    def label(self) -> str:
+        return self.name.lower()
+
+
+_MOTOR, _PROPELLER, _DAMAGE, _DEGRADED = (int(k) for k in (FailureKind.MOTOR, FailureKind.PROPELLER,
+                                                            FailureKind.DAMAGE, FailureKind.DEGRADED))
+
+
+class Thrusters:
+    def __init__(self, af: Airframe, thrust_n: float, voltage_v: float):
+        """Four healthy rotors settled at `thrust_n` each."""
+        self._tau_s = af.motor_time_constant_s
+        self._k_t, self._k_q = af.thrust_coefficient_n_s2, af.drag_torque_coefficient_n_m_s2
+        self._k_e, self._r, self._i0 = af.motor_back_emf_v_s_rad, af.motor_resistance_ohm, af.motor_no_load_current_a
+        self._hover_n = af.hover_thrust_per_rotor_n
+        self.kind = np.full(ROTOR_COUNT, HEALTHY)
+        self.loss = np.zeros(ROTOR_COUNT)
+        self._scale = np.ones(ROTOR_COUNT)                 # the propellers' k_t and k_q / the nominal ones
+        self._u_max_v = np.full(ROTOR_COUNT, np.inf)       # what each motor may be driven with
+        self._speed_cmd = np.full(ROTOR_COUNT, self.speed_for_thrust(thrust_n))
+        self.speed_rad_s = self._speed_cmd.copy()
+        self.voltage_v = voltage_v
+        self.update(voltage_v)
+
+    # -- what the ESCs are told -------------------------------------------------------------
+    def speed_for_thrust(self, thrust_n):
+        """The speed at which the nominal propeller gives `thrust_n`."""
+        return np.sqrt(np.maximum(thrust_n, 0.0) / self._k_t)
+
+    def command(self, thrust_n) -> None:
+        """The ESC commands: thrusts (N) through the nominal propeller. Call update() after."""
+        self._speed_cmd = self.speed_for_thrust(np.asarray(thrust_n, dtype=float))
+
+    def set_fault(self, index: int, kind: FailureKind, loss: float) -> None:
+        """Rotor `index` (0..3) fails; loss 0 restores it. Call update() after."""
+        restored = loss == 0.0
+        self.kind[index] = kind = HEALTHY if restored else int(kind)
+        self.loss[index] = loss = 0.0 if restored else loss
+        self._scale[index] = {_PROPELLER: 0.0, _DAMAGE: 1.0 - loss}.get(kind, 1.0)
+        ceiling_v = float(self._drive_voltage(self.speed_for_thrust((1.0 - loss) * self._hover_n)))
+        self._u_max_v[index] = {_MOTOR: 0.0, _DEGRADED: ceiling_v}.get(kind, np.inf)
+
+    # -- the motor ------------------------------------------------------------------------
+    def _drive_voltage(self, speed_rad_s):
+        """The motor voltage that settles the nominal propeller at `speed_rad_s` (0 at rest)."""
+        w = np.asarray(speed_rad_s, dtype=float)
+        u = self._k_e * w + self._r * (self._k_q * w * w / self._k_e + self._i0)
+        return np.where(w > 0.0, u, 0.0)
+
+    def _settled_speed(self, u_v, k_q):
+        """Root of k_q R w^2 + k_e^2 w - k_e (u - R i0) = 0 (0 when u cannot beat friction)."""
+        drive = self._k_e * np.maximum(u_v - self._r * self._i0, 0.0)
+        return 2.0 * drive / (self._k_e ** 2 + np.sqrt(self._k_e ** 4 + 4.0 * k_q * self._r * drive))
+
+    def _settle(self, speed_cmd, voltage_v):
+        """(ESC output voltage, settled speed) for the commanded speeds, faults applied."""
+        u = np.minimum(np.minimum(self._drive_voltage(speed_cmd), voltage_v), self._u_max_v)
+        return u, self._settled_speed(u, self._k_q * self._scale)
+
+    def update(self, voltage_v: float) -> None:
+        """Recompute what every rotor heads for, on pack voltage `voltage_v`."""
+        self.voltage_v = voltage_v
+        self._u_v, self.settled_rad_s = self._settle(self._speed_cmd, voltage_v)
+
+    def advance(self, dt_s: float) -> None:
+        decay = math.exp(-dt_s / self._tau_s)
+        self.speed_rad_s = self.settled_rad_s + (self.speed_rad_s - self.settled_rad_s) * decay
+
+    # -- what the rotors do ---------------------------------------------------------------
+    @property
+    def time_constant_s(self) -> float:
+        return self._tau_s
+
+    @property
+    def thrust_coefficient_n_s2(self) -> np.ndarray:
+        """Each rotor's k_t now (0 without its propeller)."""
+        return self._k_t * self._scale
+
+    @property
+    def thrust_n(self) -> np.ndarray:
+        return self.thrust_coefficient_n_s2 * self.speed_rad_s ** 2
+
+    @property
+    def motor_current_a(self) -> np.ndarray:
+        i = np.maximum((self._u_v - self._k_e * self.speed_rad_s) / self._r, 0.0)
+        return np.where(self.kind == _MOTOR, 0.0, i)
+
+    @property
+    def current_a(self) -> np.ndarray:
+        """What each ESC draws from the pack."""
+        return self._u_v / self.voltage_v * self.motor_current_a
+
+    @property
+    def copper_loss_w(self) -> np.ndarray:
+        return self._r * self.motor_current_a ** 2
+
+    def thrust_ceiling_n(self, thrust_max_n: float) -> np.ndarray:
+        """What each rotor settles at when commanded `thrust_max_n` now (truth: the fault and the
+        pack voltage applied)."""
+        _, w = self._settle(np.full(ROTOR_COUNT, self.speed_for_thrust(thrust_max_n)), self.voltage_v)
+        return self.thrust_coefficient_n_s2 * w ** 2
