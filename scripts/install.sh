@@ -1,13 +1,17 @@
 #!/usr/bin/env bash
 # Installs everything a developer or CI needs: the project (editable) with the simulator,
-# test and cluster (Dask) extras, and the few Debian packages the tests use: Chromium (the
-# dashboard's screenshot test drives it headless). Root (CI) installs them with apt-get;
-# anyone else is told what is missing. Idempotent: what is there is left alone.
+# test and cluster (Dask) extras, and the Debian packages the tests and the videos use:
+# Chromium (the dashboard's screenshot test drives it headless) and MuJoCo's offscreen
+# OpenGL (EGL with Mesa's software driver, OSMesa as the fallback; `m4-sitl fly --video`).
+# Root (CI) installs what is missing with apt-get; anyone else is told what is missing.
+# Idempotent: what is there is left alone.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 debian_packages=()
-command -v chromium >/dev/null 2>&1 || debian_packages+=(chromium)
+for package in chromium libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6; do
+    dpkg-query -W -f='${Status}' "$package" 2>/dev/null | grep -q "ok installed" || debian_packages+=("$package")
+done
 if ((${#debian_packages[@]})); then
     if [[ $(id -u) -eq 0 ]] && command -v apt-get >/dev/null 2>&1; then
         export DEBIAN_FRONTEND=noninteractive

@@ -39,7 +39,21 @@ def add_fly(sub) -> None:
     _rate(p)
     p.add_argument("--realtime", action="store_true", help="pace by the wall clock (default: lockstep)")
     p.add_argument("--viewer", action="store_true", help="show MuJoCo's passive viewer")
+    p.add_argument("--video", action="store_true",
+                   help="then render the flight offscreen: flight.mp4 (chase camera, real time) and snapshots_render.png")
+    p.add_argument("--video-size", type=_video_size, default=(640, 360), metavar="WxH",
+                   help="with --video: frame size in pixels (default 640x360)")
     p.set_defaults(func=_fly)
+
+
+def _video_size(text: str) -> tuple[int, int]:
+    try:
+        width, height = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, e.g. 640x360, got {text!r}") from None
+    if min(width, height) < 16 or width % 2 or height % 2:
+        raise argparse.ArgumentTypeError(f"width and height must be even and >= 16, got {text}")
+    return width, height
 
 
 def _fly(args) -> int:
@@ -53,6 +67,14 @@ def _fly(args) -> int:
     except FlightError as e:
         raise BadInput(str(e)) from None
     print(summary_line(metrics, out))
+    if args.video:
+        from sitl.video import VideoError, VideoOptions, make_video
+
+        try:
+            paths = make_video(out, VideoOptions(width=args.video_size[0], height=args.video_size[1]))
+        except VideoError as e:
+            raise BadInput(f"the flight is in {out}, but {e}") from None
+        print("video: " + ", ".join(str(p) for p in paths))
     return 0
 
 
