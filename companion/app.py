@@ -120,7 +120,7 @@ class CompanionApp:
         try:
             if not self.controller.started and self.controller.start(t_s, x):
                 log.info("t=%.3f s: mission anchored at the centre of mass (%.2f, %.2f, %.2f) m NED", t_s, *x[rom.P])
-            step = self.controller.step(t_s, x, None, snap.thrust_limit_n)
+            step = self.controller.step(t_s, x, snap.esc, snap.thrust_limit_n)
         except Exception:           # a defect, not bad input: say it, send nothing, let the FC's failsafe fly
             self.counters.control_errors += 1
             log.exception("control step at t=%.3f s failed; no setpoint for this instant", t_ms / 1000.0)

@@ -36,7 +36,7 @@ import numpy as np
 from companion.core import rom
 from companion.core.control_types import FaultState, FaultStatus, plausible_state, safe_setpoint, thrust_bounds
 from companion.core.disturbance import DisturbanceEstimator
-from companion.core.esc_evidence import EscSample
+from companion.core.esc_evidence import EscSample, PropellerModel
 from companion.core.fault_detector import FaultDetector, FaultDetectorConfig
 from companion.core.nmpc import Nmpc, NmpcResult
 from companion.core.nmpc_config import NmpcConfig
@@ -132,7 +132,8 @@ class Controller:
         self.af = af = s.airframe
         self.period_s = s.control_period_s
         self.nmpc = nmpc or Nmpc(af, s.nmpc)
-        self._new_detector = new_detector or (lambda: FaultDetector(af, s.fault_detector))
+        propeller = PropellerModel.from_airframe(af)
+        self._new_detector = new_detector or (lambda: FaultDetector(af, s.fault_detector, propeller))
         self._new_reference = new_reference or (
             lambda t0_s, start_ned_m: MissionReference(s.mission, start_ned_m, af, s.reference, t0_s=t0_s))
         self.disturbance = DisturbanceEstimator(af, self.period_s, s.disturbance_gain)

@@ -28,7 +28,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from companion.core.control_types import FaultStatus
-from companion.telemetry import STREAMS
+from companion.telemetry import REQUESTED, STREAMS
 from m4.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from m4.mavlink.signing import SigningCounters
 from m4.setpoint import Setpoint
@@ -175,9 +175,9 @@ class FcLink:
 
     # -- periodic ----------------------------------------------------------------------------------
     def request_intervals(self, period_s: float) -> None:
-        """Ask for the telemetry frame's streams every period_s (again from the start)."""
+        """Ask for the telemetry frame's streams and the ESC telemetry every period_s (again from the start)."""
         interval_us = float(round(period_s * 1e6))
-        self._intervals = [(msg_id, interval_us) for msg_id in STREAMS]
+        self._intervals = [(msg_id, interval_us) for msg_id in REQUESTED]
         self._sent_at_s = None
         self._attempts = 0
 

@@ -10,6 +10,12 @@ companion.fc_link) `clear()` starts every stream over. A message with a
 non-finite field (or a quaternion that is not a unit one) is rejected and counted; in
 M4_THRUSTER_STATUS a NaN means "the FC cannot tell" (contract) and is kept as NaN.
 
+ESC telemetry (ArduPilot's ESC_TELEMETRY_1_TO_4: rpm, current in cA, voltage in cV per ESC)
+carries no timestamp: it is stamped with the FC's clock as the other streams last showed it
+(the newest time_boot_ms received so far), and a frame is taken only when that clock has
+moved on since the last one. A voltage of 0 means "not reported" (NaN). Many flight
+controllers send none: the snapshot's `esc` is then None.
+
 Frames: everything stays NED/FRD as on the wire. LOCAL_POSITION_NED is the hull centre (the
 IMU); the ROM's p and v are the whole robot's centre of mass, offset by
 `Airframe.com_offset_frd_m(hip)` rotated into NED, its velocity including omega x r and the
@@ -25,6 +31,7 @@ import numpy as np
 from m4.airframe import ROTOR_COUNT, Airframe
 from m4.attitude import euler_from_quat_wxyz, rotation_ned_from_frd
 from companion.core import rom_layout as rom
+from companion.core.esc_evidence import EscSample
 from m4.mavlink import mavlink
 
 ATTITUDE = mavlink.MAVLINK_MSG_ID_ATTITUDE
@@ -33,6 +40,8 @@ LOCAL_POSITION = mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED
 JOINT_STATE = mavlink.MAVLINK_MSG_ID_M4_JOINT_STATE
 THRUSTER_STATUS = mavlink.MAVLINK_MSG_ID_M4_THRUSTER_STATUS
 STREAMS = (ATTITUDE, ATTITUDE_QUATERNION, LOCAL_POSITION, JOINT_STATE, THRUSTER_STATUS)
+ESC_TELEMETRY = mavlink.MAVLINK_MSG_ID_ESC_TELEMETRY_1_TO_4
+REQUESTED = STREAMS + (ESC_TELEMETRY,)       # what the companion asks the FC to stream
 _QUAT_NORM_TOLERANCE = 0.05
 
 
@@ -96,16 +105,20 @@ class VehicleSnapshot:
     thrust_cmd_n: np.ndarray            # as the FC reports them (NaN: it cannot tell)
     thrust_n: np.ndarray
     thrust_limit_n: np.ndarray
+    esc: EscSample | None = None        # the newest ESC telemetry (None: the FC sends none)
 
 
 class TelemetryAssembler:
     def __init__(self):
         self.counters = TelemetryCounters()
         self._samples: dict[int, Sample] = {}
+        self._esc: EscSample | None = None
 
     def add(self, msg, now_s: float) -> bool:
         """Take one message; True when it is a telemetry sample and was accepted."""
         msg_id = msg.get_msgId()
+        if msg_id == ESC_TELEMETRY:
+            return self._add_esc(msg)
         if msg_id not in STREAMS:
             return False
         values = _decode(msg)
@@ -121,9 +134,22 @@ class TelemetryAssembler:
         self.counters.accepted += 1
         return True
 
+    def _add_esc(self, msg) -> bool:
+        fc_ms = max((sample.time_ms for sample in self._samples.values()), default=None)
+        if fc_ms is None or self._esc is not None and fc_ms <= round(self._esc.time_s * 1000.0):
+            self.counters.stale += 1          # no FC instant to stamp it with, or none newer than the last
+            return False
+        voltage_v = np.array(msg.voltage, dtype=float) / 100.0
+        self._esc = EscSample(time_s=fc_ms / 1000.0, rpm=np.array(msg.rpm, dtype=float),
+                              current_a=np.array(msg.current, dtype=float) / 100.0,
+                              voltage_v=np.where(voltage_v > 0.0, voltage_v, np.nan))
+        self.counters.accepted += 1
+        return True
+
     def clear(self) -> None:
         """Forget every stream (the FC rebooted: its clock started over)."""
         self._samples.clear()
+        self._esc = None
 
     def age_s(self, msg_id: int, now_s: float) -> float | None:
         """Companion seconds since the stream's newest sample arrived (None: never)."""
@@ -149,7 +175,8 @@ class TelemetryAssembler:
             time_ms=max(times.values()), times_ms=times, euler_rad=euler, rates_frd_rad_s=rates,
             pos_ned_m=pos["pos_ned_m"], vel_ned_m_s=pos["vel_ned_m_s"],
             hip_rad=joints["hip_rad"], hip_rate_rad_s=joints["hip_rate_rad_s"],
-            thrust_cmd_n=thr["thrust_cmd_n"], thrust_n=thr["thrust_n"], thrust_limit_n=thr["thrust_limit_n"])
+            thrust_cmd_n=thr["thrust_cmd_n"], thrust_n=thr["thrust_n"], thrust_limit_n=thr["thrust_limit_n"],
+            esc=self._esc)
 
 
 def rom_state(snap: VehicleSnapshot, af: Airframe) -> np.ndarray:

@@ -59,9 +59,8 @@ class PropellerModel:
 
     @classmethod
     def from_airframe(cls, af: Airframe) -> "PropellerModel":
-        return cls(thrust_coefficient_n_s2=af.thrust_coefficient_n_s2,
-                   speed_max_rad_s=math.sqrt(af.thrust_max_n / af.thrust_coefficient_n_s2),
-                   voltage_nominal_v=af.battery_voltage_nominal_v)
+        return cls(thrust_coefficient_n_s2=af.thrust_coefficient_n_s2, speed_max_rad_s=af.rotor_speed_max_rad_s,
+                   voltage_nominal_v=af.battery_nominal_voltage_v)
 
     def thrust_n(self, rpm: np.ndarray) -> np.ndarray:
         return self.thrust_coefficient_n_s2 * (np.asarray(rpm, dtype=float) * _RAD_S_PER_RPM) ** 2
@@ -79,7 +78,8 @@ class PropellerModel:
 class EscThresholds:
     stopped_share: float = 0.3        # turning below this share of the expected speed: stopped
     slow_share: float = 0.9           # below this share (and loaded): slow
-    unloaded_load_share: float = 0.4  # load index below this share of the other rotors' median: unloaded
+    unloaded_load_share: float = 0.25  # load index below this share of the other rotors' median: unloaded
+                                       # (a propeller with half its blade area left keeps about half)
     overspeed_share: float = 1.15     # this far above the expected speed: unloaded
     speed_min_rpm: float = 500.0      # below this the load index means nothing
 

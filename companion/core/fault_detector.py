@@ -67,6 +67,7 @@ from companion.core.fault_residual import (
 # A residual of pure noise has a chi2 of about one per channel and interval; the best rotor may
 # leave this many times that unexplained on top of its share.
 _NOISE_CHI2_MARGIN = 3.0
+_STOPPED_SHARE = 0.1      # an ESC whose speed heads for less than this share of the asked thrust: a stopped motor
 _LAG_SPANS = 3.0          # the lag is undone in the sizing over spans up to this many motor time constants
 _KIND_OF_CONDITION = {RotorCondition.STOPPED: FaultKind.MOTOR, RotorCondition.UNLOADED: FaultKind.PROPELLER,
                       RotorCondition.SLOW: FaultKind.DEGRADED, RotorCondition.NORMAL: FaultKind.DEGRADED}
@@ -261,8 +262,10 @@ class FaultDetector:
         large = deficit[i] >= c.deficit_min_n or (deficit[i] >= c.deficit_min_n / 2
                                                    and deficit[i] >= c.shortfall_min * expected[i])
         self._deficit_n = deficit
-        return _Evidence(rotor=i if alone and large else None, path=_Path.ESC,
-                         kind=_KIND_OF_CONDITION[reading.condition[i]],
+        kind = _KIND_OF_CONDITION[reading.condition[i]]
+        if kind is FaultKind.DEGRADED and self._esc_heading_n[i] <= _STOPPED_SHARE * expected[i]:
+            kind = FaultKind.MOTOR                # still spinning down, but heading for a standstill
+        return _Evidence(rotor=i if alone and large else None, path=_Path.ESC, kind=kind,
                          delivered_n=np.maximum(self._esc_heading_n, self._af.thrust_min_n), expected_n=expected,
                          short=deficit >= c.ceiling_deficit_min_n, significant=np.ones(ROTOR_COUNT, dtype=bool))
 

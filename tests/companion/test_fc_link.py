@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from companion.fc_link import FcLink, LinkEvent
-from companion.telemetry import STREAMS
+from companion.telemetry import REQUESTED, STREAMS
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
 from m4.mavlink.link import UdpLink
 from m4.setpoint import Setpoint
@@ -188,9 +188,9 @@ def test_message_intervals_are_requested_one_at_a_time_until_acked(links):
         if companion.health().intervals_pending == 0:
             break
     ids = [i for i, _ in asked]
-    assert ids[:3] == [STREAMS[0], STREAMS[1], STREAMS[1]]
-    assert sorted(set(ids)) == sorted(STREAMS) and {us for _, us in asked} == {20000.0}
-    assert companion.health().intervals_acked == len(STREAMS)
+    assert ids[:3] == [REQUESTED[0], REQUESTED[1], REQUESTED[1]]
+    assert sorted(set(ids)) == sorted(REQUESTED) and {us for _, us in asked} == {20000.0}
+    assert companion.health().intervals_acked == len(REQUESTED)
 
 
 # -- events, on a socket-free transport ----------------------------------------------------------------

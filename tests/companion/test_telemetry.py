@@ -156,3 +156,32 @@ def test_ages_follow_the_companion_clock_per_stream():
     assert asm.age_s(ATTITUDE, 1.5) == pytest.approx(0.5)
     assert asm.age_s(THRUSTER_STATUS, 1.5) == pytest.approx(0.3)
     assert asm.age_s(LOCAL_POSITION, 1.5) is None
+
+
+def esc(rpm=(5522,) * 4, current_ca=(2250,) * 4, voltage_cv=(1480,) * 4):
+    return mavlink.MAVLink_esc_telemetry_1_to_4_message([30] * 4, list(voltage_cv), list(current_ca), [0] * 4,
+                                                         list(rpm), [1] * 4)
+
+
+def test_esc_telemetry_is_stamped_with_the_fcs_clock_and_converted_to_si_units():
+    asm = TelemetryAssembler()
+    assert asm.add(esc(), 0.0) is False             # nothing yet says what time it is on the FC
+    feed(asm, frame(40))
+    assert asm.snapshot().esc is None                # an FC without ESC telemetry
+    assert asm.add(esc(rpm=(5522, 5500, 0, 7000), voltage_cv=(1480, 1480, 1480, 0)), 0.0)
+    e = asm.snapshot().esc
+    assert e.time_s == pytest.approx(0.04)
+    assert list(e.rpm) == [5522, 5500, 0, 7000]
+    assert e.current_a == pytest.approx([22.5] * 4)
+    assert e.voltage_v[:3] == pytest.approx([14.8] * 3) and math.isnan(e.voltage_v[3])   # 0: not reported
+
+
+def test_a_second_esc_frame_before_the_fcs_clock_moves_is_dropped_as_stale():
+    asm = TelemetryAssembler()
+    feed(asm, frame(40))
+    assert feed(asm, [esc(rpm=(1,) * 4), esc(rpm=(2,) * 4)]) == [True, False]
+    feed(asm, frame(60) + [esc(rpm=(3,) * 4)])
+    assert asm.snapshot().esc.rpm[0] == 3 and asm.snapshot().esc.time_s == pytest.approx(0.06)
+    assert asm.counters.stale == 1
+    asm.clear()
+    assert asm.snapshot() is None and asm.add(esc(), 0.0) is False
