@@ -11,8 +11,10 @@ and climbs on a sagging battery, with noise and mismatch, half of them without E
 
 Per flight, from the companion's M4_FAULT_STATUS in the tlog: the first confirmation after the
 fault (latency, rotor), the ceiling estimate of that rotor SIZING_AFTER_S later against the
-truth (as % of hover thrust), survival (sitl.metrics), a false alarm (any confirmation before
-the fault or naming another rotor). Outputs: detection.csv and detection.md in the folder.
+truth (truth.npz: what the rotor settles at on the largest command then, fault and pack
+voltage applied; as % of hover thrust), survival (sitl.metrics), a false alarm (any
+confirmation before the fault or naming another rotor). Outputs: detection.csv and
+detection.md in the folder.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from m4.airframe import ROTOR_COUNT, load_airframe
 from sitl.flight_run import FlightOptions
 from sitl.parallel import FlightJob, fly_all
 from sitl.records import FaultStatusLog, read_fault_status
+from sitl.truth import Truth, load_truth
 
 KINDS = ("motor", "propeller", "damage", "degraded")
 LOSS_BY_KIND = {"motor": 1.0, "propeller": 1.0, "damage": 0.5, "degraded": 0.5}
@@ -57,13 +60,6 @@ class DetectionCase:
     @property
     def loss(self) -> float:
         return LOSS_BY_KIND.get(self.kind, 0.0)
-
-    def true_ceiling_n(self, hover_n: float, thrust_max_n: float) -> float:
-        if self.kind == "degraded":
-            return (1.0 - self.loss) * hover_n
-        if self.kind == "damage":
-            return (1.0 - self.loss) * thrust_max_n
-        return 0.0
 
     def scenario_toml(self) -> str:
         lines = [f'name = "{self.name}"', f"duration_s = {self.duration_s:g}", "", "[start]",
@@ -113,7 +109,7 @@ def detection_cases(kinds, speeds, escs, seed: int = 0, false_alarm_minutes: flo
     return cases
 
 
-def result_row(case: DetectionCase, metrics: dict, status: FaultStatusLog, hover_n: float, thrust_max_n: float) -> dict:
+def result_row(case: DetectionCase, metrics: dict, status: FaultStatusLog, truth: Truth | None, hover_n: float) -> dict:
     row = {**asdict(case), "loss": case.loss}
     if "error" in metrics:
         return {**row, "survived": False, "error": metrics["error"]}
@@ -131,9 +127,11 @@ def result_row(case: DetectionCase, metrics: dict, status: FaultStatusLog, hover
         row["false_alarm"] |= rotor != case.rotor
         later = np.flatnonzero(status.time_s >= status.time_s[k] + SIZING_AFTER_S)
         j = later[0] if later.size else len(status.time_s) - 1
-        if row["rotor_isolated"] and status.rotor[j] == rotor:
+        if row["rotor_isolated"] and status.rotor[j] == rotor and truth is not None:
             estimate = status.thrust_max_estimate_n[j, rotor - 1]
-            row["estimate_error_pct"] = round(100.0 * (estimate - case.true_ceiling_n(hover_n, thrust_max_n)) / hover_n, 1)
+            k_truth = min(int(np.searchsorted(truth.time_s, status.time_s[j])), len(truth.time_s) - 1)
+            true_n = truth.thrust_limit_n[k_truth, rotor - 1]
+            row["estimate_error_pct"] = round(100.0 * (estimate - true_n) / hover_n, 1)
     return row
 
 
@@ -212,9 +210,10 @@ def run_detection_campaign(out_dir: Path, kinds, speeds, escs, seed: int = 0, fa
     af = load_airframe()
     rows = []
     for case, job, metrics in zip(cases, jobs, fly_all(jobs, workers, "detection", engine, scheduler)):
-        tlog = job.out_dir / "flight.tlog"
+        tlog, truth = job.out_dir / "flight.tlog", job.out_dir / "truth.npz"
         status = read_fault_status(tlog) if tlog.exists() else FaultStatusLog.empty()
-        rows.append(result_row(case, metrics, status, af.hover_thrust_per_rotor_n, af.thrust_max_n))
+        rows.append(result_row(case, metrics, status, load_truth(truth) if truth.exists() else None,
+                               af.hover_thrust_per_rotor_n))
     fields = list(dict.fromkeys(key for r in rows for key in r))
     with (out_dir / "detection.csv").open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=fields)
