@@ -23,6 +23,7 @@ import csv
 import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -30,7 +31,9 @@ from m4.airframe import ROTOR_COUNT, load_airframe
 from sitl.flight_run import FlightOptions
 from sitl.parallel import FlightJob, fly_all
 from sitl.records import FaultStatusLog, read_fault_status
-from sitl.truth import Truth, load_truth
+
+if TYPE_CHECKING:                       # sitl.truth loads the plant (MuJoCo): not for the CLI's parser
+    from sitl.truth import Truth
 
 KINDS = ("motor", "propeller", "damage", "degraded")
 LOSS_BY_KIND = {"motor": 1.0, "propeller": 1.0, "damage": 0.5, "degraded": 0.5}
@@ -199,6 +202,8 @@ def _verdicts(rows: list[dict]) -> list[str]:
 def run_detection_campaign(out_dir: Path, kinds, speeds, escs, seed: int = 0, false_alarm_minutes: float = 0.0,
                            workers: int | None = None, rate_hz: float | None = None, engine: str = "local",
                            scheduler: str | None = None) -> str:
+    from sitl.truth import load_truth
+
     out_dir = Path(out_dir).resolve()
     cases = detection_cases(kinds, speeds, escs, seed, false_alarm_minutes)
     (out_dir / "scenarios").mkdir(parents=True, exist_ok=True)
