@@ -3,11 +3,16 @@
 Used before the first setpoint and whenever the companion's setpoints are stale. It is a
 plain cascaded controller on the FC's own state estimate (position PD -> tilt and collective
 thrust -> attitude PD -> moments), the legs at the nominal posture, and a 4x4 allocation of
-force and moments to the rotors. It knows nothing of rotor faults: that is the companion's job.
+force and moments to the rotors.
 
 HOLD keeps the position and yaw where it engaged. LAND (entered after `LAND_AFTER_S` of
 HOLD when the FC allows it) lowers the target at `LAND_SPEED_M_S`; on touchdown (ground
 contact, or the descent stalled on the ground) the thrust is cut: LANDED.
+
+A lost rotor (`set_lost_rotor`, from the companion's last M4_FAULT_STATUS): the failsafe
+flies on the three live rotors (sitl/three_rotor.py: the legs move so the centre of mass
+sits inside their triangle, yaw is let go and the vehicle spins) and lands at once, without
+holding first: on three rotors every second in the air is a risk.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
+from sitl.three_rotor import ThreeRotorController
 
 LAND_AFTER_S = 2.0
 LAND_SPEED_M_S = 0.5
@@ -61,13 +67,23 @@ class HoldController:
         legs = airframe.leg_mass_kg * sum(np.dot(ri, ri) * np.eye(3) - np.outer(ri, ri) for ri in r)
         self._inertia_diag = np.array(airframe.body_inertia_diag_kg_m2) + np.diag(legs)
 
-    def thrust_n(self, state, target_ned_m, target_yaw_rad: float, target_vel_ned_m_s=(0.0, 0.0, 0.0)) -> np.ndarray:
-        g, af = self.gains, self.af
+    def accel_ned_m_s2(self, state, target_ned_m, target_vel_ned_m_s=(0.0, 0.0, 0.0)) -> np.ndarray:
+        """The acceleration the position loop asks for (horizontal part bounded)."""
+        g = self.gains
         accel = (g.pos_1_s2 * (np.asarray(target_ned_m) - state.pos_ned_m)
                  + g.vel_1_s * (np.asarray(target_vel_ned_m_s) - state.vel_ned_m_s))
         horizontal = np.linalg.norm(accel[:2])
         if horizontal > MAX_HORIZONTAL_ACCEL_M_S2:
             accel[:2] *= MAX_HORIZONTAL_ACCEL_M_S2 / horizontal
+        return accel
+
+    def three_rotor(self, dead: int) -> ThreeRotorController:
+        """The same loops' gains on three rotors, rotor `dead` (1..4) off."""
+        return ThreeRotorController(self.af, dead, self._inertia_diag, self.gains.att_rad_s, self.gains.damping)
+
+    def thrust_n(self, state, target_ned_m, target_yaw_rad: float, target_vel_ned_m_s=(0.0, 0.0, 0.0)) -> np.ndarray:
+        g, af = self.gains, self.af
+        accel = self.accel_ned_m_s2(state, target_ned_m, target_vel_ned_m_s)
         roll, pitch, yaw = state.euler_rad
         c, s = math.cos(yaw), math.sin(yaw)
         forward = c * accel[0] + s * accel[1]
@@ -100,6 +116,16 @@ class Failsafe:
         self._may_land = False
         self._target_ned_m = np.zeros(3)
         self._yaw_rad = 0.0
+        self.three_rotor: ThreeRotorController | None = None
+
+    def set_lost_rotor(self, rotor: int | None) -> None:
+        """Rotor 1..4 is lost (None: all four work)."""
+        if rotor != (self.three_rotor.dead if self.three_rotor is not None else None):
+            self.three_rotor = None if rotor is None else self.controller.three_rotor(rotor)
+
+    @property
+    def hip_rad(self) -> np.ndarray:
+        return self.controller.hip_rad if self.three_rotor is None else self.three_rotor.hip_rad
 
     def engage(self, state, now_ms: int, may_land: bool) -> None:
         """Hold here from `now_ms`; with `may_land`, land once held for LAND_AFTER_S."""
@@ -109,8 +135,15 @@ class Failsafe:
         self._target_ned_m = np.array(state.pos_ned_m, dtype=float)
         self._yaw_rad = float(state.euler_rad[2])
 
+    def _thrust_n(self, state, target_ned_m, target_vel_ned_m_s=(0.0, 0.0, 0.0)) -> np.ndarray:
+        if self.three_rotor is None:
+            return self.controller.thrust_n(state, target_ned_m, self._yaw_rad, target_vel_ned_m_s)
+        return self.three_rotor.thrust_n(state, self.controller.accel_ned_m_s2(state, target_ned_m, target_vel_ned_m_s))
+
     def update(self, state, now_ms: int) -> FailsafeOutput:
-        if self.mode == FailsafeMode.HOLD and self._may_land and now_ms - self._since_ms >= LAND_AFTER_S * 1000:
+        held_ms = now_ms - self._since_ms
+        if self.mode == FailsafeMode.HOLD and (self.three_rotor is not None
+                                               or (self._may_land and held_ms >= LAND_AFTER_S * 1000)):
             self.mode = FailsafeMode.LAND
             self._since_ms = now_ms
             self._target_ned_m = np.array(state.pos_ned_m, dtype=float)
@@ -122,9 +155,8 @@ class Failsafe:
             if state.on_ground or stalled:
                 self.mode = FailsafeMode.LANDED
             else:
-                thrust = self.controller.thrust_n(state, target_ned_m, self._yaw_rad, (0.0, 0.0, LAND_SPEED_M_S))
-                return FailsafeOutput(self.mode, thrust, self.controller.hip_rad)
+                thrust = self._thrust_n(state, target_ned_m, (0.0, 0.0, LAND_SPEED_M_S))
+                return FailsafeOutput(self.mode, thrust, self.hip_rad)
         if self.mode == FailsafeMode.LANDED:
-            return FailsafeOutput(self.mode, np.zeros(ROTOR_COUNT), self.controller.hip_rad)
-        thrust = self.controller.thrust_n(state, self._target_ned_m, self._yaw_rad)
-        return FailsafeOutput(self.mode, thrust, self.controller.hip_rad)
+            return FailsafeOutput(self.mode, np.zeros(ROTOR_COUNT), self.hip_rad)
+        return FailsafeOutput(self.mode, self._thrust_n(state, self._target_ned_m), self.hip_rad)

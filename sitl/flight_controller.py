@@ -49,6 +49,7 @@ from sitl.thruster import FailureKind
 TICK_MS = 4                       # the failsafe controller and the staleness check: 250 Hz
 STALE_PERIODS = 3
 STALE_MIN_MS = 300
+LOST_FRACTION = 0.5               # a rotor left with less than this of hover thrust: fly on three
 MAX_PERIOD_MS = 1000              # a setpoint claiming a longer period is refused
 MAX_AGE_MIN_MS = 150              # a setpoint answering an instant older than this (and
 MAX_AGE_PERIODS = 2               # than this many of its periods) is too old to help
@@ -157,7 +158,7 @@ class FlightController:
         """Choose who flies (companion or failsafe) and command the plant accordingly."""
         if not self.armed:
             self._set_mode(FcMode.LANDED)
-            self._command_plant(np.zeros(ROTOR_COUNT), self.failsafe.controller.hip_rad)
+            self._command_plant(np.zeros(ROTOR_COUNT), self.failsafe.hip_rad)
             return
         if self._fresh(now_ms):
             sp = self.setpoint.command
@@ -171,6 +172,7 @@ class FlightController:
                 self._applied = self.setpoint
             return
         state = self.measured_state(now_ms)
+        self.failsafe.set_lost_rotor(self.lost_rotor())
         if self.mode not in (FcMode.HOLD, FcMode.LAND):
             self.failsafe.engage(state, now_ms, may_land=self.mode is not None)
         out = self.failsafe.update(state, now_ms)
@@ -178,6 +180,15 @@ class FlightController:
         self._command_plant(out.thrust_n, out.hip_rad)
         if out.mode == FailsafeMode.LANDED:
             self.set_armed(False)
+
+    def lost_rotor(self) -> int | None:
+        """The rotor the companion last reported lost (confirmed, below LOST_FRACTION of hover
+        thrust), or None."""
+        f = self.fault_status
+        if f is None or f.state != mavlink.M4_FAULT_STATE_CONFIRMED or not 1 <= f.rotor <= ROTOR_COUNT:
+            return None
+        left_n = f.thrust_max_estimate_n[f.rotor - 1]
+        return f.rotor if left_n < LOST_FRACTION * self.airframe.hover_thrust_per_rotor_n else None
 
     # -- messages in ---------------------------------------------------------------------------
     @staticmethod
