@@ -31,6 +31,10 @@ from m4.mission import Mission, load_mission
 from m4.toml_fields import ConfigError, Table, load_toml
 
 RATE_MAX_HZ = 100.0
+# The NMPC's solve time grows with its horizon (N = 20: 8 ms median, 24 ms p99, README "NMPC
+# speed"); beyond this it cannot answer within a control period, and the code it compiles grows
+# with it (N = 100000 would compile for hours).
+HORIZON_MAX = 40
 # 50 Hz: the paper's 10 Hz survives a rotor loss in hover or at 3.5 m/s on the MuJoCo plant
 # but tilts about 40 deg, and fails the 24 N cap and the landing after a total loss; at 50 Hz
 # every built-in scenario passes with about 11 deg of tilt (README, "Measured results").
@@ -106,7 +110,11 @@ def parse_config(data: dict, where: str, base_dir: Path | None = None) -> Compan
 def nmpc_config(t: Table, control_period_s: float) -> NmpcConfig:
     """The [nmpc] table (and its [nmpc.weights]) as the NMPC's own settings."""
     weights = _settings(t.table("weights"), NmpcWeights)
-    return _settings(t, NmpcConfig, weights=weights, control_period_s=control_period_s)
+    config = _settings(t, NmpcConfig, weights=weights, control_period_s=control_period_s)
+    if config.horizon > HORIZON_MAX:
+        raise ConfigError(f"{t.where} horizon must be <= {HORIZON_MAX} (the NMPC must solve within a control "
+                          f"period), got {config.horizon}")
+    return config
 
 
 def _settings(t: Table, cls: type, **given: Any):

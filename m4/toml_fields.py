@@ -2,11 +2,14 @@
 
 Airframe, scenario and companion configuration files all go through `Table`, so a typo or
 an out-of-range value is reported the same way everywhere ("m4.toml: [leg] length_m must
-be > 0, got -1") and never turns into a traceback or a silent default.
+be > 0, got -1") and never turns into a traceback or a silent default. A required key that
+is missing while a key close to it is there is reported as that unknown key
+("unknown key durration_s (did you mean duration_s?)").
 """
 
 from __future__ import annotations
 
+import difflib
 import math
 import tomllib
 from pathlib import Path
@@ -29,6 +32,11 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"{path}: is a directory, expected a TOML file") from None
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{path}: not valid TOML: {e}") from None
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{path}: not UTF-8 text (byte 0x{e.object[e.start]:02x} at offset {e.start}); "
+                          f"TOML files must be UTF-8") from None
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot read ({e.strerror or e})") from None
 
 
 class Table:
@@ -56,6 +64,9 @@ class Table:
         if key in self._data:
             return self._data[key]
         if default is _REQUIRED:
+            misspelt = difflib.get_close_matches(key, [k for k in self._data if k not in self._seen], n=1)
+            if misspelt:
+                raise ConfigError(f"{self._where}: unknown key {misspelt[0]} (did you mean {key}?)")
             raise ConfigError(f"{self._name(key)} is missing")
         return default
 

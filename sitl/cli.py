@@ -52,7 +52,8 @@ def _add_serve(sub) -> None:
                         "replayed (default: the key file's path + .timestamps)")
     p.add_argument("--companion", type=_ids, default=(FC_SYSTEM_ID, COMPANION_COMPONENT_ID), metavar="SYS:COMP",
                    help="the one system and component whose setpoints and commands are obeyed (default 1:191)")
-    p.add_argument("--truth-log", type=Path, metavar="PATH", help="write the plant's true state at 100 Hz (.npz)")
+    p.add_argument("--truth-log", type=Path, metavar="PATH", help="write the plant's true state at 100 Hz (.npz); the last 10 minutes are kept (a ring "
+                        "buffer), so memory stays bounded")
     p.add_argument("--seed", type=seed_number, default=0, help="sensor noise seed (default 0)")
     p.add_argument("--duration", type=positive_number, metavar="S",
                    help="stop after S simulated seconds (default: never)")

@@ -10,7 +10,7 @@ import argparse
 from pathlib import Path
 
 from sitl import scenarios
-from sitl.cli_args import BadInput, positive_number, seed_number
+from sitl.cli_args import BadInput, output_dir, positive_number, seed_number
 from sitl.flight_run import CONTROLLERS, FlightError, FlightOptions
 
 
@@ -61,7 +61,8 @@ def _fly(args) -> int:
 
     options = FlightOptions(controller=args.controller, seed=args.seed, realtime=args.realtime, viewer=args.viewer,
                             port=args.port, rate_hz=args.rate_hz)
-    out = args.out or default_out_dir(scenarios.resolve(args.scenario).name)
+    scenario = scenarios.resolve(args.scenario)
+    out = output_dir(args.out or default_out_dir(scenario.name))
     try:
         metrics = fly(args.scenario, out, options)
     except FlightError as e:
@@ -91,7 +92,7 @@ def add_compare(sub) -> None:
 def _compare(args) -> int:
     from sitl.compare import compare
 
-    print(compare(args.out, workers=args.jobs, rate_hz=args.rate_hz), end="")
+    print(compare(output_dir(args.out), workers=args.jobs, rate_hz=args.rate_hz), end="")
     return 0
 
 
@@ -148,13 +149,14 @@ def _campaign(args) -> int:
     from sitl.detection_campaign import DEFAULT_OUT as DETECTION_OUT, run_detection_campaign
 
     losses = tuple(args.loss) if args.loss else LOSS_LEVELS
+    out = output_dir(args.out or (DETECTION_OUT if args.kind else DEFAULT_OUT))
     try:
         if args.kind:
-            summary = run_detection_campaign(args.out or DETECTION_OUT, args.kind, args.speed, tuple(e == "on" for e in args.esc), args.seed,
+            summary = run_detection_campaign(out, args.kind, args.speed, tuple(e == "on" for e in args.esc), args.seed,
                                              args.false_alarm_minutes, args.jobs, args.rate_hz, args.engine,
                                              args.scheduler)
         else:
-            summary = run_campaign(args.out or DEFAULT_OUT, args.samples, args.seed, args.grid, args.jobs, args.rate_hz, losses,
+            summary = run_campaign(out, args.samples, args.seed, args.grid, args.jobs, args.rate_hz, losses,
                                    args.engine, args.scheduler)
     except FlightError as e:
         raise BadInput(str(e)) from None

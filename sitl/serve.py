@@ -221,6 +221,9 @@ class Server:
         if self.tlog is not None:
             self.tlog.close()
         if self.truth is not None:
+            if self.truth.dropped:
+                log(f"truth log: kept the last {len(self.truth.truth().time_s)} samples, "
+                    f"dropped the first {self.truth.dropped}")
             self.truth.save(self.options.truth_log_path)
             self.truth = None
         if self._viewer is not None:

@@ -3,12 +3,14 @@
 `m4-sitl serve --truth-log PATH` attaches a TruthRecorder to the vehicle: it samples the
 plant every `period_ms` of simulated time (and at t = 0) with the wall clock beside it, and
 writes the arrays on close. `load_truth` reads them back as a Truth of numpy arrays; every
-array's first axis is the sample.
+array's first axis is the sample. Memory is bounded: a ring buffer keeps the last
+`MAX_SAMPLES` samples (10 minutes at 100 Hz) and `dropped` counts what it let go.
 """
 
 from __future__ import annotations
 
 import time
+from collections import deque
 from dataclasses import MISSING, dataclass, fields
 from pathlib import Path
 
@@ -17,6 +19,7 @@ import numpy as np
 from sitl.plant import Plant
 
 DEFAULT_PERIOD_MS = 10
+MAX_SAMPLES = 60_000
 
 
 @dataclass(frozen=True)
@@ -44,10 +47,11 @@ _FROM_STATE = tuple(f.name for f in fields(Truth) if f.name not in ("time_s", "w
 
 
 class TruthRecorder:
-    def __init__(self, period_ms: int = DEFAULT_PERIOD_MS):
+    def __init__(self, period_ms: int = DEFAULT_PERIOD_MS, max_samples: int = MAX_SAMPLES):
         self.period_ms = period_ms
+        self.dropped = 0
         self._next_ms = 0
-        self._rows: dict[str, list] = {f.name: [] for f in fields(Truth)}
+        self._rows: dict[str, deque] = {f.name: deque(maxlen=max_samples) for f in fields(Truth)}
 
     def observe(self, now_ms: int, plant: Plant) -> None:
         """Called at every simulated instant; samples when the next grid point is reached."""
@@ -56,6 +60,7 @@ class TruthRecorder:
         self._next_ms = (now_ms // self.period_ms + 1) * self.period_ms
         s = plant.state()
         rows = self._rows
+        self.dropped += len(rows["time_s"]) == rows["time_s"].maxlen
         rows["time_s"].append(now_ms / 1000.0)
         rows["wall_s"].append(time.monotonic())
         for name in _FROM_STATE:
