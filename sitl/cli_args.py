@@ -4,7 +4,6 @@ and sitl/flight_cli.py)."""
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 
 class BadInput(Exception):
@@ -34,14 +33,3 @@ def seed_number(text: str) -> int:
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
     return value
-
-
-def output_dir(path: Path) -> Path:
-    """`path` as an output folder, created if need be; BadInput in one line if it cannot be."""
-    if path.exists() and not path.is_dir():
-        raise BadInput(f"--out {path}: exists and is not a folder")
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise BadInput(f"--out {path}: cannot create the folder ({e.strerror or e})") from None
-    return path

@@ -10,8 +10,8 @@ import argparse
 from pathlib import Path
 
 from sitl import scenarios
-from sitl.cli_args import BadInput, output_dir, positive_number, seed_number
-from sitl.flight_run import CONTROLLERS, FlightError, FlightOptions
+from sitl.cli_args import BadInput, positive_number, seed_number
+from sitl.flight_run import CONTROLLERS, FlightError, FlightOptions, make_output_dir
 
 
 def _loss(text: str) -> float:
@@ -61,8 +61,7 @@ def _fly(args) -> int:
 
     options = FlightOptions(controller=args.controller, seed=args.seed, realtime=args.realtime, viewer=args.viewer,
                             port=args.port, rate_hz=args.rate_hz)
-    scenario = scenarios.resolve(args.scenario)
-    out = output_dir(args.out or default_out_dir(scenario.name))
+    out = args.out or default_out_dir(scenarios.resolve(args.scenario).name)
     try:
         metrics = fly(args.scenario, out, options)
     except FlightError as e:
@@ -92,7 +91,11 @@ def add_compare(sub) -> None:
 def _compare(args) -> int:
     from sitl.compare import compare
 
-    print(compare(output_dir(args.out), workers=args.jobs, rate_hz=args.rate_hz), end="")
+    try:
+        make_output_dir(args.out)
+    except FlightError as e:
+        raise BadInput(str(e)) from None
+    print(compare(args.out, workers=args.jobs, rate_hz=args.rate_hz), end="")
     return 0
 
 
@@ -149,8 +152,9 @@ def _campaign(args) -> int:
     from sitl.detection_campaign import DEFAULT_OUT as DETECTION_OUT, run_detection_campaign
 
     losses = tuple(args.loss) if args.loss else LOSS_LEVELS
-    out = output_dir(args.out or (DETECTION_OUT if args.kind else DEFAULT_OUT))
+    out = args.out or (DETECTION_OUT if args.kind else DEFAULT_OUT)
     try:
+        make_output_dir(out)
         if args.kind:
             summary = run_detection_campaign(out, args.kind, args.speed, tuple(e == "on" for e in args.esc), args.seed,
                                              args.false_alarm_minutes, args.jobs, args.rate_hz, args.engine,

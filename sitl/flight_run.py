@@ -87,6 +87,16 @@ def check_port_free(port: int) -> None:
             raise FlightError(f"UDP port {port} on 127.0.0.1 is not free: {e.strerror}") from None
 
 
+def make_output_dir(path: Path) -> None:
+    """Create the output folder `path`; FlightError in one line if it cannot be."""
+    if path.exists() and not path.is_dir():
+        raise FlightError(f"--out {path}: exists and is not a folder")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise FlightError(f"--out {path}: cannot create the folder ({e.strerror or e})") from None
+
+
 def companion_config_text(options: FlightOptions, mavlink_port: int, feed_port: int | None) -> str:
     rate = [] if options.rate_hz is None else [f"rate_hz = {options.rate_hz:g}"]
     lines = ["# The companion's configuration for this flight (written by m4-sitl fly).",
@@ -127,7 +137,7 @@ def run_flight(scenario: Scenario, scenario_text: str, out_dir: Path, options: F
     if options.port is not None:
         check_port_free(options.port)
     files = FlightFiles(Path(out_dir))
-    files.out_dir.mkdir(parents=True, exist_ok=True)
+    make_output_dir(files.out_dir)
     files.scenario.write_text(scenario_text)
     port = options.port or free_port()
     with contextlib.ExitStack() as stack:
