@@ -65,7 +65,7 @@ class Airframe:
     esc_telemetry_delay_s: float
     esc_serial_telemetry_hz: float
     esc_ambient_temperature_c: float
-    esc_temperature_rise_c_per_w: float
+    esc_temperature_rise_c_per_a: float
     esc_thermal_time_constant_s: float
     drag_linear_n_s_m: float
     drag_quadratic_n_s2_m2: float
@@ -223,7 +223,7 @@ def _parse(data: dict, filename: str) -> Airframe:
         esc_telemetry_delay_s=esc.number("telemetry_delay_s", lo=0.0, hi=0.1),
         esc_serial_telemetry_hz=esc.number("serial_telemetry_hz", lo=0.0, lo_open=True, hi=1000.0),
         esc_ambient_temperature_c=esc.number("ambient_temperature_c", lo=-40.0, hi=80.0),
-        esc_temperature_rise_c_per_w=esc.number("temperature_rise_c_per_w", lo=0.0),
+        esc_temperature_rise_c_per_a=esc.number("temperature_rise_c_per_a", lo=0.0),
         esc_thermal_time_constant_s=esc.number("thermal_time_constant_s", lo=0.0, lo_open=True),
         drag_linear_n_s_m=drag.number("linear_n_s_m", lo=0.0),
         drag_quadratic_n_s2_m2=drag.number("quadratic_n_s2_m2", lo=0.0),

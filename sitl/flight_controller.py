@@ -40,9 +40,10 @@ from m4.log_limit import RepeatLimiter
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from m4.setpoint import Setpoint
 from sitl.commands import CommandHandler
+from sitl.esc_telemetry import EscTelemetry
 from sitl.failsafe import Failsafe, FailsafeMode
 from sitl.state import PlantState
-from sitl.streams import FRAME, StreamSchedule
+from sitl.streams import DEFAULT_INTERVALS_MS, ESC_TELEMETRY_INTERVALS_MS, FRAME, StreamSchedule
 from sitl.telemetry import Home, Snapshot, Telemetry, statustext
 from sitl.thruster import FailureKind
 
@@ -101,7 +102,7 @@ class FcCounters:
 class FlightController:
     def __init__(self, airframe: Airframe, plant, home: Home | None = None, lockstep: bool = False,
                  companion_ids: tuple[int, int] = (FC_SYSTEM_ID, COMPANION_COMPONENT_ID), require_signed: bool = False,
-                 log: Callable[[str], None] = lambda text: None):
+                 log: Callable[[str], None] = lambda text: None, esc: EscTelemetry | None = None):
         self.airframe = airframe
         self.companion_ids = companion_ids
         self.require_signed = require_signed
@@ -111,8 +112,9 @@ class FlightController:
         self.fault_status: mavlink.MAVLink_m4_fault_status_message | None = None
         self.lockstep = lockstep
         self.plant = plant
-        self.telemetry_builder = Telemetry(airframe, home)
-        self.schedule = StreamSchedule()
+        self.esc = esc                          # None: no ESC telemetry (many FCs have none)
+        self.telemetry_builder = Telemetry(airframe, home, esc_telemetry=esc is not None)
+        self.schedule = StreamSchedule(DEFAULT_INTERVALS_MS if esc is None else ESC_TELEMETRY_INTERVALS_MS)
         self.failsafe = Failsafe(airframe)
         self.counters = FcCounters()
         self.setpoint: ReceivedSetpoint | None = None
@@ -155,7 +157,10 @@ class FlightController:
             self.setpoint = None
 
     def tick(self, now_ms: int) -> None:
-        """Choose who flies (companion or failsafe) and command the plant accordingly."""
+        """Choose who flies (companion or failsafe) and command the plant accordingly; the ESCs
+        answer this output frame."""
+        if self.esc is not None:
+            self.esc.sample(now_ms, self.plant.state())
         if not self.armed:
             self._set_mode(FcMode.LANDED)
             self._command_plant(np.zeros(ROTOR_COUNT), self.failsafe.hip_rad)
@@ -270,7 +275,8 @@ class FlightController:
     def snapshot(self, now_ms: int) -> Snapshot:
         state = self.measured_state(now_ms)
         landed = self.mode == FcMode.LANDED or bool(state.on_ground)
-        return Snapshot(t_ms=now_ms, state=state, custom_mode=int(self.mode or 0), armed=self.armed, landed=landed)
+        return Snapshot(t_ms=now_ms, state=state, custom_mode=int(self.mode or 0), armed=self.armed, landed=landed,
+                        esc=None if self.esc is None else self.esc.report(now_ms))
 
     def telemetry(self, now_ms: int, frame: bool = False) -> list[mavlink.MAVLink_message]:
         """The streams due at `now_ms` (with `frame`: plus the lockstep frame), in order. In

@@ -27,7 +27,10 @@ DEFAULT_INTERVALS_MS = {
     m.MAVLINK_MSG_ID_M4_JOINT_STATE: 20,
     m.MAVLINK_MSG_ID_M4_THRUSTER_STATUS: 20,
 }
-_FIRST = tuple(i for i in DEFAULT_INTERVALS_MS if i not in FRAME)
+# A flight controller with ESC telemetry streams it too: 50 Hz, what ArduPilot's bidirectional
+# DShot RPM supports comfortably (MAV_CMD_SET_MESSAGE_INTERVAL changes it).
+ESC_TELEMETRY_INTERVALS_MS = {**DEFAULT_INTERVALS_MS, m.MAVLINK_MSG_ID_ESC_TELEMETRY_1_TO_4: 20}
+_FIRST = tuple(i for i in ESC_TELEMETRY_INTERVALS_MS if i not in FRAME)
 
 
 def _order(msg_id: int) -> tuple[int, int]:

@@ -15,6 +15,7 @@ import numpy as np
 
 from m4.airframe import Airframe
 from m4.mavlink import mavlink
+from sitl.esc_telemetry import EscReport
 from sitl.state import PlantState
 
 EARTH_RADIUS_M = 6378137.0
@@ -22,7 +23,6 @@ _SENSORS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSO
             | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
             | mavlink.MAV_SYS_STATUS_SENSOR_GPS | mavlink.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
             | mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION | mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS)
-_BATTERY_MV = 16800            # a full 4S pack; the simulation has no battery model
 _CAPABILITIES = mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
 FLIGHT_SW_VERSION = 0x000100FF      # major, minor, patch, type: 0.1.0, FIRMWARE_VERSION_TYPE_OFFICIAL
 
@@ -48,6 +48,7 @@ class Snapshot:
     custom_mode: int
     armed: bool
     landed: bool
+    esc: EscReport | None = None     # what the ESCs reported (None: the FC has no ESC telemetry)
 
 
 def _f4(v) -> list[float]:
@@ -55,7 +56,7 @@ def _f4(v) -> list[float]:
 
 
 class Telemetry:
-    def __init__(self, airframe: Airframe, home: Home | None = None):
+    def __init__(self, airframe: Airframe, home: Home | None = None, esc_telemetry: bool = False):
         self.airframe = airframe
         self.home = home or Home()
         m = mavlink
@@ -73,6 +74,8 @@ class Telemetry:
             m.MAVLINK_MSG_ID_M4_JOINT_STATE: self.joint_state,
             m.MAVLINK_MSG_ID_M4_THRUSTER_STATUS: self.thruster_status,
         }
+        if esc_telemetry:
+            self._builders[m.MAVLINK_MSG_ID_ESC_TELEMETRY_1_TO_4] = self.esc_telemetry_1_to_4
 
     def can_build(self, msg_id: int) -> bool:
         return msg_id in self._builders
@@ -87,8 +90,15 @@ class Telemetry:
                                                  base, snap.custom_mode, status, 3)
 
     def sys_status(self, snap: Snapshot):
-        return mavlink.MAVLink_sys_status_message(_SENSORS, _SENSORS, _SENSORS, 0, _BATTERY_MV, -1, -1,
+        """The power module's pack voltage and current; the charge left assumes a full pack at boot."""
+        s, capacity = snap.state, self.airframe.battery_capacity_mah
+        remaining = max(0, round(100.0 * (1.0 - s.battery_consumed_mah / capacity)))
+        return mavlink.MAVLink_sys_status_message(_SENSORS, _SENSORS, _SENSORS, 0, round(1000.0 * s.battery_voltage_v),
+                                                  round(100.0 * float(np.sum(s.esc_current_a))), remaining,
                                                   0, 0, 0, 0, 0, 0)
+
+    def esc_telemetry_1_to_4(self, snap: Snapshot):
+        return snap.esc.message()
 
     def extended_sys_state(self, snap: Snapshot):
         landed = mavlink.MAV_LANDED_STATE_ON_GROUND if snap.landed else mavlink.MAV_LANDED_STATE_IN_AIR

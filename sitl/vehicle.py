@@ -15,6 +15,7 @@ from collections.abc import Callable, Iterable
 from m4.airframe import Airframe
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from sitl.scenario import Fault, Scenario
+from sitl.esc_telemetry import EscTelemetry
 from sitl.flight_controller import TICK_MS, FlightController
 from sitl.plant import Plant
 from sitl.streams import FRAME
@@ -33,8 +34,10 @@ class Vehicle:
         self.scenario = scenario
         self.plant = Plant(airframe, scenario.plant, start_ned_m=scenario.start.ned_m,
                            start_yaw_rad=scenario.start.yaw_rad, seed=seed)
+        options = scenario.plant
+        esc = EscTelemetry(airframe, TICK_MS, noise=options.sensor_noise, seed=seed) if options.esc_telemetry else None
         self.fc = FlightController(airframe, self.plant, lockstep=lockstep, companion_ids=companion_ids,
-                                   require_signed=require_signed, log=log)
+                                   require_signed=require_signed, log=log, esc=esc)
         self.now_ms = 0
         self._faults = sorted(_fault_events(scenario.faults), key=lambda x: x[0])
         self.observers: list[Callable[[int, Plant], None]] = []     # called at every simulated instant
