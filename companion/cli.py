@@ -39,7 +39,7 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
 
 
 def _run_bench(args: argparse.Namespace) -> int:
-    from companion.bench import run_bench  # CasADi and the solver load only when needed
+    from research.nmpc_bench import run_bench  # CasADi and the solver load only when needed
 
     report = run_bench(horizon=args.horizon, dt_s=args.dt, solves=args.solves, seed=args.seed,
                        control_period_s=args.period)

@@ -7,7 +7,6 @@ from m4.airframe import ROTOR_COUNT, load_airframe
 from companion.core import rom
 from companion.core.esc_evidence import EscSample, PropellerModel
 from companion.core.fault_detector import FaultDetector, FaultDetectorConfig, FaultKind, FaultState
-from companion.core.thrust_loss_baseline import ThrustLossCheck
 
 AF = load_airframe()
 HOVER_N = AF.hover_thrust_per_rotor_n
@@ -64,28 +63,6 @@ def test_a_gap_in_telemetry_restarts_the_evidence_instead_of_reading_it_as_a_fau
 def test_bad_detector_settings_are_rejected_by_name(field, value):
     with pytest.raises(ValueError, match=field):
         FaultDetector(AF, FaultDetectorConfig(**{field: value}), propeller=PROP)
-
-
-def test_baseline_fires_after_a_second_of_saturated_level_descent_without_naming_a_rotor():
-    check = ThrustLossCheck(AF)
-    x = rom.hover_state(AF)
-    x[rom.V] = (0.0, 0.0, 0.4)              # sinking
-    cmd = np.array([28.0, 20.0, 20.0, 0.0])  # one rotor at the top of its range
-    statuses = [check.update(k * DT, x, cmd) for k in range(12)]
-    assert statuses[9].state is FaultState.SUSPECT
-    assert statuses[10].state is FaultState.CONFIRMED and statuses[10].detected_at_s == pytest.approx(1.0)
-    assert statuses[10].rotor is None
-    assert np.allclose(statuses[10].thrust_max_estimate_n, AF.thrust_max_n)
-
-
-def test_baseline_restarts_its_timer_whenever_the_robot_stops_sinking():
-    check = ThrustLossCheck(AF)
-    x = rom.hover_state(AF)
-    cmd = np.array([28.0, 20.0, 20.0, 0.0])
-    for k in range(30):
-        x[rom.V] = (0.0, 0.0, 0.4 if k % 8 else -0.1)
-        status = check.update(k * DT, x, cmd)
-    assert status.state is not FaultState.CONFIRMED
 
 
 def test_a_frame_with_nan_is_skipped_without_poisoning_later_detection():

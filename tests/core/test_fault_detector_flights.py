@@ -24,7 +24,7 @@ from companion.core.fault_detector import FaultDetector, FaultState
 from companion.core.nmpc import Nmpc
 from companion.core.nmpc_config import NmpcConfig
 from companion.core.reference import MissionReference
-from companion.core.thrust_loss_baseline import ThrustLossCheck
+from research.thrust_loss_baseline import ThrustLossCheck
 from m4.mission import Mission, Waypoint
 
 AF = load_airframe()

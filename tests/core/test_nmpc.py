@@ -12,7 +12,7 @@ from companion.core import nmpc as nmpc_module
 from companion.core import rom
 from companion.core.nmpc import Nmpc
 from companion.core.nmpc_config import NmpcConfig, NmpcWeights
-from companion.core.nmpc_ipopt import IpoptReference
+from research.nmpc_ipopt import IpoptReference
 
 AF = load_airframe()
 N = 5

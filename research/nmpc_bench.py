@@ -35,8 +35,8 @@ from m4.airframe import Airframe, load_airframe
 from companion.core import rom
 from companion.core.nmpc import Nmpc
 from companion.core.nmpc_config import NmpcConfig
-from companion.core.nmpc_ipopt import IpoptReference
-from companion.core.rom_sim import (
+from research.nmpc_ipopt import IpoptReference
+from research.rom_sim import (
     PlantMismatch,
     RotorFault,
     SimConfig,

@@ -14,7 +14,7 @@ from m4.airframe import load_airframe
 from companion.core import rom
 from companion.core.nmpc import Nmpc
 from companion.core.nmpc_config import NmpcConfig
-from companion.core.rom_sim import (
+from research.rom_sim import (
     PlantMismatch,
     RotorFault,
     SimConfig,

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from m4.airframe import load_airframe
-from companion.core.allocation import admissible, allocate, best_posture
+from research.allocation import admissible, allocate, best_posture
 
 AF = load_airframe()
 

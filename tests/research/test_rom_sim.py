@@ -6,7 +6,7 @@ import pytest
 from m4.airframe import load_airframe
 from companion.core import rom
 from companion.core.nmpc import Nmpc
-from companion.core.rom_sim import (
+from research.rom_sim import (
     PlantMismatch,
     RotorFault,
     SimConfig,
