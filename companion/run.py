@@ -1,8 +1,10 @@
 """`m4-companion run [--fc URL] [--config FILE] [--mission FILE]`: the companion in flight.
 
 Reads the configuration (defaults without --config), builds the NMPC (compiling it on a
-first start, cached) and opens the link before it says "ready", then runs until SIGINT or
-SIGTERM. A bad configuration, URL, key, feed setting or a port in use prints one line on
+first start, cached) and opens the link before it says "ready" (in its log and, with
+--ready-fd, as one line written to that descriptor, which it then closes: the signal a
+supervisor such as `m4-sitl fly` waits for), then runs until SIGINT or SIGTERM. A bad
+configuration, URL, key, feed setting, ready descriptor or a port in use prints one line on
 stderr and exits with 2.
 """
 
@@ -11,6 +13,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+import os
 import signal
 import sys
 from pathlib import Path
@@ -27,6 +30,28 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", type=Path, metavar="FILE", help="the companion's TOML configuration")
     p.add_argument("--mission", type=Path, metavar="FILE",
                    help="a scenario file or a file with a [mission] table (default: the configuration's)")
+    p.add_argument("--ready-fd", type=int, metavar="FD",
+                   help="an open file descriptor: once the NMPC is built and the link is open, write one line "
+                        "to it and close it (for a supervisor, e.g. m4-sitl fly)")
+
+
+def _check_ready_fd(fd: int | None) -> None:
+    """Refuse a ready descriptor that is not open before the long build, not after it."""
+    if fd is None:
+        return
+    try:
+        os.fstat(fd)
+    except OSError as e:
+        raise ConfigError(f"--ready-fd {fd}: {e.strerror}") from None
+
+
+def _say_ready(fd: int, text: str) -> None:
+    try:
+        with os.fdopen(fd, "w") as ready:
+            ready.write(text + "\n")
+    except OSError as e:             # the supervisor is gone: fly on, it was only a notice
+        logging.getLogger("m4-companion").warning("could not write the ready line to --ready-fd %d: %s", fd,
+                                                  e.strerror)
 
 
 def _config(args: argparse.Namespace):
@@ -48,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
     from m4.mavlink.link import LinkError
 
     try:
+        _check_ready_fd(args.ready_fd)
         config = _config(args)
         app = open_app(config)
     except (ConfigError, LinkError, FeedError) as e:
@@ -55,7 +81,10 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_BAD_INPUT
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: app.stop())
-    logging.getLogger("m4-companion").info("ready: %g Hz on %s", config.rate_hz, config.link.fc_url)
+    ready = f"ready: {config.rate_hz:g} Hz on {config.link.fc_url}"
+    logging.getLogger("m4-companion").info(ready)
+    if args.ready_fd is not None:
+        _say_ready(args.ready_fd, ready)
     try:
         app.run()
     finally:

@@ -7,8 +7,8 @@
 - flight.tlog (every packet both ways), truth.npz (the plant's true state, sitl.truth),
   feed.jsonl (the companion's Zenoh feed), sitl.log and companion.log (their stderr).
 
-Order: the feed recorder listens, the companion starts and builds its NMPC ("ready" in its
-log), then the SITL starts, flies the scenario's duration and exits; the companion is then
+Order: the feed recorder listens, the companion starts, builds its NMPC, opens its link and
+says so on a pipe (`m4-companion run --ready-fd`), then the SITL starts, flies the scenario's duration and exits; the companion is then
 stopped with SIGTERM. Each flight takes its own free loopback ports, so flights can run side
 by side. Anything that keeps the flight from starting raises FlightError with one line.
 """
@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
 import re
+import select
 import signal
 import socket
 import subprocess
@@ -34,7 +36,6 @@ from sitl.feed_recorder import FeedRecorder
 
 CONTROLLERS = ("nmpc", "fixed-posture")
 VEHICLE = "m4"
-COMPANION_READY = "ready:"
 COMPANION_START_TIMEOUT_S = 300.0     # a first start compiles the NMPC
 STOP_TIMEOUT_S = 10.0
 POLL_S = 0.2
@@ -151,8 +152,13 @@ def run_flight(scenario: Scenario, scenario_text: str, out_dir: Path, options: F
         cmd = [sys.executable, "-m", "companion.cli", "run", "--config", str(files.companion_config)]
         if "mission" in tomllib.loads(scenario_text):          # none: hold where the flight starts
             cmd += ["--mission", str(files.scenario)]
-        companion = _start(stack, cmd, files.companion_log)
-        _await_ready(companion, files.companion_log)
+        ready_r, ready_w = os.pipe()
+        stack.callback(os.close, ready_r)
+        try:
+            companion = _start(stack, [*cmd, "--ready-fd", str(ready_w)], files.companion_log, pass_fds=(ready_w,))
+        finally:
+            os.close(ready_w)                    # the companion holds the only writing end now
+        _await_ready(companion, ready_r, files.companion_log)
         cmd = [sys.executable, "-m", "sitl.cli", "serve", "--scenario", str(files.scenario),
                "--mavlink", f"udpout:127.0.0.1:{port}", "--duration", f"{scenario.duration_s:g}",
                "--tlog", str(files.tlog), "--truth-log", str(files.truth), "--seed", str(options.seed)]
@@ -169,18 +175,21 @@ def run_flight(scenario: Scenario, scenario_text: str, out_dir: Path, options: F
     return files
 
 
-def _start(stack: contextlib.ExitStack, cmd: list[str], log_path: Path) -> subprocess.Popen:
+def _start(stack: contextlib.ExitStack, cmd: list[str], log_path: Path, pass_fds: tuple[int, ...] = ()
+           ) -> subprocess.Popen:
     log = stack.enter_context(log_path.open("w"))
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=log, stdin=subprocess.DEVNULL)
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=log, stdin=subprocess.DEVNULL, pass_fds=pass_fds)
     stack.callback(_stop, proc)
     return proc
 
 
-def _await_ready(proc: subprocess.Popen, log_path: Path) -> None:
+def _await_ready(proc: subprocess.Popen, ready_fd: int, log_path: Path) -> None:
+    """Until the companion writes its ready line to the pipe; end of file first means it stopped."""
     deadline = time.monotonic() + COMPANION_START_TIMEOUT_S
-    while COMPANION_READY not in log_path.read_text(errors="replace"):
-        if proc.poll() is not None:
-            raise FlightError(f"the companion did not start: {_last_line(log_path)}")
+    while not select.select([ready_fd], [], [], POLL_S)[0]:
         if time.monotonic() > deadline:
             raise FlightError(f"the companion was not ready within {COMPANION_START_TIMEOUT_S:g} s")
-        time.sleep(0.05)
+    if not os.read(ready_fd, 4096):
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            proc.wait(STOP_TIMEOUT_S)            # its last words are in its log once it has exited
+        raise FlightError(f"the companion did not start: {_last_line(log_path)}")

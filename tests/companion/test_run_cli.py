@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import os
 import signal
 import socket
 import subprocess
@@ -79,3 +80,29 @@ def test_a_signal_stops_the_companion_cleanly(sig):
             proc.wait()
     assert code == 0
     assert "stopped after 0 setpoints" in rest and "Traceback" not in rest
+
+
+def test_the_ready_line_goes_to_the_ready_fd_which_is_then_closed_while_the_companion_runs_on():
+    read_end, write_end = os.pipe()
+    proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--fc", "udpin:127.0.0.1:0",
+                             "--ready-fd", str(write_end)], pass_fds=(write_end,), stderr=subprocess.DEVNULL)
+    os.close(write_end)
+    try:
+        with os.fdopen(read_end) as ready:
+            assert ready.readline() == "ready: 50 Hz on udpin:127.0.0.1:0\n"
+            assert ready.read() == ""                    # closed: nothing more will come
+        assert proc.poll() is None
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=10) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def test_a_ready_fd_that_is_not_open_is_refused_before_the_nmpc_is_built(capsys):
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    os.close(write_end)                                   # a descriptor number known to be closed now
+    code, lines = run_cli(capsys, "--fc", "udpin:127.0.0.1:0", "--ready-fd", str(write_end))
+    assert code == 2 and len(lines) == 1 and f"--ready-fd {write_end}" in lines[0]

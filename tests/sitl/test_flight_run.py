@@ -1,0 +1,40 @@
+"""How `fly` learns that the companion is ready: a line on a pipe, end of file if it stopped first."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+
+import pytest
+
+from sitl.flight_run import FlightError, _await_ready, _start
+
+
+def _companion(tmp_path, code: str):
+    """A stand-in for the companion running `code` with the pipe's writing end as argv[1]."""
+    stack = contextlib.ExitStack()
+    read_end, write_end = os.pipe()
+    stack.callback(os.close, read_end)
+    log = tmp_path / "companion.log"
+    try:
+        proc = _start(stack, [sys.executable, "-c", code, str(write_end)], log, pass_fds=(write_end,))
+    finally:
+        os.close(write_end)
+    return stack, proc, read_end, log
+
+
+def test_a_companion_that_stops_before_it_is_ready_is_reported_with_its_last_words(tmp_path):
+    stack, proc, ready, log = _companion(tmp_path, "import sys; sys.exit('m4-companion: error: no airframe here')")
+    with stack, pytest.raises(FlightError, match="^the companion did not start: no airframe here$"):
+        _await_ready(proc, ready, log)
+
+
+def test_fly_waits_for_the_ready_line_however_long_the_start_takes(tmp_path):
+    built = tmp_path / "nmpc-built"
+    code = (f"import os, sys, time; time.sleep(0.5); open({str(built)!r}, 'w').close(); "
+            "os.write(int(sys.argv[1]), b'ready\\n'); time.sleep(30)")
+    stack, proc, ready, log = _companion(tmp_path, code)
+    with stack:
+        _await_ready(proc, ready, log)
+        assert built.exists() and proc.poll() is None
