@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import math
 import os
+import select
 import signal
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -17,7 +17,7 @@ import pytest
 from m4.airframe import load_airframe
 from m4.mavlink import mavlink
 from sitl.flight_controller import FcMode
-from sitl.flight_run import COMPANION_READY, free_port
+from sitl.flight_run import free_port
 from sitl.scenario import Fault, Scenario
 from sitl.serve import ServeOptions, Server
 from sitl.standin import StandInCompanion, served
@@ -29,16 +29,19 @@ FAULT_S, KILL_S = 1.0, 2.0
 
 
 def _companion(tmp_path, port):
+    """The real companion, returned once it has said it is ready (m4-companion run --ready-fd)."""
     config = tmp_path / "companion.toml"
     config.write_text(f'[link]\nfc_url = "udpin:127.0.0.1:{port}"\n')
     log_path = tmp_path / "companion.log"
+    read_end, write_end = os.pipe()
     with log_path.open("w") as log:
-        proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--config", str(config)],
-                                stdout=subprocess.DEVNULL, stderr=log, stdin=subprocess.DEVNULL)
-    deadline = time.monotonic() + 60.0
-    while COMPANION_READY not in log_path.read_text() and proc.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert proc.poll() is None, log_path.read_text()
+        proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--config", str(config),
+                                 "--ready-fd", str(write_end)],
+                                stdout=subprocess.DEVNULL, stderr=log, stdin=subprocess.DEVNULL, pass_fds=(write_end,))
+    os.close(write_end)
+    with os.fdopen(read_end) as ready:
+        said = ready.readline() if select.select([ready], [], [], 60.0)[0] else ""
+    assert said.startswith("ready:") and proc.poll() is None, log_path.read_text()
     return proc
 
 
