@@ -9,7 +9,8 @@ HOLD keeps the position and yaw where it engaged. LAND (entered after `LAND_AFTE
 HOLD when the FC allows it) lowers the target at `LAND_SPEED_M_S`; on touchdown (ground
 contact, or the descent stalled on the ground) the thrust is cut: LANDED.
 
-A lost rotor (`set_lost_rotor`, from the companion's last M4_FAULT_STATUS): the failsafe
+A lost rotor (`set_lost_rotor`: from the companion's last M4_FAULT_STATUS, or the FC's own
+ESC check, sitl/rotor_watch.py): the failsafe
 flies on the three live rotors (sitl/three_rotor.py: the legs move so the centre of mass
 sits inside their triangle, yaw is let go and the vehicle spins) and lands at once, without
 holding first: on three rotors every second in the air is a risk.

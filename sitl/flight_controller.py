@@ -42,10 +42,11 @@ from m4.setpoint import Setpoint
 from sitl.commands import CommandHandler
 from sitl.esc_telemetry import EscTelemetry
 from sitl.failsafe import Failsafe, FailsafeMode
+from sitl.rotor_watch import RotorWatch
 from sitl.state import PlantState
 from sitl.streams import DEFAULT_INTERVALS_MS, ESC_TELEMETRY_INTERVALS_MS, FRAME, StreamSchedule
 from sitl.telemetry import Home, Snapshot, Telemetry, statustext
-from sitl.thruster import FailureKind
+from sitl.thruster import RAD_S_TO_RPM, FailureKind
 
 TICK_MS = 4                       # the failsafe controller and the staleness check: 250 Hz
 STALE_PERIODS = 3
@@ -110,6 +111,7 @@ class FlightController:
         self._repeats = RepeatLimiter()
         self.armed = True
         self.fault_status: mavlink.MAVLink_m4_fault_status_message | None = None
+        self.rotor_watch = RotorWatch(airframe)
         self.lockstep = lockstep
         self.plant = plant
         self.esc = esc                          # None: no ESC telemetry (many FCs have none)
@@ -156,11 +158,20 @@ class FlightController:
             self.announce(mavlink.MAV_SEVERITY_NOTICE, "FC armed" if armed else "FC disarmed")
             self.setpoint = None
 
+    def _watch_rotors(self, now_ms: int) -> None:
+        """The FC's own lost-rotor check on what its ESCs report (sitl/rotor_watch.py)."""
+        if self.rotor_watch.lost is not None:
+            return
+        speed_rad_s = np.array(self.esc.report(now_ms).rpm, dtype=float) / RAD_S_TO_RPM
+        if self.rotor_watch.update(self.measured_state(now_ms).thrust_cmd_n, speed_rad_s, now_ms) is not None:
+            self.announce(mavlink.MAV_SEVERITY_CRITICAL, f"FC: rotor {self.rotor_watch.lost} lost (ESC speed)")
+
     def tick(self, now_ms: int) -> None:
         """Choose who flies (companion or failsafe) and command the plant accordingly; the ESCs
         answer this output frame."""
         if self.esc is not None:
             self.esc.sample(now_ms, self.plant.state())
+            self._watch_rotors(now_ms)
         if not self.armed:
             self._set_mode(FcMode.LANDED)
             self._command_plant(np.zeros(ROTOR_COUNT), self.failsafe.hip_rad)
@@ -188,12 +199,13 @@ class FlightController:
 
     def lost_rotor(self) -> int | None:
         """The rotor the companion last reported lost (confirmed, below LOST_FRACTION of hover
-        thrust), or None."""
+        thrust), else the one the FC's own ESC telemetry shows lost (sitl/rotor_watch.py, when
+        it has ESC telemetry), or None."""
         f = self.fault_status
-        if f is None or f.state != mavlink.M4_FAULT_STATE_CONFIRMED or not 1 <= f.rotor <= ROTOR_COUNT:
-            return None
-        left_n = f.thrust_max_estimate_n[f.rotor - 1]
-        return f.rotor if left_n < LOST_FRACTION * self.airframe.hover_thrust_per_rotor_n else None
+        if f is not None and f.state == mavlink.M4_FAULT_STATE_CONFIRMED and 1 <= f.rotor <= ROTOR_COUNT:
+            if f.thrust_max_estimate_n[f.rotor - 1] < LOST_FRACTION * self.airframe.hover_thrust_per_rotor_n:
+                return f.rotor
+        return self.rotor_watch.lost
 
     # -- messages in ---------------------------------------------------------------------------
     @staticmethod

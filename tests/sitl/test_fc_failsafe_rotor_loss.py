@@ -1,6 +1,7 @@
 """The FC's own failsafe after a rotor loss (issue 10 item 3): the companion, flying on three
 rotors, is killed (SIGKILL) 1 s after the fault; the FC lands on the three live rotors without
-flipping, disarms, and a later companion's setpoints do not spin the motors until it re-arms."""
+flipping, disarms, and a later companion's setpoints do not spin the motors until it re-arms.
+A rotor lost while the FC flies alone is seen on its ESC speed, with the same landing."""
 
 from __future__ import annotations
 
@@ -99,3 +100,22 @@ def test_after_a_thrust_cut_setpoints_move_no_motor_until_the_companion_re_arms(
     assert refused > 5
     assert ack.result == m.MAV_RESULT_ACCEPTED
     assert spinning is not None and fc.armed
+
+
+def test_a_rotor_lost_while_the_fc_holds_alone_is_seen_on_its_esc_speed_and_it_lands_on_three(tmp_path):
+    companion = StandInCompanion(until_ms=300)               # then gone: the FC holds on its own
+    scenario = Scenario(name="rotor-loss", duration_s=60.0, faults=(Fault(at_s=FAULT_S, rotor=2, loss=1.0),))
+    options = ServeOptions(scenario=scenario, duration_s=6.0, lockstep_timeout_s=0.2,
+                           truth_log_path=tmp_path / "truth.npz")
+    with served(companion, options) as server:
+        assert companion.wait_for("M4_THRUSTER_STATUS", lambda s: s.time_boot_ms >= 6000, 60.0)
+    truth = load_truth(tmp_path / "truth.npz")
+    tilt_deg = np.degrees(np.arccos(np.cos(truth.euler_rad[:, 0]) * np.cos(truth.euler_rad[:, 1])))
+    texts = [t.text for t in companion.of_type("STATUSTEXT")]
+    touchdown = int(np.argmax(truth.on_ground))
+    print(f"rotor 2 lost at {FAULT_S:g} s in the FC's own HOLD: max tilt {tilt_deg.max():.0f} deg, touchdown "
+          f"at {truth.time_s[touchdown]:.2f} s at {truth.vel_ned_m_s[touchdown, 2]:.2f} m/s")
+    assert "FC: rotor 2 lost (ESC speed)" in texts
+    assert server.vehicle.fc.lost_rotor() == 2
+    assert truth.on_ground[touchdown] and truth.vel_ned_m_s[touchdown, 2] < 1.0
+    assert tilt_deg.max() < 60.0 and tilt_deg[-1] < 10.0

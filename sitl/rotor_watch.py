@@ -1,0 +1,44 @@
+"""The flight controller's own check for a lost rotor, from its ESC telemetry.
+
+An ESC reports its motor's speed (a FC without ESC telemetry has no such check); the FC
+knows what it commanded and the rotors' thrust coefficient, so it knows the speed a healthy
+rotor settles at (w = sqrt(T / k)). A rotor commanded at least `MIN_COMMAND_N` that turns
+at less than `SLOW_FRACTION` of that speed
+for `CONFIRM_MS` (a few motor time constants, so a healthy rotor spinning up is never taken
+for a lost one) is lost, and stays lost: the FC's failsafe then flies on the other three.
+The companion's M4_FAULT_STATUS says the same sooner when it is alive; this is for when it
+is not (killed before it confirmed, or restarted and not yet told).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from m4.airframe import ROTOR_COUNT, Airframe
+
+MIN_COMMAND_N = 3.0
+SLOW_FRACTION = 0.5
+CONFIRM_MS = 100
+
+
+class RotorWatch:
+    def __init__(self, airframe: Airframe):
+        self.k_n_s2 = airframe.thrust_coefficient_n_s2
+        self.lost: int | None = None                      # rotor 1..4
+        self._slow_since_ms: list[int | None] = [None] * ROTOR_COUNT
+
+    def update(self, command_n, speed_rad_s, now_ms: int) -> int | None:
+        """Feed the thrusts commanded (4,) and the speeds the ESCs report (4,); the lost rotor, if any."""
+        if self.lost is not None:
+            return self.lost
+        command = np.asarray(command_n, dtype=float)
+        expected = np.sqrt(np.maximum(command, 0.0) / self.k_n_s2)
+        slow = (command >= MIN_COMMAND_N) & (np.asarray(speed_rad_s, dtype=float) < SLOW_FRACTION * expected)
+        for i in range(ROTOR_COUNT):
+            if not slow[i]:
+                self._slow_since_ms[i] = None
+            elif self._slow_since_ms[i] is None:
+                self._slow_since_ms[i] = now_ms
+            elif now_ms - self._slow_since_ms[i] >= CONFIRM_MS:
+                self.lost = i + 1
+        return self.lost
