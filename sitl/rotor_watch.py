@@ -3,9 +3,9 @@
 An ESC reports its motor's speed (a FC without ESC telemetry has no such check); the FC
 knows what it commanded and the rotors' thrust coefficient, so it knows the speed a healthy
 rotor settles at (w = sqrt(T / k)). A rotor commanded at least `MIN_COMMAND_N` that turns
-at less than `SLOW_FRACTION` of that speed
-for `CONFIRM_MS` (a few motor time constants, so a healthy rotor spinning up is never taken
-for a lost one) is lost, and stays lost: the FC's failsafe then flies on the other three.
+at less than `SLOW_FRACTION` of that speed for `CONFIRM_MS` (a few motor time constants, so
+a healthy rotor spinning up is never taken for a lost one) is lost, and stays lost: the
+FC's failsafe then flies on the other three.
 The companion's M4_FAULT_STATUS says the same sooner when it is alive; this is for when it
 is not (killed before it confirmed, or restarted and not yet told).
 """
