@@ -23,12 +23,16 @@ import logging
 import time
 from dataclasses import dataclass
 
+import numpy as np
+
 from companion.config import CompanionConfig
 from companion.controller import ControllerSettings, ControlStep, Controller
 from companion.core import rom
+from companion.core.esc_evidence import PropellerModel
 from companion.fc_link import FcLink, LinkEvent
 from companion.feed_publisher import Feed, open_feed
 from companion.telemetry import THRUSTER_STATUS, TelemetryAssembler, VehicleSnapshot, rom_state
+from m4.airframe import ROTOR_COUNT
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from m4.mavlink.connect import listens_for_peer, open_link
 from m4.mavlink.link import wait_readable
@@ -58,6 +62,7 @@ class CompanionApp:
         self.clock = clock
         self.period_ms = max(1, round(1000.0 * config.control_period_s))
         self.telemetry = TelemetryAssembler()
+        self._propeller = PropellerModel.from_airframe(config.airframe)
         self.counters = LoopCounters()
         self._last_answered_ms: int | None = None
         self._stop = False
@@ -136,6 +141,12 @@ class CompanionApp:
             self._announce_fault(step)
         self._publish(step, snap)
 
+    def _esc_thrust_n(self, snap: VehicleSnapshot) -> np.ndarray:
+        """The thrust each ESC's reported speed implies (NaN without ESC telemetry): for the feed."""
+        if snap.esc is None:
+            return np.full(ROTOR_COUNT, np.nan)
+        return self._propeller.thrust_n(snap.esc.rpm)
+
     def _announce_fault(self, step: ControlStep) -> None:
         text = step.fault.message
         self.fc.statustext(mavlink.MAV_SEVERITY_CRITICAL, text)
@@ -145,7 +156,7 @@ class CompanionApp:
     def _publish(self, step: ControlStep, snap: VehicleSnapshot) -> None:
         x, t, f, sp = step.state, step.time_s, step.fault, step.setpoint
         self.feed.state(t, pos_ned_m=x[rom.P], vel_ned_m_s=x[rom.V], euler_rad=x[rom.EULER],
-                        rates_frd_rad_s=x[rom.RATES], hip_rad=snap.hip_rad, thrust_n=snap.thrust_n)
+                        rates_frd_rad_s=x[rom.RATES], hip_rad=snap.hip_rad, thrust_n=self._esc_thrust_n(snap))
         self.feed.setpoint(t, thrust_n=sp.thrust_n, hip_rad=sp.hip_rad, hip_rate_rad_s=sp.hip_rate_rad_s,
                            thrust_cut=sp.thrust_cut)
         self.feed.fault(t, state=int(f.state), rotor=f.rotor, thrust_max_estimate_n=f.thrust_max_estimate_n,

@@ -222,7 +222,7 @@ class FcLink:
         detected_ms = 0 if status.detected_at_s is None else round(status.detected_at_s * 1000)
         estimate = np.nan_to_num(status.thrust_max_estimate_n, nan=0.0, posinf=0.0, neginf=0.0)
         self.link.send(mavlink.MAVLink_m4_fault_status_message(
-            int(time_ms), status.rotor or 0, _floats(estimate), detected_ms, int(status.state)))
+            int(time_ms), status.rotor or 0, _floats(estimate), detected_ms, int(status.state), int(status.kind)))
 
     def statustext(self, severity: int, text: str) -> None:
         self.link.send(mavlink.MAVLink_statustext_message(severity, text.encode("ascii", "replace")[:STATUSTEXT_MAX]))

@@ -62,8 +62,7 @@ def _decode(msg) -> dict[str, np.ndarray]:
         return {"pos_ned_m": _vec(msg.x, msg.y, msg.z), "vel_ned_m_s": _vec(msg.vx, msg.vy, msg.vz)}
     if i == JOINT_STATE:
         return {"hip_rad": _vec(msg.hip_angle_rad), "hip_rate_rad_s": _vec(msg.hip_rate_rad_s)}
-    return {"thrust_cmd_n": _vec(msg.thrust_cmd_n), "thrust_n": _vec(msg.thrust_n),
-            "thrust_limit_n": _vec(msg.thrust_limit_n)}
+    return {"thrust_cmd_n": _vec(msg.thrust_cmd_n), "thrust_limit_n": _vec(msg.thrust_limit_n)}
 
 
 def _valid(msg_id: int, values: dict[str, np.ndarray]) -> bool:
@@ -103,7 +102,6 @@ class VehicleSnapshot:
     hip_rad: np.ndarray
     hip_rate_rad_s: np.ndarray
     thrust_cmd_n: np.ndarray            # as the FC reports them (NaN: it cannot tell)
-    thrust_n: np.ndarray
     thrust_limit_n: np.ndarray
     esc: EscSample | None = None        # the newest ESC telemetry (None: the FC sends none)
 
@@ -175,7 +173,7 @@ class TelemetryAssembler:
             time_ms=max(times.values()), times_ms=times, euler_rad=euler, rates_frd_rad_s=rates,
             pos_ned_m=pos["pos_ned_m"], vel_ned_m_s=pos["vel_ned_m_s"],
             hip_rad=joints["hip_rad"], hip_rate_rad_s=joints["hip_rate_rad_s"],
-            thrust_cmd_n=thr["thrust_cmd_n"], thrust_n=thr["thrust_n"], thrust_limit_n=thr["thrust_limit_n"],
+            thrust_cmd_n=thr["thrust_cmd_n"], thrust_limit_n=thr["thrust_limit_n"],
             esc=self._esc)
 
 

@@ -29,10 +29,12 @@ class FaultStatusLog:
     state: np.ndarray                  # (n,) 0 healthy, 1 suspect, 2 confirmed
     thrust_max_estimate_n: np.ndarray  # (n, 4)
     detected_s: np.ndarray             # (n,) detected_time_boot_ms in seconds (NaN while healthy)
+    kind: np.ndarray                   # (n,) M4_FAULT_KIND: 0 unknown, 1 motor, 2 propeller, 3 damage, 4 degraded
 
     @classmethod
     def empty(cls) -> FaultStatusLog:
-        return cls(np.zeros(0), np.zeros(0, int), np.zeros(0, int), np.zeros((0, ROTOR_COUNT)), np.zeros(0))
+        return cls(np.zeros(0), np.zeros(0, int), np.zeros(0, int), np.zeros((0, ROTOR_COUNT)), np.zeros(0),
+                   np.zeros(0, int))
 
 
 @dataclass(frozen=True)
@@ -64,6 +66,7 @@ def read_fault_status(path: str | Path) -> FaultStatusLog:
         state=np.array([m.state for m in msgs]),
         thrust_max_estimate_n=np.array([m.thrust_max_estimate_n for m in msgs], dtype=float),
         detected_s=np.array([m.detected_time_boot_ms / 1000.0 if m.state else np.nan for m in msgs]),
+        kind=np.array([m.kind for m in msgs]),
     )
 
 

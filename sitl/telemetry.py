@@ -148,8 +148,7 @@ class Telemetry:
 
     def thruster_status(self, snap: Snapshot):
         s = snap.state
-        return mavlink.MAVLink_m4_thruster_status_message(snap.t_ms, _f4(s.thrust_cmd_n), _f4(s.thrust_n),
-                                                          _f4(s.thrust_rated_max_n))
+        return mavlink.MAVLink_m4_thruster_status_message(snap.t_ms, _f4(s.thrust_cmd_n), _f4(s.thrust_rated_max_n))
 
 
 def statustext(severity: int, text: str) -> mavlink.MAVLink_statustext_message:

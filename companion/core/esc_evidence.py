@@ -7,8 +7,10 @@ which grows as omega^3 (torque k_q omega^2 times speed). Per rotor:
 
 - stopped (motor or ESC dead): the speed collapses, and with it the thrust k_t omega^2;
 - unloaded (propeller lost): the motor overspeeds, its thrust is 0 whatever it turns at,
-  and its load index current * voltage / rpm^3 falls far below the other rotors' (the
-  serial current comes at a tenth of the RPM's rate, so the overspeed alone also tells);
+  and its load index current * voltage / rpm^3 falls far below the other rotors'. The
+  serial current comes at a tenth of the RPM's rate and each ESC's at its own instant, so
+  a collapsed load index counts only on a rotor already turning faster than asked, and the
+  overspeed alone also tells;
 - a rotor that turns slower than the voltage and command ask (a weak motor) delivers the
   thrust of the speed it reaches;
 - a chipped propeller turns normally: the ESC cannot see it (the model residual must).
@@ -81,6 +83,7 @@ class EscThresholds:
     unloaded_load_share: float = 0.25  # load index below this share of the other rotors' median: unloaded
                                        # (a propeller with half its blade area left keeps about half)
     overspeed_share: float = 1.15     # this far above the expected speed: unloaded
+    loaded_share: float = 1.05        # a collapsed load index counts only above this speed share (currents are stale)
     speed_min_rpm: float = 500.0      # below this the load index means nothing
 
 
@@ -105,6 +108,7 @@ def read_escs(sample: EscSample, expected_n: np.ndarray, model: PropellerModel,
     ceiling = model.ceiling_n(float(np.median(volts))) if volts.size else math.inf
     expected_rpm = model.rpm(np.minimum(expected_n, ceiling))
     turning = np.isfinite(rpm) & (rpm >= th.speed_min_rpm)
+    current = np.where(current > 0.0, current, np.nan)     # a turning motor draws current: 0 is "not polled yet"
     with np.errstate(divide="ignore", invalid="ignore"):
         load = np.where(turning & np.isfinite(current), current * np.where(np.isfinite(voltage), voltage, 1.0)
                         / np.maximum(rpm, th.speed_min_rpm) ** 3, np.nan)
@@ -115,7 +119,7 @@ def read_escs(sample: EscSample, expected_n: np.ndarray, model: PropellerModel,
         others = np.delete(load, i)
         others = others[np.isfinite(others)]
         unloaded = bool(speed_share[i] > th.overspeed_share)
-        if np.isfinite(load[i]) and others.size:
+        if np.isfinite(load[i]) and others.size and speed_share[i] > th.loaded_share:
             unloaded |= bool(load[i] < th.unloaded_load_share * float(np.median(others)))
         conditions.append(_condition(speed_share[i], unloaded, th) if np.isfinite(rpm[i]) else RotorCondition.NORMAL)
     thrust = np.where([c is RotorCondition.UNLOADED for c in conditions], 0.0, thrust)

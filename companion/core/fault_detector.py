@@ -145,6 +145,7 @@ class FaultDetector:
         self._prev: tuple[float, np.ndarray] | None = None
         self._lag_n = np.zeros(ROTOR_COUNT)        # thrust the model says the motors deliver
         self._cmd_lag_n = np.zeros(ROTOR_COUNT)    # the command through the motor lag: what the ESCs are asked for
+        self._asked_n = np.zeros(ROTOR_COUNT)      # the command in force (clipped to the limits)
         self._esc_time_s = -math.inf               # newest ESC frame used
         self._esc_thrust_n = np.zeros(ROTOR_COUNT)     # its speed-implied thrusts
         self._esc_rpm: np.ndarray | None = None
@@ -194,7 +195,7 @@ class FaultDetector:
         if thrust_limit_n is not None:
             limit = np.asarray(thrust_limit_n, dtype=float).reshape(ROTOR_COUNT)
             self._limit_n = np.where(np.isfinite(limit), limit, self._af.thrust_max_n)
-        asked = np.clip(cmd, self._af.thrust_min_n, self._limit_n)
+        asked = self._asked_n = np.clip(cmd, self._af.thrust_min_n, self._limit_n)
         target = self._expected_response(asked)
         prev, self._prev = self._prev, (time_s, x)
         dt = None if prev is None else time_s - prev[0]
@@ -213,7 +214,7 @@ class FaultDetector:
             if direct.rotor is not None and not confirmed or confirmed and self._kind is not FaultKind.DAMAGE:
                 evidence = direct              # the ESC measures its rotor; only a damaged propeller hides from it
         self._count_run(evidence, dt)
-        self._decide(time_s, evidence, cmd, dt)
+        self._decide(time_s, evidence, cmd, dt, reading)
         return self.status
 
     # -- models ----------------------------------------------------------------------------------
@@ -240,7 +241,9 @@ class FaultDetector:
         esc_dt, self._esc_time_s = esc.time_s - self._esc_time_s, esc.time_s
         if not np.any(np.isfinite(esc.rpm)):
             return None
-        reading = read_escs(esc, self._cmd_lag_n, self._propeller)
+        # Overspeed is judged against the larger of the lagged and the new command: a rotor
+        # slowing down after a command drop still turns faster than the lagged model says.
+        reading = read_escs(esc, np.maximum(self._cmd_lag_n, self._asked_n), self._propeller)
         self._esc_thrust_n = np.where(np.isfinite(reading.thrust_n), reading.thrust_n, self._cmd_lag_n)
         # The rotor speed follows its first-order lag: speed = heading + decay (previous - heading).
         rpm = np.where(np.isfinite(reading.rpm), reading.rpm, self._propeller.rpm(self._esc_thrust_n))
@@ -326,9 +329,10 @@ class FaultDetector:
         self._run = (evidence.path, evidence.rotor, dt + (self._run[2] if same else 0.0))
 
     # -- decisions ----------------------------------------------------------------------------------
-    def _decide(self, time_s: float, evidence: _Evidence, cmd: np.ndarray, dt: float) -> None:
+    def _decide(self, time_s: float, evidence: _Evidence, cmd: np.ndarray, dt: float,
+                reading: EscReading | None) -> None:
         if self._state is FaultState.CONFIRMED:
-            self._refine(evidence, cmd, dt)
+            self._refine(evidence, cmd, dt, reading)
             return
         if evidence.rotor is None:
             self._clear()
@@ -355,10 +359,15 @@ class FaultDetector:
         self._window.clear()                   # the evidence was read against the healthy model
         self._run = None
 
-    def _refine(self, evidence: _Evidence, cmd: np.ndarray, dt: float) -> None:
+    def _refine(self, evidence: _Evidence, cmd: np.ndarray, dt: float, reading: EscReading | None) -> None:
         """Move the confirmed rotor's model towards what it delivers: lower when it clearly gives
-        less than the model says, higher when, asked above its estimate, it measurably gives more."""
+        less than the model says, higher when, asked above its estimate, it measurably gives more.
+        An ESC that shows the rotor stopped or unloaded after all (a lost propeller takes a few
+        frames to overspeed) names the kind and zeroes the estimate."""
         c, i = self._c, self._rotor
+        later = None if reading is None else _KIND_OF_CONDITION.get(reading.condition[i])
+        if later in (FaultKind.MOTOR, FaultKind.PROPELLER) and self._kind is not later:
+            self._kind, self._effectiveness, self._estimate_n = later, 1.0, self._af.thrust_min_n
         delivered, expected = evidence.delivered_n[i], evidence.expected_n[i]
         if self._kind is FaultKind.DAMAGE:
             if evidence.short[i] and expected > c.deficit_min_n:

@@ -45,8 +45,8 @@ def state_payload(t_s: float | None, wall_time_unix_s: float, *, pos_ned_m, vel_
                   euler_rad, rates_frd_rad_s, hip_rad, thrust_n) -> dict[str, Any]:
     """The estimated state: centre of mass position and velocity (NED), attitude, hips, thrusts.
 
-    euler_rad is (roll, pitch, yaw), ZYX; thrust_n is what the flight controller reports
-    delivered per rotor 1..4 (null where it cannot tell).
+    euler_rad is (roll, pitch, yaw), ZYX; thrust_n is the thrust each rotor's ESC-reported
+    speed implies (k_t w^2), rotors 1..4 (null without ESC telemetry).
     """
     return {
         **_stamp(t_s, wall_time_unix_s),

@@ -378,6 +378,22 @@ enums["M4_FAULT_STATE"][2] = EnumEntry("M4_FAULT_STATE_CONFIRMED", """A rotor fa
 M4_FAULT_STATE_ENUM_END = 3
 enums["M4_FAULT_STATE"][3] = EnumEntry("M4_FAULT_STATE_ENUM_END", """""")
 
+# M4_FAULT_KIND
+enums["M4_FAULT_KIND"] = Enum()
+enums["M4_FAULT_KIND"].bitmask = False
+M4_FAULT_KIND_UNKNOWN = 0
+enums["M4_FAULT_KIND"][0] = EnumEntry("M4_FAULT_KIND_UNKNOWN", """Thrust lost; no ESC evidence of how (saturation and the model residual only).""")
+M4_FAULT_KIND_MOTOR = 1
+enums["M4_FAULT_KIND"][1] = EnumEntry("M4_FAULT_KIND_MOTOR", """The ESC's speed collapsed: motor or ESC stopped.""")
+M4_FAULT_KIND_PROPELLER = 2
+enums["M4_FAULT_KIND"][2] = EnumEntry("M4_FAULT_KIND_PROPELLER", """The motor turns unloaded (overspeed, current collapsed): propeller lost.""")
+M4_FAULT_KIND_DAMAGE = 3
+enums["M4_FAULT_KIND"][3] = EnumEntry("M4_FAULT_KIND_DAMAGE", """Less thrust at a normal speed: damaged propeller.""")
+M4_FAULT_KIND_DEGRADED = 4
+enums["M4_FAULT_KIND"][4] = EnumEntry("M4_FAULT_KIND_DEGRADED", """The motor cannot reach the speed asked: a lower ceiling.""")
+M4_FAULT_KIND_ENUM_END = 5
+enums["M4_FAULT_KIND"][5] = EnumEntry("M4_FAULT_KIND_ENUM_END", """""")
+
 # M4_ROTOR_FAILURE_KIND
 enums["M4_ROTOR_FAILURE_KIND"] = Enum()
 enums["M4_ROTOR_FAILURE_KIND"].bitmask = False
@@ -8289,38 +8305,40 @@ setattr(MAVLink_m4_setpoint_message, "name", mavlink_msg_deprecated_name_propert
 
 class MAVLink_m4_thruster_status_message(MAVLink_message):
     """
-    Per-thruster status from the flight controller.
+    Per-thruster status from the flight controller: what it commands
+    and the limit it knows. No flight controller or ESC measures
+    thrust; what the ESCs measure (rotor speed, current, voltage) is
+    in ESC_TELEMETRY_1_TO_4.
     """
 
     id = MAVLINK_MSG_ID_M4_THRUSTER_STATUS
     msgname = "M4_THRUSTER_STATUS"
-    fieldnames = ["time_boot_ms", "thrust_cmd_n", "thrust_n", "thrust_limit_n"]
-    ordered_fieldnames = ["time_boot_ms", "thrust_cmd_n", "thrust_n", "thrust_limit_n"]
-    fieldtypes = ["uint32_t", "float", "float", "float"]
+    fieldnames = ["time_boot_ms", "thrust_cmd_n", "thrust_limit_n"]
+    ordered_fieldnames = ["time_boot_ms", "thrust_cmd_n", "thrust_limit_n"]
+    fieldtypes = ["uint32_t", "float", "float"]
     fielddisplays_by_name: Dict[str, str] = {}
     fieldenums_by_name: Dict[str, str] = {}
-    fieldunits_by_name: Dict[str, str] = {"time_boot_ms": "ms", "thrust_cmd_n": "N", "thrust_n": "N", "thrust_limit_n": "N"}
-    native_format = bytearray(b"<Ifff")
-    orders = [0, 1, 2, 3]
-    lengths = [1, 4, 4, 4]
-    array_lengths = [0, 4, 4, 4]
-    crc_extra = 64
-    unpacker = struct.Struct("<I4f4f4f")
+    fieldunits_by_name: Dict[str, str] = {"time_boot_ms": "ms", "thrust_cmd_n": "N", "thrust_limit_n": "N"}
+    native_format = bytearray(b"<Iff")
+    orders = [0, 1, 2]
+    lengths = [1, 4, 4]
+    array_lengths = [0, 4, 4]
+    crc_extra = 74
+    unpacker = struct.Struct("<I4f4f")
     instance_field = None
     instance_offset = -1
 
-    def __init__(self, time_boot_ms: int, thrust_cmd_n: Sequence[float], thrust_n: Sequence[float], thrust_limit_n: Sequence[float]):
+    def __init__(self, time_boot_ms: int, thrust_cmd_n: Sequence[float], thrust_limit_n: Sequence[float]):
         MAVLink_message.__init__(self, MAVLink_m4_thruster_status_message.id, MAVLink_m4_thruster_status_message.msgname)
         self._fieldnames = MAVLink_m4_thruster_status_message.fieldnames
         self._instance_field = MAVLink_m4_thruster_status_message.instance_field
         self._instance_offset = MAVLink_m4_thruster_status_message.instance_offset
         self.time_boot_ms = time_boot_ms
         self.thrust_cmd_n = thrust_cmd_n
-        self.thrust_n = thrust_n
         self.thrust_limit_n = thrust_limit_n
 
     def pack(self, mav: "MAVLink", force_mavlink1: bool = False) -> bytes:
-        return self._pack(mav, self.crc_extra, self.unpacker.pack(self.time_boot_ms, self.thrust_cmd_n[0], self.thrust_cmd_n[1], self.thrust_cmd_n[2], self.thrust_cmd_n[3], self.thrust_n[0], self.thrust_n[1], self.thrust_n[2], self.thrust_n[3], self.thrust_limit_n[0], self.thrust_limit_n[1], self.thrust_limit_n[2], self.thrust_limit_n[3]), force_mavlink1=force_mavlink1)
+        return self._pack(mav, self.crc_extra, self.unpacker.pack(self.time_boot_ms, self.thrust_cmd_n[0], self.thrust_cmd_n[1], self.thrust_cmd_n[2], self.thrust_cmd_n[3], self.thrust_limit_n[0], self.thrust_limit_n[1], self.thrust_limit_n[2], self.thrust_limit_n[3]), force_mavlink1=force_mavlink1)
 
 
 # Define name on the class for backwards compatibility (it is now msgname).
@@ -8375,22 +8393,22 @@ class MAVLink_m4_fault_status_message(MAVLink_message):
 
     id = MAVLINK_MSG_ID_M4_FAULT_STATUS
     msgname = "M4_FAULT_STATUS"
-    fieldnames = ["time_boot_ms", "rotor", "thrust_max_estimate_n", "detected_time_boot_ms", "state"]
-    ordered_fieldnames = ["time_boot_ms", "thrust_max_estimate_n", "detected_time_boot_ms", "rotor", "state"]
-    fieldtypes = ["uint32_t", "uint8_t", "float", "uint32_t", "uint8_t"]
+    fieldnames = ["time_boot_ms", "rotor", "thrust_max_estimate_n", "detected_time_boot_ms", "state", "kind"]
+    ordered_fieldnames = ["time_boot_ms", "thrust_max_estimate_n", "detected_time_boot_ms", "rotor", "state", "kind"]
+    fieldtypes = ["uint32_t", "uint8_t", "float", "uint32_t", "uint8_t", "uint8_t"]
     fielddisplays_by_name: Dict[str, str] = {}
-    fieldenums_by_name: Dict[str, str] = {"state": "M4_FAULT_STATE"}
+    fieldenums_by_name: Dict[str, str] = {"state": "M4_FAULT_STATE", "kind": "M4_FAULT_KIND"}
     fieldunits_by_name: Dict[str, str] = {"time_boot_ms": "ms", "thrust_max_estimate_n": "N", "detected_time_boot_ms": "ms"}
-    native_format = bytearray(b"<IfIBB")
-    orders = [0, 3, 1, 2, 4]
-    lengths = [1, 4, 1, 1, 1]
-    array_lengths = [0, 4, 0, 0, 0]
+    native_format = bytearray(b"<IfIBBB")
+    orders = [0, 3, 1, 2, 4, 5]
+    lengths = [1, 4, 1, 1, 1, 1]
+    array_lengths = [0, 4, 0, 0, 0, 0]
     crc_extra = 111
-    unpacker = struct.Struct("<I4fIBB")
+    unpacker = struct.Struct("<I4fIBBB")
     instance_field = None
     instance_offset = -1
 
-    def __init__(self, time_boot_ms: int, rotor: int, thrust_max_estimate_n: Sequence[float], detected_time_boot_ms: int, state: int):
+    def __init__(self, time_boot_ms: int, rotor: int, thrust_max_estimate_n: Sequence[float], detected_time_boot_ms: int, state: int, kind: int = 0):
         MAVLink_message.__init__(self, MAVLink_m4_fault_status_message.id, MAVLink_m4_fault_status_message.msgname)
         self._fieldnames = MAVLink_m4_fault_status_message.fieldnames
         self._instance_field = MAVLink_m4_fault_status_message.instance_field
@@ -8400,9 +8418,10 @@ class MAVLink_m4_fault_status_message(MAVLink_message):
         self.thrust_max_estimate_n = thrust_max_estimate_n
         self.detected_time_boot_ms = detected_time_boot_ms
         self.state = state
+        self.kind = kind
 
     def pack(self, mav: "MAVLink", force_mavlink1: bool = False) -> bytes:
-        return self._pack(mav, self.crc_extra, self.unpacker.pack(self.time_boot_ms, self.thrust_max_estimate_n[0], self.thrust_max_estimate_n[1], self.thrust_max_estimate_n[2], self.thrust_max_estimate_n[3], self.detected_time_boot_ms, self.rotor, self.state), force_mavlink1=force_mavlink1)
+        return self._pack(mav, self.crc_extra, self.unpacker.pack(self.time_boot_ms, self.thrust_max_estimate_n[0], self.thrust_max_estimate_n[1], self.thrust_max_estimate_n[2], self.thrust_max_estimate_n[3], self.detected_time_boot_ms, self.rotor, self.state, self.kind), force_mavlink1=force_mavlink1)
 
 
 # Define name on the class for backwards compatibility (it is now msgname).
@@ -23191,29 +23210,33 @@ class MAVLink(object):
         """
         self.send(self.m4_setpoint_encode(target_system, target_component, time_boot_ms, period_ms, thrust_n, hip_angle_rad, hip_rate_rad_s, flags), force_mavlink1=force_mavlink1)
 
-    def m4_thruster_status_encode(self, time_boot_ms: int, thrust_cmd_n: Sequence[float], thrust_n: Sequence[float], thrust_limit_n: Sequence[float]) -> MAVLink_m4_thruster_status_message:
+    def m4_thruster_status_encode(self, time_boot_ms: int, thrust_cmd_n: Sequence[float], thrust_limit_n: Sequence[float]) -> MAVLink_m4_thruster_status_message:
         """
-        Per-thruster status from the flight controller.
+        Per-thruster status from the flight controller: what it commands and
+        the limit it knows. No flight controller or ESC measures
+        thrust; what the ESCs measure (rotor speed, current, voltage)
+        is in ESC_TELEMETRY_1_TO_4.
 
         time_boot_ms              : Timestamp (time since system boot). [ms] (type:uint32_t)
         thrust_cmd_n              : Commanded thrust of rotors 1..4. [N] (type:float)
-        thrust_n                  : Delivered (or estimated) thrust of rotors 1..4; NaN when the flight controller cannot tell. [N] (type:float)
         thrust_limit_n            : Current maximum thrust of rotors 1..4 as the flight controller knows it; NaN when unknown. [N] (type:float)
 
         """
-        return MAVLink_m4_thruster_status_message(time_boot_ms, thrust_cmd_n, thrust_n, thrust_limit_n)
+        return MAVLink_m4_thruster_status_message(time_boot_ms, thrust_cmd_n, thrust_limit_n)
 
-    def m4_thruster_status_send(self, time_boot_ms: int, thrust_cmd_n: Sequence[float], thrust_n: Sequence[float], thrust_limit_n: Sequence[float], force_mavlink1: bool = False) -> None:
+    def m4_thruster_status_send(self, time_boot_ms: int, thrust_cmd_n: Sequence[float], thrust_limit_n: Sequence[float], force_mavlink1: bool = False) -> None:
         """
-        Per-thruster status from the flight controller.
+        Per-thruster status from the flight controller: what it commands and
+        the limit it knows. No flight controller or ESC measures
+        thrust; what the ESCs measure (rotor speed, current, voltage)
+        is in ESC_TELEMETRY_1_TO_4.
 
         time_boot_ms              : Timestamp (time since system boot). [ms] (type:uint32_t)
         thrust_cmd_n              : Commanded thrust of rotors 1..4. [N] (type:float)
-        thrust_n                  : Delivered (or estimated) thrust of rotors 1..4; NaN when the flight controller cannot tell. [N] (type:float)
         thrust_limit_n            : Current maximum thrust of rotors 1..4 as the flight controller knows it; NaN when unknown. [N] (type:float)
 
         """
-        self.send(self.m4_thruster_status_encode(time_boot_ms, thrust_cmd_n, thrust_n, thrust_limit_n), force_mavlink1=force_mavlink1)
+        self.send(self.m4_thruster_status_encode(time_boot_ms, thrust_cmd_n, thrust_limit_n), force_mavlink1=force_mavlink1)
 
     def m4_joint_state_encode(self, time_boot_ms: int, hip_angle_rad: Sequence[float], hip_rate_rad_s: Sequence[float]) -> MAVLink_m4_joint_state_message:
         """
@@ -23237,7 +23260,7 @@ class MAVLink(object):
         """
         self.send(self.m4_joint_state_encode(time_boot_ms, hip_angle_rad, hip_rate_rad_s), force_mavlink1=force_mavlink1)
 
-    def m4_fault_status_encode(self, time_boot_ms: int, rotor: int, thrust_max_estimate_n: Sequence[float], detected_time_boot_ms: int, state: int) -> MAVLink_m4_fault_status_message:
+    def m4_fault_status_encode(self, time_boot_ms: int, rotor: int, thrust_max_estimate_n: Sequence[float], detected_time_boot_ms: int, state: int, kind: int = 0) -> MAVLink_m4_fault_status_message:
         """
         Rotor fault detector status from the companion.
 
@@ -23246,11 +23269,12 @@ class MAVLink(object):
         thrust_max_estimate_n        : Estimated maximum thrust of rotors 1..4. [N] (type:float)
         detected_time_boot_ms        : When the fault was detected (0 if none). [ms] (type:uint32_t)
         state                     : Detector state. (type:uint8_t, values:M4_FAULT_STATE)
+        kind                      : What failed, as far as the evidence tells (UNKNOWN without ESC telemetry). (type:uint8_t, values:M4_FAULT_KIND)
 
         """
-        return MAVLink_m4_fault_status_message(time_boot_ms, rotor, thrust_max_estimate_n, detected_time_boot_ms, state)
+        return MAVLink_m4_fault_status_message(time_boot_ms, rotor, thrust_max_estimate_n, detected_time_boot_ms, state, kind)
 
-    def m4_fault_status_send(self, time_boot_ms: int, rotor: int, thrust_max_estimate_n: Sequence[float], detected_time_boot_ms: int, state: int, force_mavlink1: bool = False) -> None:
+    def m4_fault_status_send(self, time_boot_ms: int, rotor: int, thrust_max_estimate_n: Sequence[float], detected_time_boot_ms: int, state: int, kind: int = 0, force_mavlink1: bool = False) -> None:
         """
         Rotor fault detector status from the companion.
 
@@ -23259,9 +23283,10 @@ class MAVLink(object):
         thrust_max_estimate_n        : Estimated maximum thrust of rotors 1..4. [N] (type:float)
         detected_time_boot_ms        : When the fault was detected (0 if none). [ms] (type:uint32_t)
         state                     : Detector state. (type:uint8_t, values:M4_FAULT_STATE)
+        kind                      : What failed, as far as the evidence tells (UNKNOWN without ESC telemetry). (type:uint8_t, values:M4_FAULT_KIND)
 
         """
-        self.send(self.m4_fault_status_encode(time_boot_ms, rotor, thrust_max_estimate_n, detected_time_boot_ms, state), force_mavlink1=force_mavlink1)
+        self.send(self.m4_fault_status_encode(time_boot_ms, rotor, thrust_max_estimate_n, detected_time_boot_ms, state, kind), force_mavlink1=force_mavlink1)
 
     def sys_status_encode(self, onboard_control_sensors_present: int, onboard_control_sensors_enabled: int, onboard_control_sensors_health: int, load: int, voltage_battery: int, current_battery: int, battery_remaining: int, drop_rate_comm: int, errors_comm: int, errors_count1: int, errors_count2: int, errors_count3: int, errors_count4: int, onboard_control_sensors_present_extended: int = 0, onboard_control_sensors_enabled_extended: int = 0, onboard_control_sensors_health_extended: int = 0) -> MAVLink_sys_status_message:
         """

@@ -55,7 +55,7 @@ class FakeFc:
         self.send(mavlink.MAVLink_attitude_message(t_ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
                   mavlink.MAVLink_local_position_ned_message(t_ms, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0),
                   mavlink.MAVLink_m4_joint_state_message(t_ms, [AF.nominal_hip_rad] * 4, [0.0] * 4),
-                  mavlink.MAVLink_m4_thruster_status_message(t_ms, hover, hover, [AF.thrust_max_n] * 4))
+                  mavlink.MAVLink_m4_thruster_status_message(t_ms, hover, [AF.thrust_max_n] * 4))
 
 
 @pytest.fixture(scope="module")
@@ -219,7 +219,7 @@ class Fuzzer:
                 lambda: mavlink.MAVLink_m4_joint_state_message(self.t_ms, [0.8 + v for v in f[:4]], f[4:8]),
             mavlink.MAVLINK_MSG_ID_M4_THRUSTER_STATUS:
                 lambda: mavlink.MAVLink_m4_thruster_status_message(self.t_ms, [15 + v for v in f[:4]],
-                                                                   [15 * v for v in f[4:8]], [30 * v for v in f[8:12]]),
+                                                                   [30 * v for v in f[8:12]]),
         }.get(msg_id, lambda: mavlink.MAVLink_attitude_quaternion_message(self.t_ms, 1.0, *f[:6], f[6:10]))
         return build().pack(new_mav(None, *self._ids()))
 

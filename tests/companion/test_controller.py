@@ -107,7 +107,7 @@ def _snapshot(changes) -> VehicleSnapshot:
               "vel_ned_m_s": np.zeros(3), "hip_rad": np.full(4, AF.nominal_hip_rad), "hip_rate_rad_s": np.zeros(4)}
     for name, i, v in changes:
         values[name][i % values[name].size] = v
-    return VehicleSnapshot(time_ms=0, times_ms={}, thrust_cmd_n=np.full(4, HOVER_N), thrust_n=np.full(4, np.nan),
+    return VehicleSnapshot(time_ms=0, times_ms={}, thrust_cmd_n=np.full(4, HOVER_N),
                            thrust_limit_n=np.full(4, np.nan), **values)
 
 

@@ -30,9 +30,9 @@ def joints(t_ms, hip=None, rate=(0.0,) * 4):
     return mavlink.MAVLink_m4_joint_state_message(t_ms, list(hip or [AF.nominal_hip_rad] * 4), list(rate))
 
 
-def thrusters(t_ms, delivered=NAN4):
+def thrusters(t_ms, limit=NAN4):
     hover = [AF.hover_thrust_per_rotor_n] * 4
-    return mavlink.MAVLink_m4_thruster_status_message(t_ms, hover, list(delivered), NAN4)
+    return mavlink.MAVLink_m4_thruster_status_message(t_ms, hover, list(limit))
 
 
 def frame(t_ms, **kw):
@@ -91,7 +91,7 @@ def test_a_quaternion_that_is_not_a_unit_one_is_rejected():
 def test_thruster_nan_means_unknown_and_is_kept():
     asm = TelemetryAssembler()
     feed(asm, frame(0))
-    assert np.all(np.isnan(asm.snapshot().thrust_n))
+    assert np.all(np.isnan(asm.snapshot().thrust_limit_n))
 
 
 def test_time_going_backwards_is_dropped_until_cleared():

@@ -155,11 +155,15 @@ def test_esc_frames_without_speed_or_too_old_are_not_evidence():
     assert status.state is FaultState.HEALTHY
 
 
-def test_the_load_index_marks_an_unloaded_rotor_even_before_it_overspeeds():
+def test_a_collapsed_load_marks_a_rotor_turning_fast_unloaded_but_a_stale_current_alone_does_not():
+    """Rotor 3 turns 8 % fast on 1 A: its propeller is gone before the overspeed threshold.
+    Rotor 2 turns as asked on a current from before (serial telemetry is polled in turn), and
+    rotor 4's current was never polled (0): both normal."""
     rpm = PROP.rpm(np.full(ROTOR_COUNT, HOVER_N))
     current = LOAD * rpm**3 / 14.8
-    current[2] = 1.0
+    rpm[2] *= 1.08
+    current[1], current[2], current[3] = 1.0, 1.0, 0.0
     reading = read_escs(EscSample(0.0, rpm, current, np.full(ROTOR_COUNT, 14.8)), np.full(ROTOR_COUNT, HOVER_N), PROP)
     assert reading.condition == (RotorCondition.NORMAL, RotorCondition.NORMAL, RotorCondition.UNLOADED,
                                  RotorCondition.NORMAL)
-    assert reading.thrust_n[2] == 0.0 and reading.thrust_n[0] == pytest.approx(HOVER_N)
+    assert reading.thrust_n[2] == 0.0 and reading.thrust_n[1] == pytest.approx(HOVER_N)

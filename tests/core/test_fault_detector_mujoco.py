@@ -40,7 +40,7 @@ def measured_rom_state(plant: Plant) -> np.ndarray:
     return rom_state(VehicleSnapshot(
         time_ms=round(s.time_s * 1000), times_ms={}, euler_rad=s.euler_rad, rates_frd_rad_s=s.rates_frd_rad_s,
         pos_ned_m=s.pos_ned_m, vel_ned_m_s=s.vel_ned_m_s, hip_rad=s.hip_rad, hip_rate_rad_s=s.hip_rate_rad_s,
-        thrust_cmd_n=s.thrust_cmd_n, thrust_n=s.thrust_n, thrust_limit_n=s.thrust_limit_n), AF)
+        thrust_cmd_n=s.thrust_cmd_n, thrust_limit_n=s.thrust_limit_n), AF)
 
 
 def fly(nmpc, reference, duration_s, fault=None, seed=0):

@@ -75,3 +75,12 @@ def test_our_ids_are_used_by_no_bundled_dialect():
     for xml in PYMAVLINK_V20_DIR.glob("*.xml"):
         assert not ours_msgs & _ids(xml, "message"), xml.name
         assert not ours_cmds & _ids(xml, "command"), xml.name
+
+
+def test_the_fault_kinds_are_the_dialects_and_no_delivered_thrust_is_reported():
+    from companion.core.control_types import FaultKind
+
+    assert {k.name: k.value for k in FaultKind} == {
+        name.removeprefix("M4_FAULT_KIND_"): value for name, value in vars(mavlink).items()
+        if name.startswith("M4_FAULT_KIND_") and name != "M4_FAULT_KIND_ENUM_END"}
+    assert mavlink.MAVLink_m4_thruster_status_message.fieldnames == ["time_boot_ms", "thrust_cmd_n", "thrust_limit_n"]

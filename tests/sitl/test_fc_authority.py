@@ -81,7 +81,7 @@ def test_setpoints_and_commands_from_another_system_are_refused_and_counted():
         assert fc.counters.setpoints_dropped == 0
     assert [(a.result, a.target_system) for a in denied] == [(m.MAV_RESULT_DENIED, 99), (m.MAV_RESULT_DENIED, 42)]
     last = companion.of_type("M4_THRUSTER_STATUS")[-1]
-    assert min(last.thrust_n) > 10.0                      # no rotor stopped, the companion still flies
+    assert min(last.thrust_cmd_n) > 10.0                  # no rotor stopped, the companion still flies
 
 
 @pytest.mark.parametrize("shift_ms, period_ms, reason", [

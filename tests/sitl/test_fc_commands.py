@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import math
 
 import pytest
 
@@ -33,11 +34,15 @@ def _command(companion, command, *params, target_component=1):
     return ack
 
 
-def _status_after(companion, ack, match, timeout_s=10.0):
-    """The first M4_THRUSTER_STATUS received after `ack` that `match`es."""
+def _rpm(af, thrust_n: float) -> float:
+    """The rotor speed at which the propeller gives thrust_n."""
+    return math.sqrt(thrust_n / af.thrust_coefficient_n_s2) * 60.0 / (2.0 * math.pi)
+
+
+def _after(companion, ack, kind, match, timeout_s=10.0):
+    """The first message of `kind` received after `ack` that `match`es."""
     start = next(i for i, msg in enumerate(companion.received) if msg is ack)
-    return companion.wait_for("M4_THRUSTER_STATUS", lambda s: s in companion.received[start:] and match(s),
-                              timeout_s)
+    return companion.wait_for(kind, lambda s: s in companion.received[start:] and match(s), timeout_s)
 
 
 def test_inject_failure_off_stops_the_rotor_and_ok_restores_it():
@@ -46,12 +51,14 @@ def test_inject_failure_off_stops_the_rotor_and_ok_restores_it():
         ack = _command(companion, m.MAV_CMD_INJECT_FAILURE, m.FAILURE_UNIT_SYSTEM_MOTOR, m.FAILURE_TYPE_OFF, 4)
         assert ack.result == m.MAV_RESULT_ACCEPTED
         assert ack.target_system == 1 and ack.target_component == 191
-        off = _status_after(companion, ack, lambda s: s.thrust_n[3] < 0.1)
-        assert off is not None and min(off.thrust_n[:3]) > 1.0
-        assert list(off.thrust_limit_n) == [af.thrust_max_n] * 4      # the FC knows its rating, not the fault
+        off = _after(companion, ack, "ESC_TELEMETRY_1_TO_4", lambda e: e.rpm[3] == 0)
+        assert off is not None and min(off.rpm[:3]) > 1000
+        status = _after(companion, ack, "M4_THRUSTER_STATUS", lambda s: True)
+        assert list(status.thrust_limit_n) == [af.thrust_max_n] * 4   # the FC knows its rating, not the fault
         ack = _command(companion, m.MAV_CMD_INJECT_FAILURE, m.FAILURE_UNIT_SYSTEM_MOTOR, m.FAILURE_TYPE_OK, 4)
         assert ack.result == m.MAV_RESULT_ACCEPTED
-        assert _status_after(companion, ack, lambda s: s.thrust_n[3] > 0.9 * af.hover_thrust_per_rotor_n) is not None
+        hover_rpm = _rpm(af, af.hover_thrust_per_rotor_n)
+        assert _after(companion, ack, "ESC_TELEMETRY_1_TO_4", lambda e: e.rpm[3] > 0.9 * hover_rpm) is not None
         texts = [t.text for t in companion.of_type("STATUSTEXT")]
         assert "rotor 4 motor stop injected" in texts and "rotor 4 restored" in texts
 
@@ -60,7 +67,7 @@ def test_inject_failure_instance_zero_stops_every_rotor():
     with _fc() as companion:
         ack = _command(companion, m.MAV_CMD_INJECT_FAILURE, m.FAILURE_UNIT_SYSTEM_MOTOR, m.FAILURE_TYPE_OFF, 0)
         assert ack.result == m.MAV_RESULT_ACCEPTED
-        assert _status_after(companion, ack, lambda s: max(s.thrust_n) < 0.1) is not None
+        assert _after(companion, ack, "ESC_TELEMETRY_1_TO_4", lambda e: max(e.rpm) == 0) is not None
 
 
 @pytest.mark.parametrize("unit, failure_type, instance, result", [
@@ -79,17 +86,20 @@ def test_rotor_loss_command_caps_the_rotor_relative_to_hover_thrust():
         ack = _command(companion, m.MAV_CMD_M4_ROTOR_LOSS, 2, 0.5)
         assert ack.result == m.MAV_RESULT_ACCEPTED
         expected = 0.5 * af.hover_thrust_per_rotor_n
-        status = _status_after(companion, ack, lambda s: abs(s.thrust_n[1] - expected) < 0.01)
-        assert status is not None and status.thrust_cmd_n[1] > expected      # the command is what was asked
+        capped = _after(companion, ack, "ESC_TELEMETRY_1_TO_4", lambda e: abs(e.rpm[1] - _rpm(af, expected)) < 20)
+        status = _after(companion, capped, "M4_THRUSTER_STATUS", lambda s: True)
+        assert capped is not None and status.thrust_cmd_n[1] > expected      # the command is what was asked
         assert _command(companion, m.MAV_CMD_M4_ROTOR_LOSS, 2, 1.5).result == m.MAV_RESULT_DENIED
         assert _command(companion, m.MAV_CMD_M4_ROTOR_LOSS, 2.5, 0.5).result == m.MAV_RESULT_DENIED
 
 
 def test_rotor_loss_command_takes_the_failure_kind_and_refuses_an_unknown_one():
+    af = load_airframe()
     with _fc() as companion:
         ack = _command(companion, m.MAV_CMD_M4_ROTOR_LOSS, 3, 1.0, m.M4_ROTOR_FAILURE_KIND_PROPELLER)
         assert ack.result == m.MAV_RESULT_ACCEPTED
-        assert _status_after(companion, ack, lambda s: s.thrust_n[2] < 0.01) is not None
+        hover_rpm = _rpm(af, af.hover_thrust_per_rotor_n)
+        assert _after(companion, ack, "ESC_TELEMETRY_1_TO_4", lambda e: e.rpm[2] > 1.15 * hover_rpm) is not None   # unloaded
         assert _command(companion, m.MAV_CMD_M4_ROTOR_LOSS, 3, 1.0, 9).result == m.MAV_RESULT_DENIED
         assert _command(companion, m.MAV_CMD_M4_ROTOR_LOSS, 3, 1.0, 1.5).result == m.MAV_RESULT_DENIED
         assert "rotor 3 propeller loss injected" in [t.text for t in companion.of_type("STATUSTEXT")]

@@ -71,6 +71,6 @@ def test_mavsdk_sees_an_autopilot_and_injects_a_motor_failure(tmp_path):
     while (msg := log.recv_match(blocking=False)) is not None:
         if msg.get_type() == "COMMAND_ACK" and msg.command == 420:
             acks.append(msg.result)
-        if msg.get_type() == "M4_THRUSTER_STATUS" and acks:
-            motor_off = motor_off or msg.thrust_n[3] < 0.1
-    assert acks and set(acks) == {0} and motor_off, "the failure was acknowledged but rotor 4 still has thrust"
+        if msg.get_type() == "ESC_TELEMETRY_1_TO_4" and acks:
+            motor_off = motor_off or msg.rpm[3] == 0
+    assert acks and set(acks) == {0} and motor_off, "the failure was acknowledged but rotor 4 still turns"

@@ -38,7 +38,7 @@ def _status(rows) -> FaultStatusLog:
             est[k, rotor - 1] = e
     return FaultStatusLog(time_s=np.array([r[0] for r in rows], float), rotor=np.array([r[1] for r in rows]),
                           state=np.array([r[2] for r in rows]), thrust_max_estimate_n=est,
-                          detected_s=np.array([r[0] for r in rows], float))
+                          detected_s=np.array([r[0] for r in rows], float), kind=np.zeros(len(rows), int))
 
 
 HOVER = Scenario(name="hover", duration_s=4.0, start=Start(ned_m=(0.0, 0.0, -2.0)),

@@ -13,6 +13,7 @@ from m4.airframe import load_airframe
 from m4.mavlink import mavutil
 from sitl.scenario import Fault, PlantOptions, Scenario
 from sitl.serve import ServeOptions, Server
+from sitl.truth import load_truth
 from sitl.standin import StandInCompanion, served
 
 KEY = bytes(range(1, 33))
@@ -51,11 +52,12 @@ def test_same_scenario_and_seed_give_identical_telemetry():
     assert first != other_seed
 
 
-def test_scenario_fault_caps_the_rotor_at_its_time():
+def test_scenario_fault_caps_the_rotor_at_its_time(tmp_path):
     af = load_airframe()
     scenario = Scenario(name="loe", duration_s=60.0, faults=(Fault(at_s=0.5, rotor=3, loss=0.33),))
-    companion, _ = _fly(0.7, scenario=scenario)
-    delivered = {m.time_boot_ms: m.thrust_n[2] for m in companion.of_type("M4_THRUSTER_STATUS")}
+    _fly(0.7, scenario=scenario, truth_log_path=tmp_path / "truth.npz")
+    truth = load_truth(tmp_path / "truth.npz")
+    delivered = dict(zip(np.round(truth.time_s * 1000).astype(int), truth.thrust_n[:, 2]))
     assert delivered[480] == pytest.approx(af.hover_thrust_per_rotor_n, abs=0.05)
     assert delivered[700] == pytest.approx(0.67 * af.hover_thrust_per_rotor_n, abs=0.05)   # after the motor lag
 
