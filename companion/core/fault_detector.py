@@ -214,6 +214,10 @@ class FaultDetector:
             if direct.rotor is not None and not confirmed or confirmed and self._kind is not FaultKind.DAMAGE:
                 evidence = direct              # the ESC measures its rotor; only a damaged propeller hides from it
         self._count_run(evidence, dt)
+        escs_speak = time_s - self._esc_time_s <= self._c.esc_max_age_s
+        if (reading is None and escs_speak and self._state is FaultState.CONFIRMED
+                and self._kind is not FaultKind.DAMAGE):
+            return self.status                 # the ESC measures this rotor: no new frame, no news of it
         self._decide(time_s, evidence, cmd, dt, reading)
         return self.status
 
