@@ -383,7 +383,8 @@ class FaultDetector:
         at_ceiling = asked >= self._estimate_n - c.saturation_margin_n
         if evidence.short[i] and at_ceiling:
             self._estimate_n = self._clip(self._estimate_n + c.estimate_gain * (delivered - self._estimate_n))
-        elif at_ceiling and evidence.significant[i] and min(delivered, asked) >= self._estimate_n + c.probe_n / 2:
+        elif (at_ceiling and self._kind is not FaultKind.PROPELLER and evidence.significant[i]
+              and min(delivered, asked) >= self._estimate_n + c.probe_n / 2):     # a lost propeller stays lost
             self._estimate_n = self._clip(self._estimate_n + c.rise_gain * (min(delivered, asked) - self._estimate_n))
         # Healthy again: back within probe_n of its limit, or near a hover share and delivering
         # all it is asked for recover_s (the NMPC need not ask it for more to show it).
