@@ -150,3 +150,32 @@ class Thrusters:
         pack voltage applied)."""
         _, w = self._settle(np.full(ROTOR_COUNT, self.speed_for_thrust(thrust_max_n)), self.voltage_v)
         return self.thrust_coefficient_n_s2 * w ** 2
+
+
+def figures(af: Airframe) -> list[str]:
+    """The rotor's figures on the nominal pack, settled: `python -m sitl.thruster`."""
+    v = af.battery_nominal_voltage_v
+    rows = [f"k_t {af.thrust_coefficient_n_s2:g} N/(rad/s)^2, k_q {af.drag_torque_coefficient_n_m_s2:.3g} N m/(rad/s)^2, "
+            f"KV {af.motor_kv_rpm_per_v:g}, R {af.motor_resistance_ohm * 1e3:.1f} mOhm, i0 {af.motor_no_load_current_a:g} A, "
+            f"tau {af.motor_time_constant_s * 1e3:g} ms, pack {v:g} V",
+            "| rotor 4 | command | speed (rpm) | thrust (N) | ESC current (A) |", "|---|---|---|---|---|"]
+    cases = [("healthy", None, 0.0, af.hover_thrust_per_rotor_n), ("healthy", None, 0.0, af.thrust_max_n)]
+    cases += [(k.label, k, loss, af.hover_thrust_per_rotor_n)
+              for k, loss in ((FailureKind.MOTOR, 1.0), (FailureKind.PROPELLER, 1.0), (FailureKind.DAMAGE, 0.5),
+                              (FailureKind.DEGRADED, 0.5))]
+    for label, kind, loss, thrust_n in cases:
+        rotors = Thrusters(af, af.hover_thrust_per_rotor_n, v)
+        if kind is not None:
+            rotors.set_fault(3, kind, loss)
+            label += f" {loss:g}" if kind in (FailureKind.DAMAGE, FailureKind.DEGRADED) else ""
+        rotors.command(np.full(ROTOR_COUNT, thrust_n))
+        rotors.update(v)
+        rotors.advance(100.0 * af.motor_time_constant_s)
+        rows.append(f"| {label} | {thrust_n:.2f} N | {rotors.speed_rad_s[3] * RAD_S_TO_RPM:,.0f} | "
+                    f"{rotors.thrust_n[3]:.2f} | {rotors.current_a[3]:.2f} |")
+    return rows
+
+
+if __name__ == "__main__":
+    from m4.airframe import load_airframe
+    print("\n".join(figures(load_airframe())))
