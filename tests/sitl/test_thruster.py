@@ -9,7 +9,7 @@ from m4.airframe import ROTOR_COUNT, load_airframe
 from m4.mavlink import mavlink
 from sitl.plant import Plant, PlantOptions
 from sitl.scenario import Fault, Scenario
-from sitl.thruster import HEALTHY, FailureKind, Thrusters
+from sitl.thruster import HEALTHY, FailureKind, Thrusters, figures
 from sitl.truth import TruthRecorder, load_truth
 from sitl.vehicle import Vehicle
 
@@ -151,3 +151,9 @@ def test_every_rotors_truth_goes_to_the_truth_log(tmp_path):
     assert truth.rotor_speed_rad_s[-1, 0] > truth.rotor_speed_rad_s[-1, 1]
     assert truth.esc_current_a[-1, 0] < truth.esc_current_a[-1, 1]
     assert truth.battery_voltage_v == pytest.approx(np.full(11, V_NOM))
+
+
+def test_the_readme_figures_command_prints_the_settled_rotor_of_every_kind():
+    rows = figures(AF)
+    assert rows[3].startswith("| healthy | 14.71 N | 5,522 | 14.71 |")
+    assert [r.split(" |")[0] for r in rows[5:]] == ["| motor", "| propeller", "| damage 0.5", "| degraded 0.5"]
