@@ -2,10 +2,12 @@
 
     m4-companion dashboard --connect tcp/ROBOT:7447 --port 8080      # live, from the robot's Zenoh
     m4-companion dashboard --replay runs/X/feed.jsonl --speed 2      # a flight m4-sitl fly recorded
+    m4-companion dashboard --replay FLIGHT.tlog                      # a flight's MAVLink log
 
 then open http://HOST:PORT/ in a browser. Live, the server subscribes to m4/<vehicle>/**
 as `m4-companion watch` does; replayed, every page that opens watches the flight from its
-start, paced by the flight's own clock.
+start, paced by the flight's own clock. A tlog replays the state, setpoints and faults its
+MAVLink messages carry (companion.dashboard.tlog); the NMPC and link plots stay empty.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from pathlib import Path
 from companion import watch
 from companion.dashboard.events import Hub, ReplayError, ReplaySource, airframe_view, read_recorded_feed
 from companion.dashboard.server import DashboardServer
+from companion.dashboard.tlog import tlog_samples
 from m4.airframe import load_airframe
 from m4.feed.payloads import KEY_PREFIX
 from m4.feed.transport import FeedError
@@ -37,8 +40,8 @@ def _speed(text: str) -> float:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     where = watch.add_connection_arguments(parser)
-    where.add_argument("--replay", type=Path, metavar="FEED_JSONL",
-                       help="replay a recorded feed (the feed.jsonl of m4-sitl fly) instead of the live one")
+    where.add_argument("--replay", type=Path, metavar="FILE",
+                       help="replay a recorded flight instead of the live feed: a feed.jsonl (m4-sitl fly) or a .tlog")
     parser.add_argument("--speed", type=_speed, default=1.0, metavar="X",
                         help="with --replay: X times real time (default 1)")
     parser.add_argument("--host", default="127.0.0.1",
@@ -52,7 +55,9 @@ def run(args: argparse.Namespace) -> int:
     session = None
     try:
         if args.replay is not None:
-            source = ReplaySource(read_recorded_feed(args.replay), af, args.speed)
+            samples = (tlog_samples(args.replay, args.vehicle) if args.replay.suffix == ".tlog"
+                       else read_recorded_feed(args.replay))
+            source = ReplaySource(samples, af, args.speed)
             config |= {"mode": "replay", "source": f"{args.replay} at {args.speed:g}x"}
         else:
             vehicle, session = watch.connect(args)

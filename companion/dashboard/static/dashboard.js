@@ -215,6 +215,12 @@ class Plot {
     const c = this.canvas, ctx = c.getContext("2d");
     const w = (c.width = c.clientWidth), h = (c.height = c.clientHeight);
     const left = 44, right = 8, top = 20, bottom = 18;
+    if (!this.series.some((s) => s.data.length)) {
+      ctx.font = "12px sans-serif";
+      ctx.fillStyle = "#6b7680";
+      ctx.fillText(`${this.title}: nothing received`, left, h / 2);
+      return;
+    }
     const first = Math.min(...this.series.map((s) => (s.data.length ? s.data[0][0] : Infinity)));
     const t0 = Math.max(Number.isFinite(first) ? first : tNow, tNow - WINDOW_S), t1 = Math.max(tNow, t0 + 2);
     let lo = this.range.min, hi = this.range.max;
