@@ -1,7 +1,8 @@
 """The feed a flight's tlog implies, for the dashboard to replay a flight that recorded only MAVLink.
 
-From the flight controller (component 1): ATTITUDE, LOCAL_POSITION_NED, M4_JOINT_STATE and
-M4_THRUSTER_STATUS make a state payload at each ATTITUDE (once the others have come). From
+From the flight controller (component 1): ATTITUDE, LOCAL_POSITION_NED and M4_JOINT_STATE
+make a state payload at each ATTITUDE (once the others have come); its delivered thrust is
+null (no flight controller measures it; the companion estimates it from ESC telemetry). From
 the companion (component 191): M4_SETPOINT a setpoint, M4_FAULT_STATUS a fault, carrying the
 text of the companion's last STATUSTEXT once a fault is confirmed. The NMPC and link topics have
 no MAVLink message: the dashboard leaves their plots empty. Payloads are built by
@@ -20,7 +21,7 @@ from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, mavlink, mavutil
 
 _NAN4 = [math.nan] * 4
 CONFIRMED = FAULT_STATES.index("confirmed")
-_STATE_PARTS = ("LOCAL_POSITION_NED", "M4_JOINT_STATE", "M4_THRUSTER_STATUS")
+_STATE_PARTS = ("LOCAL_POSITION_NED", "M4_JOINT_STATE")
 
 
 class TlogError(ValueError):
@@ -41,7 +42,7 @@ def tlog_samples(path: str | Path, vehicle: str = "m4") -> list[tuple[str, dict[
             kind, source, wall_s = msg.get_type(), msg.get_srcComponent(), msg._timestamp
             if source == FC_COMPONENT_ID and kind in _STATE_PARTS:
                 latest[kind] = msg
-            elif source == FC_COMPONENT_ID and kind == "ATTITUDE" and all(k in latest for k in _STATE_PARTS[:2]):
+            elif source == FC_COMPONENT_ID and kind == "ATTITUDE" and all(k in latest for k in _STATE_PARTS):
                 samples.append((key_for(vehicle, "state"), _state(msg, latest, wall_s)))
             elif source == COMPANION_COMPONENT_ID and kind == "STATUSTEXT":
                 statustext = msg.text
@@ -64,10 +65,9 @@ def tlog_samples(path: str | Path, vehicle: str = "m4") -> list[tuple[str, dict[
 
 def _state(attitude, latest: dict[str, Any], wall_s: float) -> dict[str, Any]:
     position, joints = latest["LOCAL_POSITION_NED"], latest["M4_JOINT_STATE"]
-    thrusters = latest.get("M4_THRUSTER_STATUS")
     return state_payload(
         attitude.time_boot_ms / 1000.0, wall_s,
         pos_ned_m=[position.x, position.y, position.z], vel_ned_m_s=[position.vx, position.vy, position.vz],
         euler_rad=[attitude.roll, attitude.pitch, attitude.yaw],
         rates_frd_rad_s=[attitude.rollspeed, attitude.pitchspeed, attitude.yawspeed],
-        hip_rad=joints.hip_angle_rad, thrust_n=thrusters.thrust_n if thrusters else _NAN4)
+        hip_rad=joints.hip_angle_rad, thrust_n=_NAN4)

@@ -28,7 +28,7 @@ def _flight(ms: int, fault_state: int, cut: bool = False) -> list:
     return [
         (fc, t_s, "local_position_ned", (ms, 1.0, 2.0, -3.0, 0.1, 0.2, -0.3)),
         (fc, t_s, "m4_joint_state", (ms, hips, [0.0] * 4)),
-        (fc, t_s, "m4_thruster_status", (ms, [20.0, 21.0, 15.0, 0.0], [19.5, 20.5, 15.0, 0.0], [30.0] * 4)),
+        (fc, t_s, "m4_thruster_status", (ms, [20.0, 21.0, 15.0, 0.0], [30.0] * 4)),
         (fc, t_s, "attitude", (ms, 0.1, -0.2, 3.0, 0.0, 0.0, 8.5)),
         (comp, t_s, "m4_setpoint", (FC_SYSTEM_ID, FC_COMPONENT_ID, ms, 20, [20.0, 21.0, 15.0, 0.0], hips, [0.0] * 4,
                                     mavlink.M4_SETPOINT_FLAG_THRUST_CUT if cut else 0)),
@@ -47,7 +47,7 @@ def test_a_tlog_gives_state_setpoint_and_fault_payloads_with_the_companions_word
     assert state["t_s"] == 1.0 and state["wall_time_unix_s"] == pytest.approx(T0_US / 1e6 + 1.0, abs=1e-5)
     assert state["pos_ned_m"] == [1.0, 2.0, -3.0] and state["hip_deg"] == pytest.approx([90.0, 0.0, 60.0, 20.0])
     assert state["euler_deg"][2] == pytest.approx(math.degrees(3.0), rel=1e-6) and state["rates_frd_rad_s"][2] == 8.5
-    assert state["thrust_n"] == [19.5, 20.5, 15.0, 0.0]                    # delivered, not commanded
+    assert state["thrust_n"] == [None] * 4          # delivered thrust: no flight controller measures it
     suspect, confirmed = samples[5][1], samples[8][1]
     assert suspect["state"] == "suspect" and suspect["message"] == "" and suspect["detected_at_s"] is None
     assert confirmed == {**confirmed, "state": "confirmed", "rotor": 4, "message": "thrust loss rotor 4",
@@ -55,7 +55,7 @@ def test_a_tlog_gives_state_setpoint_and_fault_payloads_with_the_companions_word
     assert samples[7][1]["thrust_cut"] is True and samples[1][1]["thrust_cut"] is False
 
 
-def test_no_state_before_position_and_hips_and_no_thrust_without_thruster_status(tmp_path):
+def test_no_state_before_position_and_hips(tmp_path):
     path = tmp_path / "flight.tlog"
     fc = FC_COMPONENT_ID
     _write(path, [(fc, 0.0, "attitude", (0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)),
