@@ -31,6 +31,7 @@ from companion.core import rom
 from companion.core.esc_evidence import PropellerModel
 from companion.fc_link import FcLink, LinkEvent
 from companion.feed_publisher import Feed, open_feed
+from companion.loop_timing import LoopTiming
 from companion.telemetry import THRUSTER_STATUS, TelemetryAssembler, VehicleSnapshot, rom_state
 from m4.airframe import ROTOR_COUNT
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
@@ -69,6 +70,8 @@ class CompanionApp:
         self._received = 0                       # messages from the FC, for the link's rate
         self._rate_mark: tuple[float, int] | None = None
         self._msgs_per_s = 0.0
+        self._delay_warned = False
+        self.timing = LoopTiming(config.control_period_s)
 
     # -- the loop ----------------------------------------------------------------------------------
     def stop(self) -> None:
@@ -92,7 +95,7 @@ class CompanionApp:
             if self.telemetry.add(msg, now) and msg.get_msgId() == THRUSTER_STATUS:
                 newest = msg.time_boot_ms
         if newest is not None and self._due(newest):
-            self._answer(newest)
+            self._answer(newest, now)
         self.fc.tick(now)
 
     def _on_event(self, event: LinkEvent, now: float) -> None:
@@ -116,7 +119,8 @@ class CompanionApp:
         last = self._last_answered_ms
         return last is None or t_ms - last >= self.period_ms
 
-    def _answer(self, t_ms: int) -> None:
+    def _answer(self, t_ms: int, read_s: float) -> None:
+        """Answer the frame at FC instant t_ms, read at read_s (our clock)."""
         snap = self.telemetry.snapshot()
         if snap is None:
             self.counters.skipped_incomplete += 1
@@ -125,21 +129,27 @@ class CompanionApp:
         try:
             if not self.controller.started and self.controller.start(t_s, x):
                 log.info("t=%.3f s: mission anchored at the centre of mass (%.2f, %.2f, %.2f) m NED", t_s, *x[rom.P])
-            step = self.controller.step(t_s, x, snap.esc, snap.thrust_limit_n)
+            step = self.controller.step(t_s, x, snap.esc, snap.thrust_limit_n,
+                                        lead_s=self.fc.delay.lead_s or 0.0)
         except Exception:           # a defect, not bad input: say it, send nothing, let the FC's failsafe fly
             self.counters.control_errors += 1
             log.exception("control step at t=%.3f s failed; no setpoint for this instant", t_ms / 1000.0)
             self.controller.resume()
             return
-        self.fc.send_setpoint(t_ms, self.period_ms, step.setpoint)
+        sent_s = self.clock()
+        self.fc.send_setpoint(t_ms, self.period_ms, step.setpoint, sent_s)
         self.fc.send_fault_status(t_ms, step.fault)
+        self.timing.answered(read_s, sent_s)
+        if (report := self.timing.report(sent_s)) is not None:
+            log.warning("t=%.3f s: %s", t_s, report)
         self._last_answered_ms = t_ms
         self.counters.answered += 1
         if step.nmpc is not None:
             self.counters.solve_ms_max = max(self.counters.solve_ms_max, step.nmpc.solve_ms)
         if step.fault_confirmed_now:
             self._announce_fault(step)
-        self._publish(step, snap)
+        self._watch_delay(t_s)
+        self._publish(step, snap, x)
 
     def _esc_thrust_n(self, snap: VehicleSnapshot) -> np.ndarray:
         """The thrust each ESC's reported speed implies (NaN without ESC telemetry): for the feed."""
@@ -153,8 +163,25 @@ class CompanionApp:
         bounds = ", ".join(f"{b:.1f}" for b in step.fault.thrust_max_estimate_n)
         log.error("t=%.3f s: %s (thrust bounds now %s N)", step.time_s, text, bounds)
 
-    def _publish(self, step: ControlStep, snap: VehicleSnapshot) -> None:
-        x, t, f, sp = step.state, step.time_s, step.fault, step.setpoint
+    def _watch_delay(self, t_s: float) -> None:
+        """Say (log, STATUSTEXT warning) when the setpoints' lead passes the threshold, and when
+        it is back below 80 % of it."""
+        lead, threshold = self.fc.delay.lead_s, self.config.link.delay_warning_s
+        if lead is None or self._delay_warned == (lead > (0.8 if self._delay_warned else 1.0) * threshold):
+            return
+        self._delay_warned = not self._delay_warned
+        rtt = self.fc.delay.round_trip_s
+        if self._delay_warned:
+            log.warning("t=%.3f s: setpoints reach the FC %.0f ms after the instant they answer (round trip %.0f "
+                        "ms), above %.0f ms; the controller predicts through it", t_s, 1e3 * lead, 1e3 * rtt,
+                        1e3 * threshold)
+            self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, f"companion: link delay {1e3 * lead:.0f} ms")
+        else:
+            log.info("t=%.3f s: setpoint lead back to %.0f ms (round trip %.0f ms)", t_s, 1e3 * lead, 1e3 * rtt)
+            self.fc.statustext(mavlink.MAV_SEVERITY_NOTICE, f"companion: link delay back to {1e3 * lead:.0f} ms")
+
+    def _publish(self, step: ControlStep, snap: VehicleSnapshot, x) -> None:
+        t, f, sp = step.time_s, step.fault, step.setpoint
         self.feed.state(t, pos_ned_m=x[rom.P], vel_ned_m_s=x[rom.V], euler_rad=x[rom.EULER],
                         rates_frd_rad_s=x[rom.RATES], hip_rad=snap.hip_rad, thrust_n=self._esc_thrust_n(snap))
         self.feed.setpoint(t, thrust_n=sp.thrust_n, hip_rad=sp.hip_rad, hip_rate_rad_s=sp.hip_rate_rad_s,
@@ -165,7 +192,8 @@ class CompanionApp:
             r = step.nmpc
             self.feed.nmpc(t, solve_ms=r.solve_ms, iterations=r.iterations, status=r.status, cost=r.cost, ok=r.ok,
                            fallback=r.fallback, dt_s=self.config.nmpc.dt_s,
-                           predicted_p_ned_m=r.x_pred[:, rom.P])
+                           predicted_p_ned_m=r.x_pred[:, rom.P], lead_s=step.lead_s,
+                           overruns=self.timing.overruns, rate_hz=self.timing.rate_hz(self.clock()))
         self._publish_link(t)
 
     def _publish_link(self, t_s: float | None) -> None:
@@ -177,7 +205,9 @@ class CompanionApp:
             self._rate_mark = (now, self._received)
         self.feed.link(t_s, connected=self.fc.connected, last_msg_age_s=None if last is None else now - last,
                        msgs_per_s=self._msgs_per_s, bad_crc=h.bad_crc, bad_signature=h.bad_signature,
-                       dropped_foreign=h.foreign)
+                       dropped_foreign=h.foreign, setpoint_lead_s=self.fc.delay.lead_s,
+                       round_trip_s=self.fc.delay.round_trip_s, control_rate_hz=self.timing.rate_hz(now),
+                       overruns=self.timing.overruns)
 
     # -- link loss ---------------------------------------------------------------------------------
     def _on_telemetry_back(self) -> None:

@@ -47,6 +47,7 @@ class LinkConfig:
     fc_url: str = "udpin:127.0.0.1:14550"   # pymavlink form; serial: "/dev/ttyTHS1,921600"
     signing_key_path: Path | None = None    # 32-byte key (hex or raw); None: unsigned
     telemetry_timeout_s: float = 0.3        # no telemetry for this long: the link is lost
+    delay_warning_s: float = 0.1            # setpoints acting this long after their instant: warn
     fc_system_id: int = 1                   # only this flight controller is listened to
     fc_component_id: int = 1
 
@@ -160,6 +161,7 @@ def _link(t: Table, base_dir: Path | None) -> LinkConfig:
         fc_url=t.string("fc_url", d.fc_url),
         signing_key_path=t.path("signing_key_file", base_dir),
         telemetry_timeout_s=t.number("telemetry_timeout_s", d.telemetry_timeout_s, lo=0.0, lo_open=True, hi=10.0),
+        delay_warning_s=t.number("delay_warning_s", d.delay_warning_s, lo=0.0, lo_open=True, hi=10.0),
         fc_system_id=t.integer("fc_system_id", d.fc_system_id, lo=1, hi=255),
         fc_component_id=t.integer("fc_component_id", d.fc_component_id, lo=1, hi=255),
     )

@@ -17,6 +17,12 @@ apart by more than HIP_RESYNC_RAD (a blocked leg) or after a gap, the goal resta
 the measured joints. Every setpoint passes `safe_setpoint` (companion.core.control_types)
 before it leaves.
 
+Delay: the setpoint reaches the FC lead_s after the instant it answers (measured by the link;
+0 in lockstep). The NMPC plans from the state predicted to that moment through the commands
+already in flight, along the reference from that moment (companion.core.prediction), and the
+detector and the disturbance estimate compare each period with the command that was in force
+at the FC during it, not the one we sent last.
+
 Fault detection input: the measured state, the command in force over the last period (ours)
 and the FC's ESC telemetry when it has any (None: saturation and the model residual alone).
 The FC's per-rotor limits count only as a common cap (the largest of them): a limit that drops
@@ -40,6 +46,7 @@ from companion.core.esc_evidence import EscSample, PropellerModel
 from companion.core.fault_detector import FaultDetector, FaultDetectorConfig
 from companion.core.nmpc import Nmpc, NmpcResult
 from companion.core.nmpc_config import NmpcConfig
+from companion.core.prediction import CommandHistory, Predictor, SentCommand
 from companion.core.reference import MissionReference, ReferenceConfig
 from companion.core.touchdown import TouchdownConfig, TouchdownDetector
 from m4.airframe import ROTOR_COUNT, Airframe
@@ -80,25 +87,13 @@ class ControllerSettings:
 class ControlStep:
     time_s: float
     setpoint: Setpoint
-    state: np.ndarray             # (20,) the ROM state planned from: measured, the hips their goal
+    state: np.ndarray             # (20,) the ROM state planned from: measured (predicted lead_s on), the hips their goal
+    lead_s: float                 # how far ahead of time_s the setpoint acts (the state is predicted there)
     reference: np.ndarray | None  # (N+1, 20); None before the flight started
     nmpc: NmpcResult | None       # None when no solve ran (thrust cut, not started, implausible state)
     fault: FaultStatus
     fault_confirmed_now: bool     # the step at which the fault was confirmed (announce it)
     disturbance: np.ndarray       # (6,) estimate handed to the NMPC
-
-
-@dataclass(frozen=True)
-class LastCommand:
-    """The command in force since the last step, and the state it answered."""
-
-    time_s: float
-    state: np.ndarray             # (20,)
-    input: np.ndarray             # (8,) thrust_n (as sent) and the NMPC's hip_accel_rad_s2
-
-    @property
-    def thrust_n(self) -> np.ndarray:
-        return self.input[rom.THRUST]
 
 
 @dataclass(frozen=True)
@@ -137,9 +132,10 @@ class Controller:
         self._new_reference = new_reference or (
             lambda t0_s, start_ned_m: MissionReference(s.mission, start_ned_m, af, s.reference, t0_s=t0_s))
         self.disturbance = DisturbanceEstimator(af, self.period_s, s.disturbance_gain)
+        self.predictor = Predictor(af, self.nmpc.rom.f)
         self.detector = self._new_detector()
         self.flight: Flight | None = None
-        self._last: LastCommand | None = None
+        self.sent = CommandHistory()
         self._hip_goal: HipGoal | None = None
 
     @property
@@ -160,7 +156,7 @@ class Controller:
         """After a gap in the telemetry (link loss): the previous plan, state and hip goal are
         stale. The disturbance estimate is kept (it describes the robot, not the moment)."""
         self.nmpc.reset()
-        self._last = None
+        self.sent.clear()
         self._hip_goal = None
 
     def restart(self) -> None:
@@ -171,32 +167,38 @@ class Controller:
         self.detector = self._new_detector()
         self.flight = None
 
-    def step(self, time_s: float, x_measured, esc: EscSample | None = None, thrust_limit_n=None) -> ControlStep:
-        """The setpoint answering the telemetry instant time_s for the measured ROM state."""
+    def step(self, time_s: float, x_measured, esc: EscSample | None = None, thrust_limit_n=None,
+             lead_s: float = 0.0) -> ControlStep:
+        """The setpoint answering the telemetry instant time_s for the measured ROM state, to act
+        lead_s later."""
         af = self.af
+        lead_s = max(float(lead_s), 0.0) if np.isfinite(lead_s) else 0.0
         x = np.asarray(x_measured, dtype=float).reshape(rom.NX)
         thrust_limit_n = self._thrust_telemetry(thrust_limit_n)
         usable = plausible_state(af, x)
         if usable:
             x = self._with_hip_goal(x)
-        fault, confirmed_now = self._detect(time_s, x, usable, esc, thrust_limit_n)
+        in_force = self._in_force_last_period(time_s, lead_s)
+        fault, confirmed_now = self._detect(time_s, x, usable, in_force, esc, thrust_limit_n)
         if confirmed_now:
             self.disturbance.reset()      # it held the lost rotor's effect, which the bound now models
             self.flight.reference.fault_detected(time_s, x[rom.P])
-        d = self._estimate_disturbance(time_s, x, usable, fault.thrust_bound_n)
+        d = self._estimate_disturbance(time_s, x, usable, in_force, fault.thrust_bound_n)
         if self.flight is None or not usable:
             return self._fallback(time_s, x, fault, confirmed_now, d)
         if self._touched_down(time_s, x):
             sp = safe_setpoint(af, np.zeros(ROTOR_COUNT), x[rom.HIP], np.zeros(ROTOR_COUNT),
                                fault.thrust_bound_n, x[rom.HIP], thrust_cut=True)
-            self._last = self._hip_goal = None
-            return ControlStep(time_s, sp, x, None, None, fault, confirmed_now, d)
+            self.sent.clear()
+            self._hip_goal = None
+            return ControlStep(time_s, sp, x, 0.0, None, None, fault, confirmed_now, d)
         c = self.nmpc.config
-        x_ref = self.flight.reference.reference(time_s, c.horizon, c.dt_s)
-        res = self.nmpc.solve(x, x_ref, fault.thrust_bound_n, d)
-        sp = self._setpoint(x, res, fault.thrust_bound_n)
-        self._last = LastCommand(time_s, x, np.r_[sp.thrust_n, res.u[rom.HIP_ACCEL]])
-        return ControlStep(time_s, sp, x, x_ref, res, fault, confirmed_now, d)
+        x_plan = self.predictor.predict(x, time_s, lead_s, self.sent, d, fault.thrust_bound_n)
+        x_ref = self.flight.reference.reference(time_s + lead_s, c.horizon, c.dt_s)
+        res = self.nmpc.solve(x_plan, x_ref, fault.thrust_bound_n, d)
+        sp = self._setpoint(x_plan, res, fault.thrust_bound_n)
+        self.sent.add(SentCommand(time_s, x, np.r_[sp.thrust_n, res.u[rom.HIP_ACCEL]]))
+        return ControlStep(time_s, sp, x_plan, lead_s, x_ref, res, fault, confirmed_now, d)
 
     # ------------------------------------------------------------------------------------------
     def _thrust_telemetry(self, thrust_n) -> np.ndarray | None:
@@ -208,19 +210,23 @@ class Controller:
         return np.where(np.isfinite(t) & (t >= 0.0) & (t <= 2.0 * self.af.thrust_max_n), t, np.nan)
 
     def _consecutive(self, time_s: float) -> bool:
-        if self._last is None:
+        newest = self.sent.newest
+        if newest is None:
             return False
-        dt = time_s - self._last.time_s
-        return abs(dt - self.period_s) <= _CONSECUTIVE_TOLERANCE * self.period_s
+        return abs(time_s - newest.time_s - self.period_s) <= _CONSECUTIVE_TOLERANCE * self.period_s
 
-    def _detect(self, time_s, x, usable, esc, limit_n) -> tuple[FaultStatus, bool]:
+    def _in_force_last_period(self, time_s: float, lead_s: float) -> SentCommand | None:
+        """The command the FC flew over the period that ends at time_s (None: none of ours)."""
+        return self.sent.in_force(time_s - 0.5 * self.period_s, lead_s)
+
+    def _detect(self, time_s, x, usable, in_force, esc, limit_n) -> tuple[FaultStatus, bool]:
         """The detector's status after this frame; True at each new confirmation in a flight."""
-        if not usable or self._last is None:
+        if not usable or in_force is None:
             return self.detector.status, False
         cap = self.af.thrust_max_n
         if limit_n is not None and np.any(np.isfinite(limit_n)):          # already a (4,) array (_thrust_telemetry)
             cap = float(np.clip(np.nanmax(limit_n), self.af.thrust_min_n, self.af.thrust_max_n))
-        status = self.detector.update(time_s, x, self._last.thrust_n, np.full(ROTOR_COUNT, cap), esc)
+        status = self.detector.update(time_s, x, in_force.thrust_n, np.full(ROTOR_COUNT, cap), esc)
         flight = self.flight
         if flight is not None and status.state is FaultState.HEALTHY:
             flight.fault_announced = False    # recovered: the next confirmation is a new fault
@@ -229,17 +235,17 @@ class Controller:
             flight.fault_announced = True
         return status, confirmed_now
 
-    def _estimate_disturbance(self, time_s, x, usable, thrust_max_n) -> np.ndarray:
+    def _estimate_disturbance(self, time_s, x, usable, in_force, thrust_max_n) -> np.ndarray:
         """Updated over the last period with our command within the current bounds. A rotor lost
         but not yet confirmed shows up here as a disturbance within a few periods, so the NMPC
         compensates it before the detector confirms it (measured on the SITL at 50 Hz: altitude
         loss 0.14 m against 0.43 m when the update used the FC's delivered thrust, which hides
         the loss); at confirmation the estimate restarts, the bound taking over."""
-        if not (usable and self._consecutive(time_s)):
+        if not (usable and in_force is not None and self._consecutive(time_s)):
             return self.disturbance.estimate.copy()
-        u = self._last.input.copy()
+        u = in_force.input.copy()
         u[rom.THRUST] = np.minimum(u[rom.THRUST], thrust_bounds(self.af, thrust_max_n))
-        return self.disturbance.update(self._last.state, u, x)
+        return self.disturbance.update(self.sent.newest.state, u, x)
 
     def _touched_down(self, time_s: float, x: np.ndarray) -> bool:
         if not self.flight.reference.landing_started(time_s):
@@ -275,5 +281,6 @@ class Controller:
         are, legs stopped."""
         sp = safe_setpoint(self.af, np.full(ROTOR_COUNT, np.nan), x[rom.HIP], np.zeros(ROTOR_COUNT),
                            fault.thrust_bound_n, x[rom.HIP])
-        self._last = self._hip_goal = None
-        return ControlStep(time_s, sp, x, None, None, fault, confirmed_now, d)
+        self.sent.clear()
+        self._hip_goal = None
+        return ControlStep(time_s, sp, x, 0.0, None, None, fault, confirmed_now, d)

@@ -11,6 +11,8 @@
   goes back after such a silence, the FC REBOOTED: its clock, and the mission's, start over.
   `receive(now_s)` returns these events with the messages; nobody compares state before and
   after a call.
+- Delay: a TIMESYNC request goes with a setpoint in the same datagram (companion.link_delay:
+  how late our setpoints act at the FC); the FC's TIMESYNC requests are answered with our clock.
 - Heartbeat at 1 Hz as MAV_TYPE_ONBOARD_CONTROLLER.
 - Message intervals: the telemetry frame's streams are asked for at the control period with
   MAV_CMD_SET_MESSAGE_INTERVAL, one command at a time, each resent until acknowledged.
@@ -28,6 +30,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from companion.core.control_types import FaultStatus
+from companion.link_delay import LinkDelay
 from companion.telemetry import REQUESTED, STREAMS
 from m4.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from m4.mavlink.signing import SigningCounters
@@ -56,6 +59,8 @@ class FcTransport(Protocol):
     def receive_from(self) -> list[tuple[Any, list[mavlink.MAVLink_message]]]: ...   # [(sender, msgs)]
 
     def send(self, msg: mavlink.MAVLink_message) -> None: ...
+
+    def send_all(self, msgs: list[mavlink.MAVLink_message]) -> None: ...   # back to back (one datagram if they fit)
 
     def lock_peer(self, address: Any) -> None: ...      # hear and answer only `address` from now on
 
@@ -112,6 +117,7 @@ class FcLink:
         self._sent_at_s: float | None = None
         self._attempts = 0
         self.intervals_acked = 0
+        self.delay = LinkDelay()
         self._signing = link.signing_key is not None
 
     @property
@@ -138,6 +144,8 @@ class FcLink:
                     events.add(LinkEvent.LOCKED)
                 if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_COMMAND_ACK:
                     self._on_ack(msg)
+                elif msg.get_msgId() == mavlink.MAVLINK_MSG_ID_TIMESYNC:
+                    self._on_timesync(msg, now_s)
                 elif msg.get_msgId() in STREAMS:
                     events |= self._on_telemetry(int(msg.time_boot_ms), now_s)
                 out.append(msg)
@@ -154,6 +162,7 @@ class FcLink:
         silent_s = None if self.last_telemetry_s is None else now_s - self.last_telemetry_s
         if self.fc_time_ms is not None and time_ms < self.fc_time_ms and silent_s >= self.telemetry_timeout_s:
             events.add(LinkEvent.REBOOTED)
+            self.delay.reset()
             self.fc_time_ms = time_ms
         elif self.fc_time_ms is None or time_ms > self.fc_time_ms:
             self.fc_time_ms = time_ms
@@ -165,6 +174,12 @@ class FcLink:
         if not self.connected or self.last_telemetry_s is None:
             return float("inf")
         return self.last_telemetry_s + self.telemetry_timeout_s
+
+    def _on_timesync(self, msg, now_s: float) -> None:
+        if msg.tc1 == 0:                     # the FC asks: our clock, its ts1 back
+            self.link.send(mavlink.MAVLink_timesync_message(round(now_s * 1e9), msg.ts1))
+        else:
+            self.delay.answered(msg.tc1, msg.ts1, now_s)
 
     def _on_ack(self, msg) -> None:
         if msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL and self._intervals and self._sent_at_s is not None:
@@ -212,11 +227,15 @@ class FcLink:
         return due
 
     # -- out ---------------------------------------------------------------------------------------
-    def send_setpoint(self, time_ms: int, period_ms: int, sp: Setpoint) -> None:
+    def send_setpoint(self, time_ms: int, period_ms: int, sp: Setpoint, now_s: float) -> None:
+        """The setpoint answering FC instant time_ms, with a TIMESYNC request when one is due."""
         flags = mavlink.M4_SETPOINT_FLAG_THRUST_CUT if sp.thrust_cut else 0
-        self.link.send(mavlink.MAVLink_m4_setpoint_message(
+        msgs = [mavlink.MAVLink_m4_setpoint_message(
             *self.fc_ids, int(time_ms), int(period_ms), _floats(sp.thrust_n), _floats(sp.hip_rad),
-            _floats(sp.hip_rate_rad_s), flags))
+            _floats(sp.hip_rate_rad_s), flags)]
+        if self.delay.request_due(now_s):
+            msgs.append(mavlink.MAVLink_timesync_message(0, self.delay.requested(time_ms, now_s)))
+        self.link.send_all(msgs)
 
     def send_fault_status(self, time_ms: int, status: FaultStatus) -> None:
         detected_ms = 0 if status.detected_at_s is None else round(status.detected_at_s * 1000)

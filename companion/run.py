@@ -90,6 +90,9 @@ def run(args: argparse.Namespace) -> int:
     finally:
         close_app(app)
         c = app.counters
-        logging.getLogger("m4-companion").info("stopped after %d setpoints; %d link losses; slowest solve %.1f ms",
-                                               c.answered, c.link_losses, c.solve_ms_max)
+        lead = app.fc.delay.lead_s
+        logging.getLogger("m4-companion").info(
+            "stopped after %d setpoints; %d link losses; slowest solve %.1f ms; %d steps over the period; "
+            "setpoint lead %s", c.answered, c.link_losses, c.solve_ms_max, app.timing.overruns,
+            "not measured" if lead is None else f"{1e3 * lead:.0f} ms")
     return 0

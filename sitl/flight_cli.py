@@ -12,13 +12,18 @@ from pathlib import Path
 from sitl import scenarios
 from sitl.cli_args import BadInput, positive_number, seed_number
 from sitl.flight_run import CONTROLLERS, FlightError, FlightOptions, make_output_dir
+from sitl.netem import Impairment
+
+
+def _number(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
 
 
 def _loss(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    value = _number(text)
     if not 0.0 < value <= 1.0:
         raise argparse.ArgumentTypeError(f"must be in (0, 1], got {text}")
     return value
@@ -43,6 +48,10 @@ def add_fly(sub) -> None:
                    help="then render the flight offscreen: flight.mp4 (chase camera, real time) and snapshots_render.png")
     p.add_argument("--video-size", type=_video_size, default=(640, 360), metavar="WxH",
                    help="with --video: frame size in pixels (default 640x360)")
+    p.add_argument("--link-delay-ms", type=_delay_ms, default=0.0, metavar="MS",
+                   help="delay added to the MAVLink link each way (a loopback proxy; implies --realtime)")
+    p.add_argument("--link-loss", type=_fraction, default=0.0, metavar="P",
+                   help="share of datagrams lost each way, 0..1 (a loopback proxy; implies --realtime)")
     p.set_defaults(func=_fly)
 
 
@@ -56,11 +65,26 @@ def _video_size(text: str) -> tuple[int, int]:
     return width, height
 
 
+def _delay_ms(text: str) -> float:
+    value = _number(text)
+    if not 0.0 <= value <= 1000.0:
+        raise argparse.ArgumentTypeError(f"must be within 0..1000 ms, got {text}")
+    return value
+
+
+def _fraction(text: str) -> float:
+    value = _number(text)
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be within 0..1, got {text}")
+    return value
+
+
 def _fly(args) -> int:
     from sitl.fly import default_out_dir, fly, summary_line
 
+    link = Impairment(delay_ms=args.link_delay_ms, loss=args.link_loss) if args.link_delay_ms or args.link_loss else None
     options = FlightOptions(controller=args.controller, seed=args.seed, realtime=args.realtime, viewer=args.viewer,
-                            port=args.port, rate_hz=args.rate_hz)
+                            port=args.port, rate_hz=args.rate_hz, link=link)
     out = args.out or default_out_dir(scenarios.resolve(args.scenario).name)
     try:
         metrics = fly(args.scenario, out, options)

@@ -7,6 +7,10 @@
 - flight.tlog (every packet both ways), truth.npz (the plant's true state, sitl.truth),
   feed.jsonl (the companion's Zenoh feed), sitl.log and companion.log (their stderr).
 
+With `link` (delay, loss: sitl.netem) the SITL's MAVLink goes through a loopback proxy that
+impairs it both ways, and the flight is paced by the wall clock (a delay means nothing in
+lockstep, where each side waits for the other).
+
 Order: the feed recorder listens, the companion starts, builds its NMPC, opens its link and
 says so on a pipe (`m4-companion run --ready-fd`), then the SITL starts, flies the scenario's duration and exits; the companion is then
 stopped with SIGTERM. Each flight takes its own free loopback ports, so flights can run side
@@ -31,8 +35,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from m4.airframe import load_airframe
-from sitl.scenario import Scenario
 from sitl.feed_recorder import FeedRecorder
+from sitl.netem import Impairment, Netem
+from sitl.scenario import Scenario
 
 CONTROLLERS = ("nmpc", "fixed-posture")
 VEHICLE = "m4"
@@ -55,6 +60,7 @@ class FlightOptions:
     port: int | None = None               # loopback UDP port of the companion's MAVLink link; None: a free one
     record_feed: bool = True
     rate_hz: float | None = None          # the companion's control rate; None: the companion's default
+    link: Impairment | None = None        # delay and loss between the SITL and the companion (real time)
 
 
 class FlightFiles:
@@ -159,10 +165,17 @@ def run_flight(scenario: Scenario, scenario_text: str, out_dir: Path, options: F
         finally:
             os.close(ready_w)                    # the companion holds the only writing end now
         _await_ready(companion, ready_r, files.companion_log)
+        sitl_port = port
+        if options.link is not None:
+            proxy = Netem(("127.0.0.1", 0), ("127.0.0.1", port), options.link, seed=options.seed,
+                          duration_s=2 * scenario.duration_s + 60.0).start()
+            stack.callback(proxy.close)
+            sitl_port = proxy.listen_port
         cmd = [sys.executable, "-m", "sitl.cli", "serve", "--scenario", str(files.scenario),
-               "--mavlink", f"udpout:127.0.0.1:{port}", "--duration", f"{scenario.duration_s:g}",
+               "--mavlink", f"udpout:127.0.0.1:{sitl_port}", "--duration", f"{scenario.duration_s:g}",
                "--tlog", str(files.tlog), "--truth-log", str(files.truth), "--seed", str(options.seed)]
-        cmd += ["--realtime"] * options.realtime + ["--viewer"] * options.viewer
+        realtime = options.realtime or options.link is not None
+        cmd += ["--realtime"] * realtime + ["--viewer"] * options.viewer
         sitl = _start(stack, cmd, files.sitl_log)
         while sitl.poll() is None:
             time.sleep(POLL_S)

@@ -53,7 +53,7 @@ class NmpcResult:
     u_pred: np.ndarray       # (N, 8)
     solve_ms: float
     iterations: int
-    status: str              # converged | max_iterations | no_progress | qp_failed | invalid_input
+    status: str              # converged | max_iterations | time_budget | no_progress | qp_failed | invalid_input
     ok: bool
     cost: float
     fallback: bool
@@ -171,6 +171,7 @@ class Nmpc:
         xs, a, b = self._rollout(x0, us, d)
         merit = self._merit(x0, xs, us, ref, u_ref)
         status, it = "max_iterations", 0
+        budget_s = self.config.time_budget_s
         lo_all, hi_all = np.tile(lo, n), np.tile(hi, n)
         for it in range(1, self.config.max_iterations + 1):
             if not (np.isfinite(merit) and np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
@@ -203,6 +204,10 @@ class Nmpc:
                 status = "no_progress"
                 break
             us, (xs, a, b), merit = trial_us, trial, trial_merit
+            if budget_s is not None and it < self.config.max_iterations and \
+                    (time.perf_counter() - t0) * (it + 1) / it > budget_s:     # the next one would end too late
+                status = "time_budget"
+                break
         if not (np.all(np.isfinite(xs)) and np.isfinite(merit)):
             return self._fallback(x0, lo, hi, "qp_failed", it, t0)
         self._guess = us.copy()

@@ -77,7 +77,9 @@ class NmpcConfig:
     control_period_s: how often the controller is re-solved (None: every dt_s); the warm start
     is the previous plan shifted by control_period_s / dt_s stages, and when it is shorter than
     dt_s the hip bounds are also enforced at its end (the only stretch of a plan ever flown).
-    max_iterations=1 makes it a real-time iteration (one QP per solve).
+    max_iterations=1 makes it a real-time iteration (one QP per solve). time_budget_share: the
+    share of the control period a solve may take; it stops iterating when the next iteration
+    would end past it (the plan so far is used; 0: no budget).
     """
 
     horizon: int = 5
@@ -89,6 +91,7 @@ class NmpcConfig:
     control_period_s: float | None = None
     max_iterations: int = 10
     cost_tol_rel: float = 1e-5         # converged when the QP step would lower the cost by less than this
+    time_budget_share: float = 0.5     # of the control period (dt_s when none is given); 0: unbounded
     codegen: bool = True               # compile the linearisation to C (cached); False: CasADi's VM
 
     def validate(self) -> None:
@@ -102,9 +105,17 @@ class NmpcConfig:
             raise ValueError("NmpcConfig.roll_pitch_max_rad must lie in (0, pi/2]")
         if self.max_iterations < 1:
             raise ValueError(f"NmpcConfig.max_iterations must be >= 1, got {self.max_iterations}")
+        if not 0.0 <= self.time_budget_share <= 1.0:
+            raise ValueError(f"NmpcConfig.time_budget_share must lie in [0, 1], got {self.time_budget_share}")
         if self.control_period_s is not None and not self.control_period_s > 0:
             raise ValueError(f"NmpcConfig.control_period_s must be > 0, got {self.control_period_s}")
         self.weights.validate()
+
+    @property
+    def time_budget_s(self) -> float | None:
+        """How long a solve may take (None: as long as its iterations take)."""
+        period = self.dt_s if self.control_period_s is None else self.control_period_s
+        return self.time_budget_share * period if self.time_budget_share > 0 else None
 
     @property
     def warm_start_shift(self) -> float:

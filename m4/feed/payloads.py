@@ -99,11 +99,15 @@ def fault_payload(t_s: float | None, wall_time_unix_s: float, *, state: str | in
 
 def nmpc_payload(t_s: float | None, wall_time_unix_s: float, *, solve_ms: float, iterations: int,
                  status: str, cost: float, ok: bool, fallback: bool, dt_s: float,
-                 predicted_p_ned_m) -> dict[str, Any]:
+                 predicted_p_ned_m, lead_s: float | None = None, overruns: int = 0,
+                 rate_hz: float | None = None) -> dict[str, Any]:
     """One NMPC solve: time, iterations, solver status, cost, and the predicted positions.
 
-    predicted_p_ned_m has one NED position per shooting node (k = 0..N), dt_s apart.
-    `fallback` is true when the setpoint did not come from this solve.
+    predicted_p_ned_m has one NED position per shooting node (k = 0..N), dt_s apart, from
+    lead_ms after t_s (the state was predicted to when the setpoint acts at the FC).
+    `fallback` is true when the setpoint did not come from this solve; status "time_budget":
+    the solve stopped iterating to keep its deadline. overruns: control steps so far that took
+    longer than the control period; rate_hz: control steps in the last second.
     """
     predicted = np.asarray(predicted_p_ned_m, dtype=float)
     if predicted.ndim != 2 or predicted.shape[1] != 3:
@@ -118,17 +122,26 @@ def nmpc_payload(t_s: float | None, wall_time_unix_s: float, *, solve_ms: float,
         "fallback": _flag("fallback", fallback),
         "dt_s": _optional_float("dt_s", dt_s),
         "predicted_p_ned_m": [_floats("predicted_p_ned_m", row, 3) for row in predicted],
+        "lead_ms": _optional_ms("lead_s", lead_s),
+        "overruns": _count("overruns", overruns),
+        "rate_hz": _optional_float("rate_hz", rate_hz),
     }
 
 
 def link_payload(t_s: float | None, wall_time_unix_s: float, *, connected: bool,
                  last_msg_age_s: float | None, msgs_per_s: float, bad_crc: int, bad_signature: int,
-                 dropped_foreign: int, feed_errors: int) -> dict[str, Any]:
+                 dropped_foreign: int, feed_errors: int, setpoint_lead_s: float | None = None,
+                 round_trip_s: float | None = None, control_rate_hz: float | None = None,
+                 overruns: int = 0) -> dict[str, Any]:
     """Health of the MAVLink link to the flight controller, and of this feed itself.
 
     last_msg_age_s: wall-clock seconds since the last message from the flight controller
     (null before the first); dropped_foreign: packets from systems/components not ours;
-    feed_errors: publications of this feed that failed (built or sent) since it opened.
+    feed_errors: publications of this feed that failed (built or sent) since it opened;
+    setpoint_lead_ms: how long after the telemetry instant it answers a setpoint reaches the
+    flight controller (its clock; TIMESYNC), round_trip_ms: the TIMESYNC round trip on the
+    companion's clock (null until measured); control_rate_hz: setpoints sent in the last
+    second; overruns: control steps so far that took longer than the control period.
     """
     return {
         **_stamp(t_s, wall_time_unix_s),
@@ -139,7 +152,16 @@ def link_payload(t_s: float | None, wall_time_unix_s: float, *, connected: bool,
         "bad_signature": _count("bad_signature", bad_signature),
         "dropped_foreign": _count("dropped_foreign", dropped_foreign),
         "feed_errors": _count("feed_errors", feed_errors),
+        "setpoint_lead_ms": _optional_ms("setpoint_lead_s", setpoint_lead_s),
+        "round_trip_ms": _optional_ms("round_trip_s", round_trip_s),
+        "control_rate_hz": _optional_float("control_rate_hz", control_rate_hz),
+        "overruns": _count("overruns", overruns),
     }
+
+
+def _optional_ms(name: str, seconds) -> float | None:
+    value = _optional_float(name, seconds)
+    return None if value is None else 1000.0 * value
 
 
 def _fault_state(state: str | int) -> str:

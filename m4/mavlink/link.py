@@ -71,6 +71,11 @@ class MavlinkLink:
     def send(self, msg: mavlink.MAVLink_message) -> None:
         self.mav.send(msg)
 
+    def send_all(self, msgs) -> None:
+        """Send several messages back to back (a datagram link packs them into as few as fit)."""
+        for msg in msgs:
+            self.mav.send(msg)
+
     def receive(self) -> list[mavlink.MAVLink_message]:
         """Every message that has arrived; rejected and garbled packets are counted, not returned."""
         return [msg for _, msgs in self.receive_from() for msg in msgs]

@@ -275,3 +275,27 @@ def test_a_fuzzed_byte_stream_never_raises_and_never_lets_a_bad_setpoint_out(rig
         assert np.all((np.array(m.thrust_n) >= 0) & (np.array(m.thrust_n) <= AF.thrust_max_n))
         assert np.all((np.array(m.hip_angle_rad) >= AF.hip_min_rad) & (np.array(m.hip_angle_rad) <= AF.hip_max_rad))
         assert np.all(np.abs(m.hip_rate_rad_s) <= AF.hip_rate_max_rad_s)
+
+
+def test_a_long_setpoint_lead_is_warned_once_published_and_planned_through(rig):
+    """The FC answers our TIMESYNC requests as if each setpoint arrived 150 ms after the instant
+    it answers, then 40 ms: one warning, one notice, never CRITICAL; the feed shows the lead."""
+    app, fc, link, clock = rig
+    published = []
+    app.feed = Feed(SimpleNamespace(put=lambda topic, payload: published.append((topic, payload)), close=list))
+    fc.heartbeat()
+    answered = set()
+    for k in range(140):
+        lead_ms = 150 if k < 40 else 40
+        for m in link.sent_messages():
+            if m.get_type() == "TIMESYNC" and m.ts1 not in answered:
+                answered.add(m.ts1)
+                fc.send(mavlink.MAVLink_timesync_message(m.ts1 + lead_ms * 1_000_000, m.ts1))
+        fly(app, fc, clock, 20 * k, 1)
+        if k == 39:
+            assert app.fc.delay.lead_s == pytest.approx(0.15)
+            assert [p["lead_ms"] for t, p in published if t == "nmpc"][-1] == pytest.approx(150.0)
+            assert [p["setpoint_lead_ms"] for t, p in published if t == "link"][-1] == pytest.approx(150.0)
+    texts = [(m.severity, m.text) for m in link.sent_messages() if m.get_type() == "STATUSTEXT"]
+    assert texts == [(mavlink.MAV_SEVERITY_WARNING, "companion: link delay 150 ms"),
+                     (mavlink.MAV_SEVERITY_NOTICE, "companion: link delay back to 40 ms")]

@@ -270,3 +270,19 @@ def test_the_injected_reference_and_detector_are_the_ones_flown_and_a_restart_bu
     assert out.reference[-1, rom.P.start] > 0.0          # heading for the waypoint
     c.restart()
     assert not c.started and len(detectors) == 2 and c.detector is detectors[1]
+
+
+def test_with_a_lead_the_nmpc_plans_from_the_state_predicted_to_when_the_setpoint_acts():
+    """Flying at 1 m/s with setpoints acting 0.1 s after their instant: the state planned from
+    is about 0.1 m further on, and without a lead it is the measured one."""
+    c = controller()
+    x = rom.hover_state(AF)
+    x[rom.V] = (1.0, 0.0, 0.0)
+    c.start(0.0, x)
+    for k in range(8):
+        measured = x.copy()
+        measured[rom.P.start] += k * PERIOD
+        out = c.step(k * PERIOD, measured, None, [AF.thrust_max_n] * 4, lead_s=0.1)
+    assert out.lead_s == pytest.approx(0.1)
+    assert out.state[rom.P.start] - measured[rom.P.start] == pytest.approx(0.1, abs=0.01)
+    assert np.array_equal(c.step(8 * PERIOD, measured).state[rom.P], measured[rom.P])

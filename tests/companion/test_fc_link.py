@@ -96,8 +96,8 @@ def test_a_stray_sender_with_the_fc_ids_is_ignored_and_cannot_redirect_our_repli
     got = drain(received(companion))
     assert [(m.get_type(), m.x) for m in got] == [("LOCAL_POSITION_NED", 1.0)]
     assert companion.health().foreign == 4
-    companion.send_setpoint(60, 20, SETPOINT)
-    assert [m.get_type() for m in drain(fc.receive)] == ["M4_SETPOINT"]
+    companion.send_setpoint(60, 20, SETPOINT, 0.0)
+    assert [m.get_type() for m in drain(fc.receive)] == ["M4_SETPOINT", "TIMESYNC"]
     time.sleep(0.05)
     assert stray.receive() == []
 
@@ -150,9 +150,9 @@ def test_our_setpoints_are_signed_with_the_key(links):
     companion, fc, _ = links
     fc.send(heartbeat())
     drain(received(companion))
-    companion.send_setpoint(0, 20, SETPOINT)
+    companion.send_setpoint(0, 20, SETPOINT, 0.0)
     got = drain(fc.receive)
-    assert [m.get_type() for m in got] == ["M4_SETPOINT"] and got[0].get_signed()
+    assert [m.get_type() for m in got] == ["M4_SETPOINT", "TIMESYNC"] and all(m.get_signed() for m in got)
     assert fc.signing_counters().signed_ok >= 1
 
 

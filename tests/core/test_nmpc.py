@@ -243,3 +243,18 @@ def test_re_solved_faster_than_its_step_it_keeps_the_hips_in_range_between_nodes
     assert hip >= AF.hip_min_rad - 1e-6
     ref = IpoptReference(m).solve(x0, hover_ref(), ROTOR_4_OFF)
     assert abs(res.cost - ref.cost) <= 1e-3 * abs(ref.cost)
+
+
+def test_a_solve_stops_iterating_within_its_time_budget_and_its_plan_is_used():
+    """A budget far below one iteration: one SQP iteration, then the plan so far (bounded,
+    finite, better than the start) instead of the iterations a rough start needs."""
+    budgeted = Nmpc(AF, NmpcConfig(control_period_s=0.02, time_budget_share=1e-6))
+    unbounded = Nmpc(AF, NmpcConfig(control_period_s=0.02, time_budget_share=0.0))
+    x = perturbed(np.random.default_rng(3))
+    full = unbounded.solve(x, hover_ref(), [AF.thrust_max_n] * 4)
+    res = budgeted.solve(x, hover_ref(), [AF.thrust_max_n] * 4)
+    assert full.iterations > 1
+    assert res.status == "time_budget" and res.iterations == 1 and res.ok and not res.fallback
+    assert_within(budgeted, res, [AF.thrust_max_n] * 4)
+    assert NmpcConfig(control_period_s=0.02).time_budget_s == pytest.approx(0.01)
+    assert NmpcConfig(time_budget_share=0.0).time_budget_s is None

@@ -44,6 +44,10 @@ class FakeTransport:
     def send(self, msg: mavlink.MAVLink_message) -> None:
         self.mav.send(msg)
 
+    def send_all(self, msgs) -> None:
+        for msg in msgs:
+            self.mav.send(msg)
+
     def receive_from(self):
         out = []
         while self.inbox:

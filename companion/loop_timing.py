@@ -1,0 +1,48 @@
+"""How well the control loop keeps its period: each answer's duration (telemetry read to
+setpoint sent), the overruns (answers that took longer than the control period), and the rate
+achieved (answers in the last second). `report(now_s)` gives a line at most every REPORT_S
+when something overran since the last one, so a slow computer is said, not flooded in the log.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+REPORT_S = 5.0
+RATE_WINDOW_S = 1.0
+
+
+class LoopTiming:
+    def __init__(self, period_s: float):
+        self.period_s = period_s
+        self.overruns = 0
+        self.slowest_s = 0.0
+        self._answers: deque[float] = deque()           # when each answer went out (last RATE_WINDOW_S)
+        self._since_report = 0
+        self._slowest_since_report_s = 0.0
+        self._last_report_s = -float("inf")
+
+    def answered(self, started_s: float, now_s: float) -> None:
+        """An answer to telemetry read at started_s went out at now_s."""
+        took_s = now_s - started_s
+        self.slowest_s = max(self.slowest_s, took_s)
+        if took_s > self.period_s:
+            self.overruns += 1
+            self._since_report += 1
+            self._slowest_since_report_s = max(self._slowest_since_report_s, took_s)
+        self._answers.append(now_s)
+        while self._answers[0] <= now_s - RATE_WINDOW_S:
+            self._answers.popleft()
+
+    def rate_hz(self, now_s: float) -> float:
+        """Answers per second over the last RATE_WINDOW_S."""
+        return sum(1 for t in self._answers if t > now_s - RATE_WINDOW_S) / RATE_WINDOW_S
+
+    def report(self, now_s: float) -> str | None:
+        if self._since_report == 0 or now_s - self._last_report_s < REPORT_S:
+            return None
+        text = (f"{self._since_report} control steps took longer than the {1e3 * self.period_s:.0f} ms period "
+                f"(slowest {1e3 * self._slowest_since_report_s:.0f} ms; {self.overruns} in all); "
+                f"{self.rate_hz(now_s):.0f} Hz achieved")
+        self._since_report, self._slowest_since_report_s, self._last_report_s = 0, 0.0, now_s
+        return text

@@ -1,0 +1,66 @@
+"""The control loop's own timing: overruns counted, the achieved rate, and a report that does
+not flood the log; and through the app on real loopback sockets with a slow control step."""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+import pytest
+
+from companion.app import CompanionApp
+from companion.config import parse_config
+from companion.controller import Controller, ControllerSettings
+from companion.fc_link import FcLink
+from companion.loop_timing import REPORT_S, LoopTiming
+from m4.airframe import load_airframe
+from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from m4.mavlink.link import UdpLink
+
+AF = load_airframe()
+
+
+def test_overruns_are_counted_and_reported_at_most_every_few_seconds():
+    timing = LoopTiming(0.02)
+    for k in range(100):                       # 100 answers in 2 s, every other one 30 ms long
+        start = 0.02 * k
+        timing.answered(start, start + (0.03 if k % 2 else 0.005))
+    assert timing.overruns == 50 and timing.slowest_s == pytest.approx(0.03)
+    assert timing.rate_hz(2.0) == pytest.approx(50.0, abs=1.0)
+    first = timing.report(2.0)
+    assert first.startswith("50 control steps took longer than the 20 ms period (slowest 30 ms")
+    assert first.endswith(f"{timing.rate_hz(2.0):.0f} Hz achieved")
+    timing.answered(2.0, 2.05)
+    assert timing.report(2.05) is None                          # within REPORT_S of the last one
+    assert "1 control steps" in timing.report(2.0 + REPORT_S)
+    assert timing.report(4.0 + REPORT_S) is None                # nothing overran since
+
+
+def test_a_slow_control_step_over_real_sockets_is_counted_logged_once_and_published(caplog):
+    config = parse_config({"control": {"rate_hz": 50.0}, "link": {"fc_url": "udpin:127.0.0.1:0"}}, "test")
+    controller = Controller(ControllerSettings.of(config))
+    real_step = controller.step
+    controller.step = lambda *a, **k: (time.sleep(0.03), real_step(*a, **k))[1]     # 30 ms: over the 20 ms period
+    link = UdpLink("udpin:127.0.0.1:0", FC_SYSTEM_ID, COMPANION_COMPONENT_ID)
+    fc = UdpLink(f"udpout:127.0.0.1:{link.local_port}", FC_SYSTEM_ID, FC_COMPONENT_ID)
+    app = CompanionApp(config, FcLink(link), controller)
+    hover = [AF.hover_thrust_per_rotor_n] * 4
+    try:
+        fc.send(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, 0, 0, 0, 4, 3))
+        with caplog.at_level(logging.WARNING, logger="m4-companion"):
+            for k in range(10):
+                t_ms = 20 * k
+                fc.send_all([mavlink.MAVLink_attitude_message(t_ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+                             mavlink.MAVLink_local_position_ned_message(t_ms, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0),
+                             mavlink.MAVLink_m4_joint_state_message(t_ms, [AF.nominal_hip_rad] * 4, [0.0] * 4),
+                             mavlink.MAVLink_m4_thruster_status_message(t_ms, hover, hover, [AF.thrust_max_n] * 4)])
+                time.sleep(0.01)
+                app.poll()
+        setpoints = [m for m in fc.receive() if m.get_type() == "M4_SETPOINT"]
+        assert len(setpoints) == 10 and app.timing.overruns == 10
+        reports = [r.message for r in caplog.records if "took longer than the 20 ms period" in r.message]
+        assert len(reports) == 1
+    finally:
+        fc.close()
+        link.close()

@@ -1,0 +1,91 @@
+"""Prediction through the setpoints in flight: which command acts when, and the state it leads to."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from companion.core import rom
+from companion.core.prediction import HISTORY_S, CommandHistory, Predictor, SentCommand
+from m4.airframe import load_airframe
+
+AF = load_airframe()
+PERIOD = 0.02
+F = rom.build_rom(AF, PERIOD).f
+NO_FAULT = np.full(4, AF.thrust_max_n)
+
+
+def command(time_s: float, thrust_n) -> SentCommand:
+    return SentCommand(time_s, rom.hover_state(AF), np.r_[np.broadcast_to(thrust_n, 4), np.zeros(4)])
+
+
+def test_the_command_in_force_is_the_newest_one_that_has_reached_the_fc():
+    history = CommandHistory()
+    for k in range(5):
+        history.add(command(k * PERIOD, 10.0 + k))
+    assert history.in_force(0.08, 0.0).time_s == pytest.approx(0.08)
+    assert history.in_force(0.08, 0.05).time_s == pytest.approx(0.02)      # 0.02 + 0.05 <= 0.08 < 0.04 + 0.05
+    assert history.in_force(0.04, 0.05) is None                              # none of ours arrived yet
+    assert history.acting_from(0.08, 0.13, 0.05) == pytest.approx([0.09, 0.11])
+
+
+def test_commands_older_than_the_history_are_forgotten():
+    history = CommandHistory()
+    for k in range(100):
+        history.add(command(k * PERIOD, 10.0))
+    newest = 99 * PERIOD
+    assert history.newest.time_s == pytest.approx(newest)
+    assert history.in_force(newest - HISTORY_S - PERIOD, 0.0) is None
+    assert history.in_force(newest - HISTORY_S + PERIOD, 0.0) is not None
+
+
+def test_without_lead_the_measured_state_is_planned_from():
+    history = CommandHistory()
+    history.add(command(0.0, 20.0))
+    x = rom.hover_state(AF)
+    assert np.array_equal(Predictor(AF, F).predict(x, 0.02, 0.0, history, np.zeros(rom.ND), NO_FAULT), x)
+
+
+def test_the_state_is_flown_forward_with_the_commands_in_flight():
+    """Lead 0.05 s at 0.1 s with every motor already at the commanded thrust: the ROM flown
+    0.05 s, moving on at 1 m/s."""
+    history = CommandHistory()
+    thrust = AF.hover_thrust_per_rotor_n + 2.0
+    for k in range(5):
+        history.add(command(k * PERIOD, thrust))
+    x = rom.hover_state(AF)
+    x[rom.V] = (1.0, 0.0, 0.0)
+    predicted = Predictor(AF, F).predict(x, 0.1, 0.05, history, np.zeros(rom.ND), NO_FAULT, np.full(4, thrust))
+    step = rom.build_rom(AF, 0.05, substeps=8).step
+    expected = np.asarray(step(x, np.r_[np.full(4, thrust), np.zeros(4)], np.zeros(rom.ND))).ravel()
+    assert np.allclose(predicted[rom.P], expected[rom.P], atol=1e-6)
+    assert np.allclose(predicted[rom.V], expected[rom.V], atol=1e-5)
+    assert predicted[rom.P][0] == pytest.approx(x[rom.P][0] + 0.05, abs=1e-3)
+    assert np.array_equal(predicted[rom.HIP], x[rom.HIP])                      # hips: the goal, not predicted
+
+
+def test_the_motors_follow_a_new_command_with_their_lag():
+    """From hover, every rotor commanded 3 N more at 0.05 s, acting from 0.15 s with a lead of
+    0.1 s: the climb rate at 0.1 + lead is that of a first-order thrust step, not of an instant one."""
+    hover = AF.hover_thrust_per_rotor_n
+    history = CommandHistory()
+    history.add(command(0.0, hover))
+    history.add(command(0.05, hover + 3.0))
+    lead, tau, mass = 0.1, AF.motor_time_constant_s, AF.total_mass_kg
+    predicted = Predictor(AF, F).predict(rom.hover_state(AF), 0.1, lead, history, np.zeros(rom.ND), NO_FAULT,
+                                         np.full(4, hover))
+    acting_s = 0.05                                     # from 0.15 s to 0.2 s
+    climb_m_s = 4 * 3.0 / mass * (acting_s - tau * (1.0 - np.exp(-acting_s / tau)))
+    assert -predicted[rom.V][2] == pytest.approx(climb_m_s, rel=0.02)
+    assert -predicted[rom.V][2] < 0.6 * 4 * 3.0 / mass * acting_s
+
+
+def test_a_lost_rotor_flies_the_prediction_at_its_estimated_ceiling_not_at_its_command():
+    history = CommandHistory()
+    for k in range(6):
+        history.add(command(k * PERIOD, AF.hover_thrust_per_rotor_n))
+    x = rom.hover_state(AF)
+    lost = Predictor(AF, F).predict(x, 0.1, 0.06, history, np.zeros(rom.ND), [30.0, 30.0, 30.0, 0.0])
+    healthy = Predictor(AF, F).predict(x, 0.1, 0.06, history, np.zeros(rom.ND), NO_FAULT)
+    assert np.allclose(healthy[rom.RATES], 0.0, atol=1e-6)
+    assert np.linalg.norm(lost[rom.RATES][:2]) > 0.5                  # it starts to roll and pitch
