@@ -39,6 +39,9 @@ HORIZON_MAX = 40
 # but tilts about 40 deg, and fails the 24 N cap and the landing after a total loss; at 50 Hz
 # every built-in scenario passes with about 11 deg of tilt (README, "Measured results").
 DEFAULT_RATE_HZ = 50.0
+# The companion's solves stop iterating at half the control period (the research tools' NMPC,
+# NmpcConfig's default, iterates until it converges).
+COMPANION_TIME_BUDGET_SHARE = 0.5
 DEFAULT_DISTURBANCE_GAIN = inspect.signature(DisturbanceEstimator).parameters["gain"].default
 
 
@@ -55,7 +58,8 @@ class LinkConfig:
 @dataclass(frozen=True)
 class CompanionConfig:
     rate_hz: float = DEFAULT_RATE_HZ
-    nmpc: NmpcConfig = field(default_factory=lambda: NmpcConfig(control_period_s=1.0 / DEFAULT_RATE_HZ))
+    nmpc: NmpcConfig = field(default_factory=lambda: NmpcConfig(control_period_s=1.0 / DEFAULT_RATE_HZ,
+                                                                time_budget_share=COMPANION_TIME_BUDGET_SHARE))
     disturbance_gain: float = DEFAULT_DISTURBANCE_GAIN
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
     touchdown: TouchdownConfig = field(default_factory=TouchdownConfig)
@@ -111,7 +115,8 @@ def parse_config(data: dict, where: str, base_dir: Path | None = None) -> Compan
 def nmpc_config(t: Table, control_period_s: float) -> NmpcConfig:
     """The [nmpc] table (and its [nmpc.weights]) as the NMPC's own settings."""
     weights = _settings(t.table("weights"), NmpcWeights)
-    config = _settings(t, NmpcConfig, weights=weights, control_period_s=control_period_s)
+    budget = t.number("time_budget_share", COMPANION_TIME_BUDGET_SHARE, lo=0.0, hi=1.0)
+    config = _settings(t, NmpcConfig, weights=weights, control_period_s=control_period_s, time_budget_share=budget)
     if config.horizon > HORIZON_MAX:
         raise ConfigError(f"{t.where} horizon must be <= {HORIZON_MAX} (the NMPC must solve within a control "
                           f"period), got {config.horizon}")

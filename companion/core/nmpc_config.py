@@ -91,7 +91,7 @@ class NmpcConfig:
     control_period_s: float | None = None
     max_iterations: int = 10
     cost_tol_rel: float = 1e-5         # converged when the QP step would lower the cost by less than this
-    time_budget_share: float = 0.5     # of the control period (dt_s when none is given); 0: unbounded
+    time_budget_share: float = 0.0     # of the control period (dt_s when none is given); 0: unbounded
     codegen: bool = True               # compile the linearisation to C (cached); False: CasADi's VM
 
     def validate(self) -> None:

@@ -22,7 +22,7 @@ def write(tmp_path, text, name="companion.toml"):
 def test_defaults_fly_the_reference_airframe_at_50_hz_on_the_sitl_link(tmp_path):
     c = load_config()
     assert c.rate_hz == 50.0 and c.control_period_s == pytest.approx(0.02)
-    assert c.nmpc == NmpcConfig(control_period_s=0.02)
+    assert c.nmpc == NmpcConfig(control_period_s=0.02, time_budget_share=0.5)
     assert c.fault_detector == FaultDetectorConfig()
     assert c.airframe == load_airframe() and c.airframe_path is None
     assert c.mission.waypoints == () and c.mission_path is None
