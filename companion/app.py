@@ -148,6 +148,9 @@ class CompanionApp:
             self.counters.solve_ms_max = max(self.counters.solve_ms_max, step.nmpc.solve_ms)
         if step.fault_confirmed_now:
             self._announce_fault(step)
+        if step.crash_now:
+            log.error("t=%.3f s: crash recognised (%s): thrust cut for good; no re-arm will be sent", t_s, step.crash)
+            self.fc.statustext(mavlink.MAV_SEVERITY_EMERGENCY, f"companion: crash ({step.crash}), thrust cut")
         self._watch_delay(t_s)
         self._publish(step, snap, x)
 

@@ -26,6 +26,7 @@ from companion.core.fault_detector import FaultDetectorConfig
 from companion.core.nmpc_config import NmpcConfig, NmpcWeights
 from companion.core.reference import ReferenceConfig
 from companion.core.touchdown import TouchdownConfig
+from companion.core.upset import UpsetConfig
 from m4.feed.settings import FeedSettings, parse_feed_settings
 from m4.mission import Mission, load_mission
 from m4.toml_fields import ConfigError, Table, load_toml
@@ -64,6 +65,7 @@ class CompanionConfig:
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
     touchdown: TouchdownConfig = field(default_factory=TouchdownConfig)
     fault_detector: FaultDetectorConfig = field(default_factory=FaultDetectorConfig)
+    upset: UpsetConfig = field(default_factory=UpsetConfig)
     link: LinkConfig = field(default_factory=LinkConfig)
     feed: FeedSettings = field(default_factory=lambda: FeedSettings(enabled=False))   # the Zenoh feed
     airframe_path: Path | None = None       # None: the bundled reference airframe
@@ -101,6 +103,7 @@ def parse_config(data: dict, where: str, base_dir: Path | None = None) -> Compan
         reference=_settings(top.table("reference"), ReferenceConfig),
         touchdown=_settings(top.table("touchdown"), TouchdownConfig),
         fault_detector=_settings(top.table("fault_detector"), FaultDetectorConfig),
+        upset=_settings(top.table("upset"), UpsetConfig),
         link=_link(top.table("link"), base_dir),
         feed=parse_feed_settings(top.table("feed"), base_dir) if top.has("feed") else FeedSettings(enabled=False),
         airframe_path=airframe_path,

@@ -49,6 +49,7 @@ from companion.core.nmpc_config import NmpcConfig
 from companion.core.prediction import CommandHistory, Predictor, SentCommand
 from companion.core.reference import MissionReference, ReferenceConfig
 from companion.core.touchdown import TouchdownConfig, TouchdownDetector
+from companion.core.upset import UpsetConfig, UpsetDetector
 from m4.airframe import ROTOR_COUNT, Airframe
 from m4.mission import Mission
 from m4.setpoint import Setpoint
@@ -75,12 +76,13 @@ class ControllerSettings:
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
     touchdown: TouchdownConfig = field(default_factory=TouchdownConfig)
     fault_detector: FaultDetectorConfig = field(default_factory=FaultDetectorConfig)
+    upset: UpsetConfig = field(default_factory=UpsetConfig)
 
     @classmethod
     def of(cls, config: CompanionConfig) -> ControllerSettings:
         return cls(airframe=config.airframe, control_period_s=config.control_period_s, nmpc=config.nmpc,
                    disturbance_gain=config.disturbance_gain, mission=config.mission, reference=config.reference,
-                   touchdown=config.touchdown, fault_detector=config.fault_detector)
+                   touchdown=config.touchdown, fault_detector=config.fault_detector, upset=config.upset)
 
 
 @dataclass(frozen=True)
@@ -94,6 +96,8 @@ class ControlStep:
     fault: FaultStatus
     fault_confirmed_now: bool     # the step at which the fault was confirmed (announce it)
     disturbance: np.ndarray       # (6,) estimate handed to the NMPC
+    crash: str | None = None      # why the flight is over ("upside down", "on the ground"): thrust cut for good
+    crash_now: bool = False       # the step at which the crash was recognised (announce it)
 
 
 @dataclass(frozen=True)
@@ -110,6 +114,7 @@ class Flight:
 
     reference: MissionReference
     touchdown: TouchdownDetector
+    upset: UpsetDetector
     fault_announced: bool = False
 
 
@@ -149,7 +154,9 @@ class Controller:
         if not plausible_state(self.af, x):
             return False
         reference = self._new_reference(time_s, x[rom.P])
-        self.flight = Flight(reference, TouchdownDetector(reference.ground_com_z_ned_m, self.settings.touchdown))
+        ground_z = reference.ground_com_z_ned_m
+        self.flight = Flight(reference, TouchdownDetector(ground_z, self.settings.touchdown),
+                             UpsetDetector(ground_z, self.settings.upset))
         return True
 
     def resume(self) -> None:
@@ -186,12 +193,12 @@ class Controller:
         d = self._estimate_disturbance(time_s, x, usable, in_force, fault.thrust_bound_n)
         if self.flight is None or not usable:
             return self._fallback(time_s, x, fault, confirmed_now, d)
+        upset, crashed_before = self.flight.upset, self.flight.upset.crash is not None
+        landing = self.flight.reference.landing_started(time_s)
+        if upset.update(time_s, x, landing) is not None:
+            return self._cut(time_s, x, fault, confirmed_now, d, upset.crash, crash_now=not crashed_before)
         if self._touched_down(time_s, x):
-            sp = safe_setpoint(af, np.zeros(ROTOR_COUNT), x[rom.HIP], np.zeros(ROTOR_COUNT),
-                               fault.thrust_bound_n, x[rom.HIP], thrust_cut=True)
-            self.sent.clear()
-            self._hip_goal = None
-            return ControlStep(time_s, sp, x, 0.0, None, None, fault, confirmed_now, d)
+            return self._cut(time_s, x, fault, confirmed_now, d)
         c = self.nmpc.config
         x_plan = self.predictor.predict(x, time_s, lead_s, self.sent, d, fault.thrust_bound_n)
         x_ref = self.flight.reference.reference(time_s + lead_s, c.horizon, c.dt_s)
@@ -275,6 +282,14 @@ class Controller:
         self._hip_goal = HipGoal(np.clip(sp.hip_rad + sp.hip_rate_rad_s * tau, af.hip_min_rad, af.hip_max_rad),
                                  np.where(np.isfinite(next_rate), next_rate, 0.0))
         return sp
+
+    def _cut(self, time_s, x, fault, confirmed_now, d, crash: str | None = None, crash_now: bool = False) -> ControlStep:
+        """Thrust cut (after a touchdown, or for good after a crash), the hips held."""
+        sp = safe_setpoint(self.af, np.zeros(ROTOR_COUNT), x[rom.HIP], np.zeros(ROTOR_COUNT),
+                           fault.thrust_bound_n, x[rom.HIP], thrust_cut=True)
+        self.sent.clear()
+        self._hip_goal = None
+        return ControlStep(time_s, sp, x, 0.0, None, None, fault, confirmed_now, d, crash, crash_now)
 
     def _fallback(self, time_s, x, fault, confirmed_now, d) -> ControlStep:
         """No usable state or no flight yet: hover thrust within the bounds, hips held where they

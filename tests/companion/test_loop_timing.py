@@ -6,7 +6,6 @@ from __future__ import annotations
 import logging
 import time
 
-import numpy as np
 import pytest
 
 from companion.app import CompanionApp
@@ -15,8 +14,9 @@ from companion.controller import Controller, ControllerSettings
 from companion.fc_link import FcLink
 from companion.loop_timing import REPORT_S, LoopTiming
 from m4.airframe import load_airframe
-from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID
 from m4.mavlink.link import UdpLink
+from support.loopback_fc import LoopbackFc
 
 AF = load_airframe()
 
@@ -43,21 +43,16 @@ def test_a_slow_control_step_over_real_sockets_is_counted_logged_once_and_publis
     real_step = controller.step
     controller.step = lambda *a, **k: (time.sleep(0.03), real_step(*a, **k))[1]     # 30 ms: over the 20 ms period
     link = UdpLink("udpin:127.0.0.1:0", FC_SYSTEM_ID, COMPANION_COMPONENT_ID)
-    fc = UdpLink(f"udpout:127.0.0.1:{link.local_port}", FC_SYSTEM_ID, FC_COMPONENT_ID)
+    fc = LoopbackFc(link.local_port, AF)
     app = CompanionApp(config, FcLink(link), controller)
-    hover = [AF.hover_thrust_per_rotor_n] * 4
     try:
-        fc.send(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, 0, 0, 0, 4, 3))
+        fc.heartbeat()
         with caplog.at_level(logging.WARNING, logger="m4-companion"):
             for k in range(10):
-                t_ms = 20 * k
-                fc.send_all([mavlink.MAVLink_attitude_message(t_ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
-                             mavlink.MAVLink_local_position_ned_message(t_ms, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0),
-                             mavlink.MAVLink_m4_joint_state_message(t_ms, [AF.nominal_hip_rad] * 4, [0.0] * 4),
-                             mavlink.MAVLink_m4_thruster_status_message(t_ms, hover, hover, [AF.thrust_max_n] * 4)])
+                fc.frame(20 * k)
                 time.sleep(0.01)
                 app.poll()
-        setpoints = [m for m in fc.receive() if m.get_type() == "M4_SETPOINT"]
+        setpoints = [m for m in fc.received() if m.get_type() == "M4_SETPOINT"]
         assert len(setpoints) == 10 and app.timing.overruns == 10
         reports = [r.message for r in caplog.records if "took longer than the 20 ms period" in r.message]
         assert len(reports) == 1

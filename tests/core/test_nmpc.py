@@ -256,5 +256,5 @@ def test_a_solve_stops_iterating_within_its_time_budget_and_its_plan_is_used():
     assert full.iterations > 1
     assert res.status == "time_budget" and res.iterations == 1 and res.ok and not res.fallback
     assert_within(budgeted, res, [AF.thrust_max_n] * 4)
-    assert NmpcConfig(control_period_s=0.02).time_budget_s == pytest.approx(0.01)
+    assert NmpcConfig(control_period_s=0.02, time_budget_share=0.5).time_budget_s == pytest.approx(0.01)
     assert NmpcConfig(time_budget_share=0.0).time_budget_s is None

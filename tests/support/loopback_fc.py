@@ -1,0 +1,37 @@
+"""A scripted flight controller on a real loopback UDP socket: it sends the companion
+heartbeats and telemetry frames (as the SITL's FC does) and reads what comes back."""
+
+from __future__ import annotations
+
+from m4.airframe import Airframe
+from m4.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from m4.mavlink.link import UdpLink
+
+
+class LoopbackFc:
+    def __init__(self, companion_port: int, af: Airframe, key: bytes | None = None):
+        self.af = af
+        self.link = UdpLink(f"udpout:127.0.0.1:{companion_port}", FC_SYSTEM_ID, FC_COMPONENT_ID, key=key)
+
+    @property
+    def port(self) -> int:
+        return self.link.local_port
+
+    def heartbeat(self) -> None:
+        self.link.send(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                                                         0, 0, mavlink.MAV_STATE_ACTIVE, 3))
+
+    def frame(self, t_ms: int, roll_rad: float = 0.0, z_ned_m: float = -2.0) -> None:
+        """One telemetry frame at FC instant t_ms: a hover (rolled by roll_rad) at z_ned_m."""
+        af, hover = self.af, [self.af.hover_thrust_per_rotor_n] * 4
+        self.link.send_all([
+            mavlink.MAVLink_attitude_message(t_ms, roll_rad, 0.0, 0.0, 0.0, 0.0, 0.0),
+            mavlink.MAVLink_local_position_ned_message(t_ms, 0.0, 0.0, z_ned_m, 0.0, 0.0, 0.0),
+            mavlink.MAVLink_m4_joint_state_message(t_ms, [af.nominal_hip_rad] * 4, [0.0] * 4),
+            mavlink.MAVLink_m4_thruster_status_message(t_ms, hover, hover, [af.thrust_max_n] * 4)])
+
+    def received(self) -> list[mavlink.MAVLink_message]:
+        return self.link.receive()
+
+    def close(self) -> None:
+        self.link.close()
