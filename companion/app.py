@@ -28,6 +28,7 @@ import numpy as np
 from companion.config import CompanionConfig
 from companion.controller import ControllerSettings, ControlStep, Controller
 from companion.core import rom
+from companion.core.control_types import FaultState
 from companion.core.esc_evidence import PropellerModel
 from companion.fc_link import FcLink, LinkEvent
 from companion.feed_publisher import Feed, open_feed
@@ -94,14 +95,33 @@ class CompanionApp:
         for msg in received.messages:
             if self.telemetry.add(msg, now) and msg.get_msgId() == THRUSTER_STATUS:
                 newest = msg.time_boot_ms
+            elif msg.get_msgId() == mavlink.MAVLINK_MSG_ID_M4_FAULT_STATUS:
+                self._on_kept_fault(msg)
         if newest is not None and self._due(newest):
             self._answer(newest, now)
         self.fc.tick(now)
 
+    def _on_kept_fault(self, msg) -> None:
+        """The FC's copy of the last M4_FAULT_STATUS it had from us (from before this process
+        started, when we asked at lock-on): a confirmed fault becomes the detector's."""
+        rotor = msg.rotor
+        if msg.state != FaultState.CONFIRMED or not 1 <= rotor <= ROTOR_COUNT or \
+                self.controller.detector.status.state is FaultState.CONFIRMED:
+            return
+        ceiling_n, detected_s = float(msg.thrust_max_estimate_n[rotor - 1]), msg.detected_time_boot_ms / 1000.0
+        self.controller.restore_fault(rotor, ceiling_n, detected_s)
+        log.warning("fault kept by the flight controller: rotor %d confirmed at t=%.3f s, ceiling %.1f N; the "
+                    "detector starts from it", rotor, detected_s, ceiling_n)
+
     def _on_event(self, event: LinkEvent, now: float) -> None:
         if event is LinkEvent.LOCKED:
-            log.info("flight controller found at %s; asking for telemetry every %d ms", self.fc.fc_address,
-                     self.period_ms)
+            if self.fc.previous_address is None:
+                log.info("flight controller found at %s; asking for telemetry every %d ms", self.fc.fc_address,
+                         self.period_ms)
+            else:
+                log.warning("flight controller found again at %s (it was at %s); asking for telemetry every %d ms",
+                            self.fc.fc_address, self.fc.previous_address, self.period_ms)
+            self.fc.request_fault_status()             # first: what it kept of a fault matters most
             self.fc.request_intervals(self.config.control_period_s)
         elif event is LinkEvent.REBOOTED:
             log.warning("the flight controller's clock went back after a silence: it rebooted; the mission "

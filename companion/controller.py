@@ -174,6 +174,11 @@ class Controller:
         self.detector = self._new_detector()
         self.flight = None
 
+    def restore_fault(self, rotor: int, thrust_max_estimate_n: float, detected_at_s: float) -> None:
+        """A fault confirmed by an earlier run of the companion (the FC kept it): the detector
+        starts from it; the next step confirms it (bound, reference hold, announcement)."""
+        self.detector.restore(rotor, thrust_max_estimate_n, detected_at_s)
+
     def step(self, time_s: float, x_measured, esc: EscSample | None = None, thrust_limit_n=None,
              lead_s: float = 0.0) -> ControlStep:
         """The setpoint answering the telemetry instant time_s for the measured ROM state, to act

@@ -4,8 +4,13 @@
   and counted as foreign); the first address that sends the FC's HEARTBEAT (signed, when a
   signing key is set) is the FC, and from then on a udpin link hears and answers only that
   address (a stray sender, even with the FC's ids, can neither feed us nor redirect our
-  replies). Nothing is sent before, except on a link with a fixed peer (udpout, tcp,
-  serial: `heartbeat_before_lock`), where our heartbeat is how the FC learns of us.
+  replies; not even a message read in the same batch as the lock-on). Nothing is sent before,
+  except on a link with a fixed peer (udpout, tcp, serial: `heartbeat_before_lock`), where our
+  heartbeat is how the FC learns of us.
+- Re-acquisition: once the telemetry is LOST, the link hears other addresses again (still
+  answering only the FC's) and the next address to prove itself the FC (its HEARTBEAT, signed
+  when signing is on) is locked on to: a restarted FC on a new source port is found within
+  its heartbeat period (LOCKED again, `previous_address` the old one).
 - Liveness: telemetry (the frame's streams) that stops for `telemetry_timeout_s` is LOST;
   the first telemetry after that (or ever) is TELEMETRY. When the FC's clock (time_boot_ms)
   goes back after such a silence, the FC REBOOTED: its clock, and the mission's, start over.
@@ -14,8 +19,9 @@
 - Delay: a TIMESYNC request goes with a setpoint in the same datagram (companion.link_delay:
   how late our setpoints act at the FC); the FC's TIMESYNC requests are answered with our clock.
 - Heartbeat at 1 Hz as MAV_TYPE_ONBOARD_CONTROLLER.
-- Message intervals: the telemetry frame's streams are asked for at the control period with
-  MAV_CMD_SET_MESSAGE_INTERVAL, one command at a time, each resent until acknowledged.
+- Commands (companion.fc_commands: one at a time, each resent until acknowledged): the
+  telemetry frame's streams at the control period (MAV_CMD_SET_MESSAGE_INTERVAL); the FC's
+  stored M4_FAULT_STATUS (MAV_CMD_REQUEST_MESSAGE), which arrives as a message.
 - Out: M4_SETPOINT, M4_FAULT_STATUS, STATUSTEXT.
 - Health counters: bad CRC (garbled packets), bad signature (unsigned or badly signed,
   dropped by signing), foreign (other systems, components or addresses).
@@ -30,6 +36,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from companion.core.control_types import FaultStatus
+from companion.fc_commands import Command, CommandQueue
 from companion.link_delay import LinkDelay
 from companion.telemetry import REQUESTED, STREAMS
 from m4.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
@@ -37,8 +44,6 @@ from m4.mavlink.signing import SigningCounters
 from m4.setpoint import Setpoint
 
 HEARTBEAT_PERIOD_S = 1.0
-COMMAND_RETRY_S = 0.5
-COMMAND_ATTEMPTS = 5
 STATUSTEXT_MAX = 50
 DEFAULT_TELEMETRY_TIMEOUT_S = 0.3
 
@@ -62,7 +67,8 @@ class FcTransport(Protocol):
 
     def send_all(self, msgs: list[mavlink.MAVLink_message]) -> None: ...   # back to back (one datagram if they fit)
 
-    def lock_peer(self, address: Any) -> None: ...      # hear and answer only `address` from now on
+    def lock_peer(self, address: Any, hear_others: bool = False) -> None: ...
+    # answer only `address` from now on; hear only it too, unless hear_others
 
     def signing_counters(self) -> SigningCounters: ...
 
@@ -92,8 +98,8 @@ class LinkHealth:
     bad_crc: int
     bad_signature: int
     foreign: int
-    intervals_acked: int
-    intervals_pending: int
+    commands_acked: int
+    commands_pending: int
 
 
 def _floats(values) -> list[float]:
@@ -108,15 +114,13 @@ class FcLink:
         self.telemetry_timeout_s = telemetry_timeout_s
         self.fc_ids = (fc_system_id, fc_component_id)
         self.fc_address = None
+        self.previous_address = None                        # the FC's address before a re-acquisition
         self.connected = False                              # telemetry flowing (LinkEvent.TELEMETRY .. LOST)
         self.fc_time_ms: int | None = None                  # the FC's newest telemetry instant
         self.last_telemetry_s: float | None = None          # when it arrived (our clock)
         self._foreign = 0
         self._next_heartbeat_s = 0.0
-        self._intervals: list[tuple[int, float]] = []      # (msg id, interval us) still to be acked
-        self._sent_at_s: float | None = None
-        self._attempts = 0
-        self.intervals_acked = 0
+        self.commands = CommandQueue(fc_system_id, fc_component_id)
         self.delay = LinkDelay()
         self._signing = link.signing_key is not None
 
@@ -132,18 +136,17 @@ class FcLink:
         out = []
         for sender, msgs in self.link.receive_from():
             for msg in msgs:
-                if (msg.get_srcSystem(), msg.get_srcComponent()) != self.fc_ids or \
-                        (self.locked and sender != self.fc_address):     # the transport may read ahead of the lock
+                if (msg.get_srcSystem(), msg.get_srcComponent()) != self.fc_ids:
                     self._foreign += 1
                     continue
-                if not self.locked:
-                    if msg.get_msgId() != mavlink.MAVLINK_MSG_ID_HEARTBEAT or (self._signing and not msg.get_signed()):
+                if sender != self.fc_address:        # the transport may read ahead of a lock, or hear others
+                    if not (self._proves_fc(msg) and self._may_lock()):
+                        self._foreign += self.locked
                         continue
-                    self.fc_address = sender
-                    self.link.lock_peer(sender)
+                    self._lock(sender)
                     events.add(LinkEvent.LOCKED)
                 if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_COMMAND_ACK:
-                    self._on_ack(msg)
+                    self.commands.on_ack(msg)
                 elif msg.get_msgId() == mavlink.MAVLINK_MSG_ID_TIMESYNC:
                     self._on_timesync(msg, now_s)
                 elif msg.get_msgId() in STREAMS:
@@ -151,13 +154,26 @@ class FcLink:
                 out.append(msg)
         if self.connected and now_s >= self.loss_deadline_s():
             self.connected = False
+            self.link.lock_peer(self.fc_address, hear_others=True)     # a restarted FC may come from elsewhere
             events.add(LinkEvent.LOST)
         return Received(tuple(e for e in LinkEvent if e in events), out)
+
+    def _proves_fc(self, msg) -> bool:
+        return msg.get_msgId() == mavlink.MAVLINK_MSG_ID_HEARTBEAT and (msg.get_signed() or not self._signing)
+
+    def _may_lock(self) -> bool:
+        """Not locked yet, or locked to an FC whose telemetry was lost."""
+        return not self.locked or (not self.connected and self.last_telemetry_s is not None)
+
+    def _lock(self, sender) -> None:
+        self.previous_address, self.fc_address = self.fc_address, sender
+        self.link.lock_peer(sender)
 
     def _on_telemetry(self, time_ms: int, now_s: float) -> set[LinkEvent]:
         events = set()
         if not self.connected:
             self.connected = True
+            self.link.lock_peer(self.fc_address)
             events.add(LinkEvent.TELEMETRY)
         silent_s = None if self.last_telemetry_s is None else now_s - self.last_telemetry_s
         if self.fc_time_ms is not None and time_ms < self.fc_time_ms and silent_s >= self.telemetry_timeout_s:
@@ -181,49 +197,37 @@ class FcLink:
         else:
             self.delay.answered(msg.tc1, msg.ts1, now_s)
 
-    def _on_ack(self, msg) -> None:
-        if msg.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL and self._intervals and self._sent_at_s is not None:
-            self._intervals.pop(0)
-            self._sent_at_s = None
-            self._attempts = 0
-            self.intervals_acked += 1
-
     # -- periodic ----------------------------------------------------------------------------------
     def request_intervals(self, period_s: float) -> None:
         """Ask for the telemetry frame's streams and the ESC telemetry every period_s (again from the start)."""
         interval_us = float(round(period_s * 1e6))
-        self._intervals = [(msg_id, interval_us) for msg_id in REQUESTED]
-        self._sent_at_s = None
-        self._attempts = 0
+        self.commands.replace(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL,
+                              [Command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(i), interval_us)) for i in REQUESTED])
+
+    def request_fault_status(self) -> None:
+        """Ask for the M4_FAULT_STATUS the FC keeps of its companion (a restarted companion's
+        memory of a confirmed fault); it comes as a message, or an ack saying there is none."""
+        request = mavlink.MAV_CMD_REQUEST_MESSAGE
+        self.commands.replace(request, [Command(request, (float(mavlink.MAVLINK_MSG_ID_M4_FAULT_STATUS),))])
 
     def tick(self, now_s: float) -> None:
-        """Heartbeat when due; the pending interval request sent or resent."""
+        """Heartbeat when due; the pending command sent or resent."""
         if not (self.locked or self.heartbeat_before_lock):
             return
         if now_s >= self._next_heartbeat_s:
             self.link.send(mavlink.MAVLink_heartbeat_message(
                 mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3))
             self._next_heartbeat_s = now_s + HEARTBEAT_PERIOD_S
-        if self.locked and self._intervals and (self._sent_at_s is None or now_s - self._sent_at_s >= COMMAND_RETRY_S):
-            if self._attempts >= COMMAND_ATTEMPTS:
-                self._intervals.pop(0)           # the FC does not answer this one: go on with the others
-                self._attempts = 0
-                if not self._intervals:
-                    return
-            msg_id, interval_us = self._intervals[0]
-            self.link.send(mavlink.MAVLink_command_long_message(
-                *self.fc_ids, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, self._attempts, float(msg_id), interval_us,
-                0.0, 0.0, 0.0, 0.0, 0.0))
-            self._sent_at_s = now_s
-            self._attempts += 1
+        if self.locked and (msg := self.commands.next_message(now_s)) is not None:
+            self.link.send(msg)
 
     def next_due_s(self, now_s: float) -> float:
         """When tick() or the loss watchdog in receive() has something to do next."""
         if not (self.locked or self.heartbeat_before_lock):
             return now_s + HEARTBEAT_PERIOD_S          # nothing to send before the FC shows up
         due = min(self._next_heartbeat_s, self.loss_deadline_s())
-        if self._intervals:
-            due = min(due, now_s if self._sent_at_s is None else self._sent_at_s + COMMAND_RETRY_S)
+        if self.locked:
+            due = min(due, self.commands.next_due_s(now_s))
         return due
 
     # -- out ---------------------------------------------------------------------------------------
@@ -250,4 +254,4 @@ class FcLink:
         signing = self.link.signing_counters()
         return LinkHealth(locked=self.locked, bad_crc=max(self.link.bad_packets - signing.rejected, 0),
                           bad_signature=signing.rejected, foreign=self._foreign + self.link.foreign_datagrams,
-                          intervals_acked=self.intervals_acked, intervals_pending=len(self._intervals))
+                          commands_acked=self.commands.acked, commands_pending=self.commands.pending)

@@ -165,6 +165,13 @@ class FaultDetector:
         self._estimate_n = math.inf                # ceiling of the confirmed rotor
         self._effectiveness = 1.0                  # thrust per command of the confirmed rotor
 
+    def restore(self, rotor: int, thrust_max_estimate_n: float, detected_at_s: float) -> None:
+        """Start from a fault confirmed before this detector existed (a restarted companion:
+        the FC kept its M4_FAULT_STATUS): rotor 1..4, its ceiling, when it was confirmed."""
+        self._clear()
+        self._state, self._rotor, self._detected_at_s = FaultState.CONFIRMED, rotor - 1, detected_at_s
+        self._estimate_n = float(thrust_max_estimate_n)
+
     @property
     def status(self) -> FaultStatus:
         estimate, bound = self._limit_n.copy(), self._limit_n.copy()

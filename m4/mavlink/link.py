@@ -96,6 +96,7 @@ class UdpLink(MavlinkLink):
         super().__init__(source_system, source_component, tlog, key, link_id)
         self.peer: tuple[str, int] | None = None
         self.locked_peer: tuple[str, int] | None = None
+        self.hear_others = False
         self.foreign_datagrams = 0
         self.peer_filter: Callable[[mavlink.MAVLink_message], bool] = lambda msg: True
         self._batch: list[bytes] | None = None
@@ -171,18 +172,21 @@ class UdpLink(MavlinkLink):
 
     def ingest(self, data: bytes, sender: tuple[str, int]) -> list[mavlink.MAVLink_message]:
         """The messages of one datagram from `sender` (what `receive()` does with each)."""
-        if self.locked_peer is not None and sender != self.locked_peer:
+        others = self.locked_peer is not None and sender != self.locked_peer
+        if others and not self.hear_others:
             self.foreign_datagrams += 1
             return []
         out, bad = parse_bytes(self.mav, data, self.tlog)
         self.bad_packets += bad
-        if self.endpoint.mode == "udpin" and any(map(self.peer_filter, out)):
+        if self.endpoint.mode == "udpin" and not others and any(map(self.peer_filter, out)):
             self.peer = sender
         return out
 
-    def lock_peer(self, address: tuple[str, int] | None) -> None:
-        """From now on only `address` is heard and answered (None: anyone again)."""
+    def lock_peer(self, address: tuple[str, int] | None, hear_others: bool = False) -> None:
+        """From now on only `address` is answered (None: anyone again) and heard (with
+        hear_others, the others too, for the caller to judge; they never redirect the replies)."""
         self.locked_peer = address
+        self.hear_others = hear_others
         if address is not None and self.endpoint.mode == "udpin":
             self.peer = address
 

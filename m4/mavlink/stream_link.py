@@ -182,8 +182,9 @@ class StreamLink(MavlinkLink):
             out.append((self.stream.peer, msgs))
         return out
 
-    def lock_peer(self, address) -> None:
-        """A TCP server refuses other connections from now on; a client or serial port has one peer."""
+    def lock_peer(self, address, hear_others: bool = False) -> None:
+        """A TCP server refuses other connections from now on; a client or serial port has one
+        peer (a stream has nobody else to hear)."""
         self.stream.locked = address
 
     def close(self) -> None:

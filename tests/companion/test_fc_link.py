@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from companion.fc_link import FcLink, LinkEvent
-from companion.telemetry import REQUESTED, STREAMS
+from companion.telemetry import REQUESTED
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
 from m4.mavlink.link import UdpLink
 from m4.setpoint import Setpoint
@@ -185,12 +185,12 @@ def test_message_intervals_are_requested_one_at_a_time_until_acked(links):
                 fc.send(mavlink.MAVLink_command_ack_message(m.command, mavlink.MAV_RESULT_ACCEPTED, 0, 0, 1, 191))
         drain(received(companion), want=1, timeout_s=0.05)
         now += 0.3
-        if companion.health().intervals_pending == 0:
+        if companion.health().commands_pending == 0:
             break
     ids = [i for i, _ in asked]
     assert ids[:3] == [REQUESTED[0], REQUESTED[1], REQUESTED[1]]
     assert sorted(set(ids)) == sorted(REQUESTED) and {us for _, us in asked} == {20000.0}
-    assert companion.health().intervals_acked == len(REQUESTED)
+    assert companion.health().commands_acked == len(REQUESTED)
 
 
 # -- events, on a socket-free transport ----------------------------------------------------------------
@@ -243,3 +243,50 @@ def test_nothing_from_another_address_passes_once_locked_even_in_the_same_read(f
     assert [m.get_type() for m in got.messages] == ["HEARTBEAT", "LOCAL_POSITION_NED"]
     assert got.messages[1].x == 1.0 and fc_link.fc_address == FC
     assert fc_link.health().foreign == 2             # both of the stray's messages
+
+
+def test_nothing_from_another_address_passes_even_in_the_read_that_locks_on(links):
+    companion, fc, stray = links
+    fc.send(heartbeat())
+    stray.send(position(20, x=9.0))
+    fc.send(position(40, x=1.0))
+    time.sleep(0.05)                           # the three datagrams wait: one read takes them all
+    got = companion.receive(time.monotonic()).messages
+    assert [m.get_type() for m in got] == ["HEARTBEAT", "LOCAL_POSITION_NED"] and got[1].x == 1.0
+    assert companion.fc_address[1] == fc.local_port and companion.health().foreign == 1
+
+
+@pytest.mark.parametrize("links", [{"companion": KEY, "fc": KEY}], indirect=True)
+def test_with_a_key_a_forger_first_in_the_same_read_is_not_locked_on_to(links):
+    """A forged unsigned HEARTBEAT with the FC's ids and garbage arrive before the real FC's
+    signed HEARTBEAT, all in one read: the companion locks on to the real FC only."""
+    companion, fc, stray = links
+    stray.send(heartbeat())
+    stray.sock.sendto(bytes(range(256)) * 2, ("127.0.0.1", companion.link.local_port))
+    stray.send(position(20, x=9.0))
+    fc.send(heartbeat())
+    fc.send(position(40, x=1.0))
+    time.sleep(0.05)
+    got = companion.receive(time.monotonic()).messages
+    assert companion.fc_address[1] == fc.local_port
+    assert [m.get_type() for m in got] == ["HEARTBEAT", "LOCAL_POSITION_NED"] and got[1].x == 1.0
+    companion.tick(0.0)
+    time.sleep(0.05)
+    assert stray.receive() == [] and [m.get_type() for m in fc.receive()] == ["HEARTBEAT"]
+
+
+def test_after_the_telemetry_is_lost_only_a_proven_fc_elsewhere_takes_over(fake):
+    fc_link, transport = fake
+    other = ("10.0.0.2", 14555)
+    transport.deliver(FC, heartbeat(), position(100), mav=FC_MAV)
+    fc_link.receive(10.0)
+    transport.deliver(other, heartbeat(), mav=FC_MAV)                 # while ours is alive: no
+    assert fc_link.receive(10.1).events == () and fc_link.fc_address == FC
+    assert fc_link.receive(10.4).events == (LinkEvent.LOST,) and transport.hear_others
+    transport.deliver(other, position(5, x=3.0), mav=FC_MAV)            # telemetry is no proof
+    assert fc_link.receive(10.5).messages == [] and fc_link.fc_address == FC
+    transport.deliver(other, heartbeat(), position(20, x=4.0), mav=FC_MAV)
+    got = fc_link.receive(10.6)
+    assert got.events == (LinkEvent.LOCKED, LinkEvent.REBOOTED, LinkEvent.TELEMETRY)
+    assert fc_link.fc_address == other and fc_link.previous_address == FC and [m.x for m in got.messages[1:]] == [4.0]
+    assert transport.locked_peer == other and not transport.hear_others

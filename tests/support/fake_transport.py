@@ -21,6 +21,7 @@ class FakeTransport:
         self.inbox: deque[tuple[bytes, object]] = deque()
         self.sent: list[bytes] = []
         self.locked_peer = None
+        self.hear_others = False
         self.bad_packets = 0
         self.foreign_datagrams = 0
 
@@ -52,7 +53,7 @@ class FakeTransport:
         out = []
         while self.inbox:
             data, sender = self.inbox.popleft()
-            if self.locked_peer is not None and sender != self.locked_peer:
+            if self.locked_peer is not None and sender != self.locked_peer and not self.hear_others:
                 self.foreign_datagrams += 1
                 continue
             msgs, bad = parse_bytes(self.mav, data, None)
@@ -60,8 +61,8 @@ class FakeTransport:
             out.append((sender, msgs))
         return out
 
-    def lock_peer(self, address) -> None:
-        self.locked_peer = address
+    def lock_peer(self, address, hear_others: bool = False) -> None:
+        self.locked_peer, self.hear_others = address, hear_others
 
     def signing_counters(self) -> SigningCounters:
         return SigningCounters.of(self.mav)

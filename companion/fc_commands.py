@@ -1,0 +1,73 @@
+"""Commands to the flight controller, one at a time, each resent until it is acknowledged.
+
+A COMMAND_LONG goes out, and again every COMMAND_RETRY_S (its confirmation field counting
+the attempts) until a COMMAND_ACK for that command comes back, whatever its result (DENIED
+and FAILED are answers too); after COMMAND_ATTEMPTS unanswered sends it is given up and the
+next one goes. Pure logic: the caller sends what `next_message(now_s)` gives.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from m4.mavlink import mavlink
+
+COMMAND_RETRY_S = 0.5
+COMMAND_ATTEMPTS = 5
+
+
+@dataclass(frozen=True)
+class Command:
+    command: int                          # MAV_CMD_*
+    params: tuple[float, ...]             # param1.. (the rest 0)
+
+
+class CommandQueue:
+    def __init__(self, target_system: int, target_component: int):
+        self._target = (target_system, target_component)
+        self._pending: list[Command] = []
+        self._sent_at_s: float | None = None
+        self._attempts = 0
+        self.acked = 0
+        self.given_up = 0
+
+    @property
+    def pending(self) -> int:
+        return len(self._pending)
+
+    def replace(self, command: int, commands: list[Command]) -> None:
+        """Drop every pending `command` (the head too: it is sent afresh) and queue `commands`."""
+        if self._pending and self._pending[0].command == command:
+            self._restart_head()
+        self._pending = [c for c in self._pending if c.command != command] + commands
+
+    def on_ack(self, msg) -> None:
+        if self._pending and self._sent_at_s is not None and msg.command == self._pending[0].command:
+            self._pending.pop(0)
+            self._restart_head()
+            self.acked += 1
+
+    def next_due_s(self, now_s: float) -> float:
+        if not self._pending:
+            return float("inf")
+        return now_s if self._sent_at_s is None else self._sent_at_s + COMMAND_RETRY_S
+
+    def next_message(self, now_s: float) -> mavlink.MAVLink_command_long_message | None:
+        """The COMMAND_LONG to send now (None: nothing due)."""
+        if not self._pending or now_s < self.next_due_s(now_s):
+            return None
+        if self._attempts >= COMMAND_ATTEMPTS:
+            self._pending.pop(0)              # the FC does not answer this one: go on with the others
+            self._restart_head()
+            self.given_up += 1
+            if not self._pending:
+                return None
+        c = self._pending[0]
+        params = (list(c.params) + [0.0] * 7)[:7]
+        self._sent_at_s = now_s
+        self._attempts += 1
+        return mavlink.MAVLink_command_long_message(*self._target, c.command, self._attempts - 1, *params)
+
+    def _restart_head(self) -> None:
+        self._sent_at_s = None
+        self._attempts = 0
