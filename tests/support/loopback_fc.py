@@ -28,7 +28,7 @@ class LoopbackFc:
             mavlink.MAVLink_attitude_message(t_ms, roll_rad, 0.0, 0.0, 0.0, 0.0, 0.0),
             mavlink.MAVLink_local_position_ned_message(t_ms, 0.0, 0.0, z_ned_m, 0.0, 0.0, 0.0),
             mavlink.MAVLink_m4_joint_state_message(t_ms, [af.nominal_hip_rad] * 4, [0.0] * 4),
-            mavlink.MAVLink_m4_thruster_status_message(t_ms, hover, hover, [af.thrust_max_n] * 4)])
+            mavlink.MAVLink_m4_thruster_status_message(t_ms, hover, [af.thrust_max_n] * 4)])
 
     def received(self) -> list[mavlink.MAVLink_message]:
         return self.link.receive()
