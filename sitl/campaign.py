@@ -7,8 +7,13 @@ the plant's mismatch (mass and inertia scales) and sensor noise. Each becomes a 
 file in <out>/scenarios/ (so any one can be flown again with `m4-sitl fly FILE`), is flown
 by sitl.parallel and leaves its folder in <out>/flights/.
 
+Every flight has its own sensor-noise seed (`noise_seed`, drawn from the campaign's seed and
+the flight's index, in campaign.csv): `m4-sitl fly <out>/scenarios/NAME.toml --seed
+NOISE_SEED` flies that very flight again.
+
 Outputs: campaign.csv (one row a flight) and summary.md (survival rate, altitude loss,
-detection latency and rotor isolation per loss level, hover and forward flight apart).
+detection latency and rotor isolation per loss level, hover and forward flight apart). A
+flight that did not run is a row with its error.
 """
 
 from __future__ import annotations
@@ -23,7 +28,7 @@ import numpy as np
 
 from m4.airframe import ROTOR_COUNT
 from sitl.flight_run import FlightOptions
-from sitl.parallel import FlightJob, fly_all
+from sitl.parallel import Batch, FlightJob, fly_all
 
 LOSS_LEVELS = (0.33, 0.66, 1.0)
 MAX_SPEED_M_S = 3.0
@@ -48,6 +53,7 @@ class Case:
     mass_scale: float = 1.0
     inertia_scale: float = 1.0
     sensor_noise: bool = False
+    noise_seed: int = 0
 
     @property
     def duration_s(self) -> float:
@@ -68,9 +74,15 @@ class Case:
         return "\n".join(lines)
 
 
-def grid_cases(losses: tuple[float, ...] = LOSS_LEVELS) -> list[Case]:
+def noise_seed(seed: int, index: int) -> int:
+    """The sensor-noise seed of a campaign's flight: its own, from the campaign's seed and its index."""
+    return int(np.random.SeedSequence((seed, index)).generate_state(1)[0])
+
+
+def grid_cases(losses: tuple[float, ...] = LOSS_LEVELS, seed: int = 0) -> list[Case]:
     combos = itertools.product(range(1, ROTOR_COUNT + 1), losses, GRID_SPEEDS_M_S, GRID_FAULT_TIMES_S)
-    return [Case(f"grid-{i:03d}", rotor, loss, at_s, speed) for i, (rotor, loss, speed, at_s) in enumerate(combos)]
+    return [Case(f"grid-{i:03d}", rotor, loss, at_s, speed, noise_seed=noise_seed(seed, i))
+            for i, (rotor, loss, speed, at_s) in enumerate(combos)]
 
 
 def random_cases(n: int, seed: int = 0, losses: tuple[float, ...] = LOSS_LEVELS) -> list[Case]:
@@ -85,7 +97,7 @@ def random_cases(n: int, seed: int = 0, losses: tuple[float, ...] = LOSS_LEVELS)
             heading_deg=round(float(rng.uniform(-180.0, 180.0)), 1),
             mass_scale=round(float(rng.uniform(*MASS_SCALE_RANGE)), 3),
             inertia_scale=round(float(rng.uniform(*INERTIA_SCALE_RANGE)), 3),
-            sensor_noise=bool(rng.random() < 0.5)))
+            sensor_noise=bool(rng.random() < 0.5), noise_seed=noise_seed(seed, i)))
     return cases
 
 
@@ -136,22 +148,32 @@ def summary_markdown(rows: list[dict]) -> str:
     return head + "\n".join(lines) + "\n\n" + verdict + "\n"
 
 
+@dataclass(frozen=True)
+class Campaign:
+    summary: str                   # summary.md's text
+    rows: list[dict]               # campaign.csv's rows
+    batch: Batch                   # as flown, in the order of the rows
+
+
 def run_campaign(out_dir: Path = DEFAULT_OUT, samples: int = 20, seed: int = 0, grid: bool = False,
                  workers: int | None = None, rate_hz: float | None = None,
-                 losses: tuple[float, ...] = LOSS_LEVELS, engine: str = "local", scheduler: str | None = None) -> str:
-    out_dir = Path(out_dir)
-    cases = grid_cases(losses) if grid else random_cases(samples, seed, losses)
+                 losses: tuple[float, ...] = LOSS_LEVELS, engine: str = "local",
+                 scheduler: str | None = None) -> Campaign:
+    out_dir = Path(out_dir).resolve()
+    cases = grid_cases(losses, seed) if grid else random_cases(samples, seed, losses)
     (out_dir / "scenarios").mkdir(parents=True, exist_ok=True)
     jobs = []
     for case in cases:
         path = out_dir / "scenarios" / f"{case.name}.toml"
         path.write_text(case.scenario_toml())
-        jobs.append(FlightJob(str(path), out_dir / "flights" / case.name, FlightOptions(seed=seed, rate_hz=rate_hz)))
-    rows = [result_row(c, m) for c, m in zip(cases, fly_all(jobs, workers, "campaign", engine, scheduler))]
+        jobs.append(FlightJob(str(path), out_dir / "flights" / case.name,
+                              FlightOptions(seed=case.noise_seed, rate_hz=rate_hz)))
+    batch = fly_all(jobs, workers, "campaign", engine, scheduler)
+    rows = [result_row(c, m) for c, m in zip(cases, batch.results)]
     with (out_dir / "campaign.csv").open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for row in rows for k in row)), restval="")
         writer.writeheader()
         writer.writerows(rows)
     summary = summary_markdown(rows)
     (out_dir / "summary.md").write_text(summary)
-    return summary
+    return Campaign(summary, rows, batch)

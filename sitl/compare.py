@@ -12,7 +12,7 @@ import json
 from pathlib import Path
 
 from sitl.flight_run import CONTROLLERS, FlightOptions
-from sitl.parallel import FlightJob, fly_all
+from sitl.parallel import Batch, FlightJob, fly_all
 
 COMPARED = ("hover-rotor-loss", "forward-flight-fault", "waypoint-loe", "hover-rotor-loss-tight")
 DEFAULT_OUT = Path("runs") / "compare"
@@ -48,12 +48,14 @@ def markdown_table(rows: list[dict]) -> str:
 
 
 def compare(out_dir: Path = DEFAULT_OUT, scenarios: tuple[str, ...] = COMPARED, workers: int | None = None,
-            rate_hz: float | None = None) -> str:
+            rate_hz: float | None = None) -> tuple[str, Batch]:
+    """The Markdown table (also in comparison.md) and the flights as flown."""
     out_dir = Path(out_dir)
     pairs = [(s, c) for s in scenarios for c in CONTROLLERS]
     jobs = [FlightJob(s, out_dir / f"{s}-{c}", FlightOptions(controller=c, rate_hz=rate_hz), figures=True)
             for s, c in pairs]
-    results = [{"scenario": s, "controller": c, **m} for (s, c), m in zip(pairs, fly_all(jobs, workers, "compare"))]
+    batch = fly_all(jobs, workers, "compare")
+    results = [{"scenario": s, "controller": c, **m} for (s, c), m in zip(pairs, batch.results)]
     table = markdown_table(results)
     rate_text = "the companion's default rate" if rate_hz is None else f"{rate_hz:g} Hz"
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -61,4 +63,4 @@ def compare(out_dir: Path = DEFAULT_OUT, scenarios: tuple[str, ...] = COMPARED, 
         f"Posture manipulation (nmpc) against the fixed posture (fixed-posture), control at {rate_text}; "
         "regenerate with `m4-sitl compare`.\n\n" + table)
     (out_dir / "comparison.json").write_text(json.dumps(results, indent=2) + "\n")
-    return table
+    return table, batch

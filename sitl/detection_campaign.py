@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from m4.airframe import ROTOR_COUNT, load_airframe
+from sitl.campaign import Campaign
 from sitl.flight_run import FlightOptions
 from sitl.parallel import FlightJob, fly_all
 from sitl.records import FaultStatusLog, read_fault_status
@@ -201,7 +202,7 @@ def _verdicts(rows: list[dict]) -> list[str]:
 
 def run_detection_campaign(out_dir: Path, kinds, speeds, escs, seed: int = 0, false_alarm_minutes: float = 0.0,
                            workers: int | None = None, rate_hz: float | None = None, engine: str = "local",
-                           scheduler: str | None = None) -> str:
+                           scheduler: str | None = None) -> Campaign:
     from sitl.truth import load_truth
 
     out_dir = Path(out_dir).resolve()
@@ -214,7 +215,8 @@ def run_detection_campaign(out_dir: Path, kinds, speeds, escs, seed: int = 0, fa
         jobs.append(FlightJob(str(path), out_dir / "flights" / case.name, FlightOptions(seed=seed + k, rate_hz=rate_hz)))
     af = load_airframe()
     rows = []
-    for case, job, metrics in zip(cases, jobs, fly_all(jobs, workers, "detection", engine, scheduler)):
+    batch = fly_all(jobs, workers, "detection", engine, scheduler)
+    for case, job, metrics in zip(cases, jobs, batch.results):
         tlog, truth = job.out_dir / "flight.tlog", job.out_dir / "truth.npz"
         status = read_fault_status(tlog) if tlog.exists() else FaultStatusLog.empty()
         rows.append(result_row(case, metrics, status, load_truth(truth) if truth.exists() else None,
@@ -226,4 +228,4 @@ def run_detection_campaign(out_dir: Path, kinds, speeds, escs, seed: int = 0, fa
         writer.writerows(rows)
     summary = summary_markdown(rows)
     (out_dir / "detection.md").write_text(summary)
-    return summary
+    return Campaign(summary, rows, batch)

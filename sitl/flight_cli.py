@@ -1,12 +1,15 @@
 """The flight subcommands of `m4-sitl` (registered in sitl/cli.py): fly, compare, campaign.
 
 Each `add_<name>(subparsers)` declares the arguments and sets `func`; a flight that cannot
-start (FlightError) becomes the CLI's one-line bad-input error, exit code 2.
+start (FlightError) becomes the CLI's one-line bad-input error, exit code 2. compare and
+campaign print their throughput (flights per core-minute); when one of their flights did not
+run they say which and why in one line and exit with 1.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from sitl import scenarios
@@ -20,6 +23,8 @@ def _number(text: str) -> float:
         return float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+
+EXIT_FLIGHTS_NOT_RUN = 1
 
 
 def _loss(text: str) -> float:
@@ -119,8 +124,9 @@ def _compare(args) -> int:
         make_output_dir(args.out)
     except FlightError as e:
         raise BadInput(str(e)) from None
-    print(compare(args.out, workers=args.jobs, rate_hz=args.rate_hz), end="")
-    return 0
+    table, batch = compare(args.out, workers=args.jobs, rate_hz=args.rate_hz)
+    print(table, end="")
+    return _report(batch)
 
 
 def add_campaign(sub) -> None:
@@ -180,13 +186,22 @@ def _campaign(args) -> int:
     try:
         make_output_dir(out)
         if args.kind:
-            summary = run_detection_campaign(out, args.kind, args.speed, tuple(e == "on" for e in args.esc), args.seed,
-                                             args.false_alarm_minutes, args.jobs, args.rate_hz, args.engine,
-                                             args.scheduler)
+            result = run_detection_campaign(out, args.kind, args.speed, tuple(e == "on" for e in args.esc), args.seed,
+                                            args.false_alarm_minutes, args.jobs, args.rate_hz, args.engine,
+                                            args.scheduler)
         else:
-            summary = run_campaign(out, args.samples, args.seed, args.grid, args.jobs, args.rate_hz, losses,
-                                   args.engine, args.scheduler)
+            result = run_campaign(out, args.samples, args.seed, args.grid, args.jobs, args.rate_hz, losses,
+                                  args.engine, args.scheduler)
     except FlightError as e:
         raise BadInput(str(e)) from None
-    print(summary, end="")
-    return 0
+    print(result.summary, end="")
+    return _report(result.batch)
+
+
+def _report(batch) -> int:
+    """The throughput on stdout; when a flight did not run, one error line and exit code 1."""
+    print(batch.throughput())
+    if (not_run := batch.not_run()) is None:
+        return 0
+    print(f"m4-sitl: error: {not_run}", file=sys.stderr)
+    return EXIT_FLIGHTS_NOT_RUN

@@ -1,4 +1,11 @@
-"""Sensor noise on the measured state: white, Gaussian, seeded, sized by the airframe's [sensors]."""
+"""Sensor noise on the measured state: white, Gaussian, seeded, sized by the airframe's [sensors].
+
+The noise of a sample is a function of the seed and the sample's simulated instant only (a
+generator seeded with both), not of how many samples were drawn before: the flight
+controller may measure an instant more than once, or measure extra instants when a command
+or a resent frame arrives at a wall-clock-dependent moment, and the same seed must still
+give the same flight.
+"""
 
 from __future__ import annotations
 
@@ -14,13 +21,13 @@ from sitl.state import PlantState
 class SensorNoise:
     def __init__(self, af: Airframe, seed: int):
         self._af = af
-        self._rng = np.random.default_rng(seed)
+        self._seed = seed
 
     def measure(self, truth: PlantState) -> PlantState:
         """The truth plus noise on position, velocity, attitude (through the Euler angles, the
         quaternion rebuilt from them), body rates, hip angles and hip rates (the gyro's noise).
         Thrusts, the centre of mass and the ground flag are not measured quantities: kept."""
-        af, rng = self._af, self._rng
+        af, rng = self._af, np.random.default_rng((self._seed, round(truth.time_s * 1e6)))
         euler = truth.euler_rad + rng.normal(0.0, af.attitude_noise_rad, 3)
         euler[2] = (euler[2] + np.pi) % (2 * np.pi) - np.pi
         return dataclasses.replace(

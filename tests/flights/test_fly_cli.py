@@ -52,3 +52,14 @@ def test_an_unknown_controller_is_refused(capsys, tmp_path):
 @pytest.mark.parametrize("command", ["compare", "campaign"])
 def test_compare_and_campaign_refuse_unknown_options(capsys, command):
     _fails_with(capsys, [command, "--bogus"], "--bogus")
+
+
+def test_a_campaign_whose_flights_do_not_run_says_why_and_exits_non_zero(capsys, tmp_path):
+    out = tmp_path / "campaign"
+    assert main(["campaign", "--samples", "2", "--jobs", "1", "--rate-hz", "1000", "--out", str(out)]) == 1
+    captured = capsys.readouterr()
+    assert captured.err.strip().splitlines()[-1] == (
+        "m4-sitl: error: 2 of 2 flights did not run; sample-000: the companion did not start: "
+        "companion.toml [control] rate_hz must be <= 100, got 1000")
+    assert "flights per core-minute" in captured.out
+    assert (out / "campaign.csv").read_text().count("rate_hz must be <= 100") == 2

@@ -66,3 +66,11 @@ def test_comparison_table_has_one_row_per_flight_and_shows_errors():
     assert len(lines) == 4
     assert lines[2].startswith("| s | nmpc | **no** | 1.23 | 80 | - | 12.3 | 24.0 | 0.50 |")
     assert "not flown: port in use" in lines[3]
+
+
+def test_every_flight_has_its_own_noise_seed_from_the_campaign_seed():
+    seeds = [c.noise_seed for c in campaign.random_cases(20, seed=3)]
+    assert len(set(seeds)) == 20
+    assert seeds == [c.noise_seed for c in campaign.random_cases(20, seed=3)]
+    assert seeds != [c.noise_seed for c in campaign.random_cases(20, seed=4)]
+    assert [c.noise_seed for c in campaign.grid_cases(seed=3)][:20] == seeds

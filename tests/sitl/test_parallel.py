@@ -3,10 +3,12 @@ error row, on local processes and on a local Dask cluster alike (no flight is fl
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from sitl.flight_run import FlightError
-from sitl.parallel import FlightJob, fly_all
+from sitl.parallel import Batch, FlightJob, fly_all
 
 
 def _jobs(tmp_path):
@@ -17,10 +19,30 @@ def _jobs(tmp_path):
 def test_results_keep_the_order_of_the_jobs_and_failures_are_rows(tmp_path, engine):
     if engine == "dask":
         pytest.importorskip("distributed")
-    results = fly_all(_jobs(tmp_path), workers=2, engine=engine)
+    results = fly_all(_jobs(tmp_path), workers=2, engine=engine).results
     assert [f"missing-{i}.toml" in r["error"] for i, r in enumerate(results)] == [True] * 3
 
 
 def test_an_unknown_engine_is_refused(tmp_path):
     with pytest.raises(FlightError, match="unknown engine 'ray'"):
         fly_all(_jobs(tmp_path), engine="ray")
+
+
+def test_relative_paths_reach_the_workers_absolute(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "bad.toml").write_text('name = "bad"\nduration_s = [\n')
+    job = FlightJob("bad.toml", Path("out"))
+    assert job.absolute() == FlightJob(str(tmp_path / "bad.toml"), tmp_path / "out")
+    assert FlightJob("hover-rotor-loss", Path("out")).absolute().scenario == "hover-rotor-loss"   # a built-in name
+    batch = fly_all([job], workers=1)
+    assert str(tmp_path / "bad.toml") in batch.results[0]["error"]
+
+
+def test_a_batch_names_the_flights_that_did_not_run_and_its_throughput():
+    batch = Batch([{"survived": True}, {"error": "port in use"}, {"error": "no companion"}], ["a", "b", "c"],
+                  wall_s=30.0, cores=2)
+    assert batch.failed == [1, 2]
+    assert batch.not_run() == "2 of 3 flights did not run; b: port in use"
+    assert batch.flights_per_core_minute == pytest.approx(3.0)
+    assert batch.throughput() == "3 flights in 30 s on 2 cores: 3.00 flights per core-minute"
+    assert Batch([{"survived": False}], ["a"], 1.0, 1).not_run() is None

@@ -274,6 +274,20 @@ def test_sensor_noise_only_when_asked_seeded_and_only_on_measured_quantities():
     assert a.thrust_n == pytest.approx(truth.thrust_n)
 
 
+def test_sensor_noise_depends_on_the_instant_and_seed_not_on_how_often_it_was_drawn():
+    once, often = (Plant(AF, PlantOptions(sensor_noise=True), seed=3) for _ in range(2))
+    first = often.measured_state()
+    for _ in range(5):
+        assert often.measured_state().pos_ned_m == pytest.approx(first.pos_ned_m)
+    once.step(0.01)
+    often.step(0.01)
+    assert once.measured_state().euler_rad == pytest.approx(often.measured_state().euler_rad)
+    assert once.measured_state().pos_ned_m != pytest.approx(first.pos_ned_m)
+    other_seed = Plant(AF, PlantOptions(sensor_noise=True), seed=4)
+    other_seed.step(0.01)
+    assert other_seed.measured_state().pos_ned_m != pytest.approx(once.measured_state().pos_ned_m)
+
+
 def test_random_commands_through_the_api_never_raise_a_mujoco_warning():
     plant = Plant(AF, start_ned_m=(0.0, 0.0, -3.0))
     rng = np.random.default_rng(11)
