@@ -19,6 +19,7 @@ from sitl.esc_telemetry import EscTelemetry
 from sitl.flight_controller import TICK_MS, FlightController
 from sitl.plant import Plant
 from sitl.streams import FRAME
+from sitl.truth import DEFAULT_PERIOD_MS as OBSERVED_GRID_MS
 
 Send = Callable[[Iterable[mavlink.MAVLink_message]], None]
 
@@ -47,9 +48,13 @@ class Vehicle:
         self._at_instant(send, frame=True)
 
     def advance_to(self, t_ms: int, send: Send, frame: bool = False) -> None:
-        """Simulate up to `t_ms`; with `frame`, the lockstep frame goes out at `t_ms`."""
+        """Simulate up to `t_ms`; with `frame`, the lockstep frame goes out at `t_ms`. Every
+        instant on the OBSERVED_GRID_MS grid is one, so the observers (the truth log) sample the
+        same instants whatever the streams' timing (which depends on when, in wall-clock time, a
+        MAV_CMD_SET_MESSAGE_INTERVAL came)."""
         while self.now_ms < t_ms:
-            nxt = min(self.fc.next_event_ms(self.now_ms), t_ms)
+            grid = (self.now_ms // OBSERVED_GRID_MS + 1) * OBSERVED_GRID_MS
+            nxt = min(self.fc.next_event_ms(self.now_ms), t_ms, grid)
             if self._faults:
                 nxt = min(nxt, max(self._faults[0][0], self.now_ms + 1))
             self.plant.step((nxt - self.now_ms) / 1000.0)
