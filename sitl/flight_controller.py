@@ -29,7 +29,6 @@ are due, and `take_outbox()` to send what the FC has to say on its own.
 from __future__ import annotations
 
 import collections
-import enum
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -42,6 +41,7 @@ from m4.setpoint import Setpoint
 from sitl.commands import CommandHandler
 from sitl.esc_telemetry import EscTelemetry
 from sitl.failsafe import Failsafe, FailsafeMode
+from sitl.modes import FcMode, current_mode
 from sitl.rotor_watch import RotorWatch
 from sitl.state import PlantState
 from sitl.streams import DEFAULT_INTERVALS_MS, ESC_TELEMETRY_INTERVALS_MS, FRAME, StreamSchedule
@@ -58,14 +58,6 @@ MAX_AGE_PERIODS = 2               # than this many of its periods) is too old to
 _CONTROL_IDS = frozenset({mavlink.MAVLINK_MSG_ID_M4_SETPOINT, mavlink.MAVLINK_MSG_ID_COMMAND_LONG,
                           mavlink.MAVLINK_MSG_ID_COMMAND_INT, mavlink.MAVLINK_MSG_ID_M4_FAULT_STATUS})
 _COMMAND_IDS = (mavlink.MAVLINK_MSG_ID_COMMAND_LONG, mavlink.MAVLINK_MSG_ID_COMMAND_INT)
-
-
-class FcMode(enum.IntEnum):
-    """HEARTBEAT custom_mode values (MAV_MODE_FLAG_CUSTOM_MODE_ENABLED)."""
-    COMPANION = 0                  # flying the companion's setpoints
-    HOLD = FailsafeMode.HOLD.value
-    LAND = FailsafeMode.LAND.value
-    LANDED = FailsafeMode.LANDED.value
 
 
 _ANNOUNCE = {
@@ -146,7 +138,7 @@ class FlightController:
     def _set_mode(self, mode: FcMode) -> None:
         if mode != self.mode:
             self.mode = mode
-            self._outbox.append(statustext(*_ANNOUNCE[mode]))
+            self._outbox += [statustext(*_ANNOUNCE[mode]), current_mode(mode)]
 
     def _fresh(self, now_ms: int) -> bool:
         return self.setpoint is not None and now_ms <= self.setpoint.stale_after_ms

@@ -15,6 +15,7 @@ import numpy as np
 
 from m4.airframe import Airframe
 from m4.mavlink import mavlink
+from sitl import modes
 from sitl.esc_telemetry import EscReport
 from sitl.state import PlantState
 
@@ -62,6 +63,7 @@ class Telemetry:
         m = mavlink
         self._builders = {
             m.MAVLINK_MSG_ID_HEARTBEAT: self.heartbeat,
+            m.MAVLINK_MSG_ID_CURRENT_MODE: self.current_mode,
             m.MAVLINK_MSG_ID_SYS_STATUS: self.sys_status,
             m.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: self.extended_sys_state,
             m.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: self.global_position_int,
@@ -84,10 +86,13 @@ class Telemetry:
         return self._builders[msg_id](snap)
 
     def heartbeat(self, snap: Snapshot):
-        base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mavlink.MAV_MODE_FLAG_SAFETY_ARMED if snap.armed else 0)
+        base = modes.base_mode(snap.custom_mode, snap.armed)        # no CUSTOM_MODE_ENABLED: see sitl/modes.py
         status = mavlink.MAV_STATE_ACTIVE if snap.armed else mavlink.MAV_STATE_STANDBY
         return mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_GENERIC,
                                                  base, snap.custom_mode, status, 3)
+
+    def current_mode(self, snap: Snapshot):
+        return modes.current_mode(snap.custom_mode)
 
     def sys_status(self, snap: Snapshot):
         """The power module's pack voltage and current; the charge left assumes a full pack at boot."""

@@ -149,3 +149,17 @@ def test_unknown_command_is_acknowledged_unsupported():
 def test_command_for_another_component_is_left_to_it():
     with _fc() as companion:
         assert _command(companion, m.MAV_CMD_COMPONENT_ARM_DISARM, 1, target_component=191) is None
+
+
+def test_the_modes_are_told_by_the_standard_modes_protocol():
+    with _fc() as companion:
+        assert _command(companion, m.MAV_CMD_REQUEST_MESSAGE, m.MAVLINK_MSG_ID_AVAILABLE_MODES, 0).result \
+            == m.MAV_RESULT_ACCEPTED
+        companion.wait_for("AVAILABLE_MODES", lambda a: a.mode_index == a.number_modes)
+        assert [(a.custom_mode, a.mode_name) for a in companion.of_type("AVAILABLE_MODES")] == [
+            (0, "COMPANION"), (1, ""), (2, ""), (3, "LANDED")]
+        assert _command(companion, m.MAV_CMD_REQUEST_MESSAGE, m.MAVLINK_MSG_ID_AVAILABLE_MODES, 9).result \
+            == m.MAV_RESULT_DENIED
+        current = companion.wait_for("CURRENT_MODE", lambda c: c.custom_mode == 0)      # flying our setpoints
+        assert current.standard_mode == m.MAV_STANDARD_MODE_NON_STANDARD
+        assert companion.of_type("CURRENT_MODE")[0].standard_mode == m.MAV_STANDARD_MODE_POSITION_HOLD   # at start
