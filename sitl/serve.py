@@ -8,7 +8,8 @@ companion silent for `lockstep_timeout_s` is logged and the simulation goes on w
 waiting, in the FC's failsafe, until a setpoint comes again.
 
 Real time (`realtime=True`): the simulated clock follows the wall clock; messages are handled
-as they arrive. Every packet in and out goes to the tlog when one is asked for.
+as they arrive. Every packet in and out goes to the tlog when one is asked for. With several
+links, what arrives on one is routed to the others as an autopilot does (sitl/routing.py).
 
 A flood cannot stall the simulation: one poll reads at most `POLL_DATAGRAMS` datagrams per
 link (the rest waits in the socket, and the kernel drops what does not fit), so the plant
@@ -29,6 +30,7 @@ from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID
 from m4.mavlink.link import UdpLink, wait_readable
 from m4.mavlink.signing import StreamTimestamps
 from m4.mavlink.tlog import TlogWriter
+from sitl.routing import Router
 from sitl.scenario import Scenario
 from sitl.truth import TruthRecorder
 from sitl.vehicle import Vehicle, log
@@ -90,6 +92,7 @@ class Server:
         except Exception:
             self.close()
             raise
+        self.router = Router(self.links)
 
     # -- plumbing --------------------------------------------------------------------------------
     def send(self, msgs) -> None:
@@ -100,9 +103,10 @@ class Server:
 
     def poll(self) -> None:
         """Handle everything that has arrived, at the current simulated instant."""
-        for link in self.links:
+        for i, link in enumerate(self.links):
             msgs = [msg for _, batch in link.receive_from(POLL_DATAGRAMS) for msg in batch]
             if msgs:
+                self.router.forward(i, msgs)
                 self.vehicle.handle(msgs, self.send)
         if self.timestamps is not None:
             self.timestamps.save()

@@ -107,11 +107,11 @@ class StandInCompanion:
 
 
 @contextlib.contextmanager
-def served(companion: StandInCompanion, options):
-    """`sitl.serve.Server` with `options` (its links: the companion's URL) in a thread of this
-    process, the companion answering in another; both stopped on exit. Entered once the
-    companion has heard the FC (so it knows where to send)."""
-    server = Server(replace(options, mavlink_urls=(companion.url,)))
+def served(companion: StandInCompanion, options, more_urls: tuple[str, ...] = ()):
+    """`sitl.serve.Server` with `options` (its links: the companion's URL, then `more_urls`) in
+    a thread of this process, the companion answering in another; both stopped on exit.
+    Entered once the companion has heard the FC (so it knows where to send)."""
+    server = Server(replace(options, mavlink_urls=(companion.url, *more_urls)))
     thread = threading.Thread(target=server.run, daemon=True)
     companion.start()
     thread.start()

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from m4.airframe import load_airframe
-from m4.mavlink import mavutil
+from m4.mavlink import mavlink, mavutil
+from m4.mavlink.link import UdpLink, wait_readable
 from sitl.scenario import Fault, PlantOptions, Scenario
 from sitl.serve import ServeOptions, Server
 from sitl.truth import load_truth
@@ -114,3 +115,34 @@ def test_realtime_applies_the_freshest_setpoints():
     _, server = _fly(0.5, companion, scenario=Scenario(name="hover", duration_s=60.0), realtime=True)
     assert server.vehicle.fc.counters.setpoints_accepted >= 10
     assert np.allclose(companion.of_type("M4_THRUSTER_STATUS")[-1].thrust_cmd_n, thrust, atol=1e-4)
+
+
+def test_a_ground_station_on_a_second_link_gets_what_the_companion_says_and_vice_versa():
+    gcs = UdpLink("udpin:127.0.0.1:0", 255, 190)
+    companion = StandInCompanion()
+    heard = []
+    try:
+        with served(companion, ServeOptions(scenario=NOISY_FAULT, duration_s=60.0),
+                    more_urls=(f"udpout:127.0.0.1:{gcs.local_port}",)):
+            companion.send(mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_CRITICAL, b"thrust loss rotor 4"))
+            companion.send(mavlink.MAVLink_m4_fault_status_message(1000, 4, [30.0, 30.0, 30.0, 0.5], 1000, 2))
+            deadline = time.monotonic() + 10.0
+            while time.monotonic() < deadline and not any(m.get_type() == "M4_FAULT_STATUS" for m in heard):
+                wait_readable([gcs], 0.1)
+                heard += gcs.receive()
+            gcs.send(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID,
+                                                       0, 0, 0, 3))
+            for target in (191, 1):            # one for the companion, one for the FC alone
+                gcs.send(mavlink.MAVLink_command_long_message(1, target, mavlink.MAV_CMD_REQUEST_MESSAGE, 0,
+                                                              float(mavlink.MAVLINK_MSG_ID_HEARTBEAT), *[0.0] * 6))
+            companion.wait_for("COMMAND_LONG", timeout_s=5.0)
+            companion.wait_for("COMMAND_ACK", lambda a: a.target_system == 255, timeout_s=5.0)
+    finally:
+        gcs.close()
+    from_companion = [m for m in heard if m.get_srcComponent() == 191]
+    assert any(m.get_type() == "STATUSTEXT" and m.text == "thrust loss rotor 4" for m in from_companion)
+    assert any(m.get_type() == "M4_FAULT_STATUS" and m.rotor == 4 for m in from_companion)
+    assert not any(m.get_type() == "M4_SETPOINT" for m in heard)            # for the FC alone
+    from_gcs = [m for m in companion.received if m.get_srcSystem() == 255]
+    assert {m.get_type() for m in from_gcs} == {"HEARTBEAT", "COMMAND_LONG"}
+    assert [m.target_component for m in from_gcs if m.get_type() == "COMMAND_LONG"] == [191]
