@@ -15,6 +15,7 @@ flights ran on (local: the cores this process may use; Dask: each worker host's 
 from __future__ import annotations
 
 import dataclasses
+import multiprocessing
 import os
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -108,7 +109,10 @@ def fly_all(jobs: list[FlightJob], workers: int | None = None, desc: str = "flig
 
 def _fly_all_local(jobs: list[FlightJob], workers: int | None, desc: str) -> list[dict]:
     results: list[dict | None] = [None] * len(jobs)
-    with ProcessPoolExecutor(max_workers=workers or default_workers()) as pool:
+    # spawn, not fork: a forked copy of a process with threads (Zenoh's, a caller's) can
+    # inherit a lock held by one of them and hang.
+    with ProcessPoolExecutor(max_workers=workers or default_workers(),
+                             mp_context=multiprocessing.get_context("spawn")) as pool:
         futures = {pool.submit(_fly, job): i for i, job in enumerate(jobs)}
         for future in tqdm(as_completed(futures), total=len(jobs), desc=desc, unit="flight"):
             results[futures[future]] = future.result()
