@@ -33,6 +33,7 @@ from companion.core.esc_evidence import PropellerModel
 from companion.fc_link import FcLink, LinkEvent
 from companion.feed_publisher import Feed, open_feed
 from companion.loop_timing import LoopTiming
+from companion.flight_log import FlightLog, open_flight_log
 from companion.telemetry import THRUSTER_STATUS, TelemetryAssembler, VehicleSnapshot, rom_state
 from m4.airframe import ROTOR_COUNT
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
@@ -56,11 +57,12 @@ class LoopCounters:
 
 class CompanionApp:
     def __init__(self, config: CompanionConfig, fc: FcLink, controller: Controller, feed: Feed | None = None,
-                 clock=time.monotonic):
+                 clock=time.monotonic, flight_log: FlightLog | None = None):
         self.config = config
         self.fc = fc
         self.controller = controller
         self.feed = feed or Feed.disabled()
+        self.flight_log = flight_log or FlightLog.disabled()
         self.clock = clock
         self.period_ms = max(1, round(1000.0 * config.control_period_s))
         self.telemetry = TelemetryAssembler()
@@ -88,6 +90,7 @@ class CompanionApp:
         """Everything that has arrived, what it means, then the answer and the periodic messages."""
         now = self.clock()
         received = self.fc.receive(now)
+        self.flight_log.observe(received.messages)
         self._received += len(received.messages)
         for event in received.events:
             self._on_event(event, now)
@@ -162,6 +165,7 @@ class CompanionApp:
         self.timing.answered(read_s, sent_s)
         if (report := self.timing.report(sent_s)) is not None:
             log.warning("t=%.3f s: %s", t_s, report)
+        self.flight_log.decision(t_ms, step, sent_s - read_s)
         self._last_answered_ms = t_ms
         self.counters.answered += 1
         if step.nmpc is not None:
@@ -268,12 +272,14 @@ def open_app(config: CompanionConfig) -> CompanionApp:
         if feed is not None:
             feed.close()
         raise
+    link.tlog = flight_log = open_flight_log(config.log)      # every packet both ways, from here on
     fc = FcLink(link, config.link.fc_system_id, config.link.fc_component_id,
                 heartbeat_before_lock=not listens_for_peer(config.link.fc_url),
                 telemetry_timeout_s=config.link.telemetry_timeout_s)
-    return CompanionApp(config, fc, controller, feed)
+    return CompanionApp(config, fc, controller, feed, flight_log=flight_log)
 
 
 def close_app(app: CompanionApp) -> None:
     app.fc.link.close()
     app.feed.close()
+    app.flight_log.close()

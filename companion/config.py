@@ -8,7 +8,7 @@ The tables map onto the settings dataclasses of the parts they configure (NmpcCo
 ReferenceConfig, TouchdownConfig, FaultDetectorConfig, FeedSettings): a key is a field's
 name, its default is the field's default, and a field in radians (`*_rad`) is written in
 degrees (`*_deg`) in the file. Relative paths are taken from the file's folder. The Zenoh
-feed is the [feed] table of m4.feed.settings (absent: no feed).
+feed is the [feed] table of m4.feed.settings (absent: no feed); the flight log is [log].
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -56,6 +57,23 @@ class LinkConfig:
     fc_component_id: int = 1
 
 
+LOG_DIR_ENVS = ("M4_LOG_DIR", "LOGS_DIRECTORY")       # ours, then systemd's (the unit's LogsDirectory)
+
+
+def default_log_dir() -> Path:
+    """$M4_LOG_DIR, else $LOGS_DIRECTORY (set by systemd), else /var/log/m4."""
+    return Path(next((os.environ[e] for e in LOG_DIR_ENVS if os.environ.get(e)), "/var/log/m4"))
+
+
+@dataclass(frozen=True)
+class LogSettings:
+    """The flight log (companion/flight_log.py)."""
+    enabled: bool = True
+    dir: Path = field(default_factory=default_log_dir)
+    max_file_mb: float = 256.0              # a longer flight goes on in a new file
+    max_total_mb: float = 4096.0            # the oldest logs go beyond this
+
+
 @dataclass(frozen=True)
 class CompanionConfig:
     rate_hz: float = DEFAULT_RATE_HZ
@@ -68,6 +86,7 @@ class CompanionConfig:
     upset: UpsetConfig = field(default_factory=UpsetConfig)
     link: LinkConfig = field(default_factory=LinkConfig)
     feed: FeedSettings = field(default_factory=lambda: FeedSettings(enabled=False))   # the Zenoh feed
+    log: LogSettings = field(default_factory=LogSettings)
     airframe_path: Path | None = None       # None: the bundled reference airframe
     mission_path: Path | None = None        # None: no mission (hold where the flight starts)
     airframe: Airframe = field(default_factory=load_airframe)
@@ -106,6 +125,7 @@ def parse_config(data: dict, where: str, base_dir: Path | None = None) -> Compan
         upset=_settings(top.table("upset"), UpsetConfig),
         link=_link(top.table("link"), base_dir),
         feed=parse_feed_settings(top.table("feed"), base_dir) if top.has("feed") else FeedSettings(enabled=False),
+        log=_log(top.table("log"), base_dir),
         airframe_path=airframe_path,
         mission_path=mission_path,
         airframe=load_airframe(airframe_path),
@@ -160,6 +180,15 @@ def _settings(t: Table, cls: type, **given: Any):
         settings.validate()
     except ValueError as e:
         raise ConfigError(f"{t.where}: {e}") from None
+    return settings
+
+
+def _log(t: Table, base_dir: Path | None) -> LogSettings:
+    d = LogSettings()
+    settings = LogSettings(enabled=t.boolean("enabled", d.enabled), dir=t.path("dir", base_dir) or d.dir,
+                           max_file_mb=t.number("max_file_mb", d.max_file_mb, lo=0.0, lo_open=True),
+                           max_total_mb=t.number("max_total_mb", d.max_total_mb, lo=0.0, lo_open=True))
+    t.finish()
     return settings
 
 

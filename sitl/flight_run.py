@@ -5,7 +5,9 @@
 - companion.toml: the companion's configuration for this flight (controller variant, link,
   feed); the companion reads the scenario's [mission] from scenario.toml;
 - flight.tlog (every packet both ways), truth.npz (the plant's true state, sitl.truth),
-  feed.jsonl (the companion's Zenoh feed), sitl.log and companion.log (their stderr).
+  feed.jsonl (the companion's Zenoh feed), sitl.log and companion.log (their stderr),
+  companion-log/flight-*.tlog (the companion's own flight log: its side of the link and its
+  decisions, companion/flight_log.py).
 
 With `link` (delay, loss: sitl.netem) the SITL's MAVLink goes through a loopback proxy that
 impairs it both ways, and the flight is paced by the wall clock (a delay means nothing in
@@ -63,6 +65,9 @@ class FlightOptions:
     link: Impairment | None = None        # delay and loss between the SITL and the companion (real time)
 
 
+COMPANION_LOG_DIR = "companion-log"      # the companion's own flight log, in the flight's folder
+
+
 class FlightFiles:
     """Where a flight's files are, in its folder."""
 
@@ -75,6 +80,7 @@ class FlightFiles:
         self.feed = self.out_dir / "feed.jsonl"
         self.sitl_log = self.out_dir / "sitl.log"
         self.companion_log = self.out_dir / "companion.log"
+        self.companion_tlogs = self.out_dir / COMPANION_LOG_DIR
         self.metrics = self.out_dir / "metrics.json"
 
 
@@ -108,7 +114,8 @@ def companion_config_text(options: FlightOptions, mavlink_port: int, feed_port: 
     rate = [] if options.rate_hz is None else [f"rate_hz = {options.rate_hz:g}"]
     lines = ["# The companion's configuration for this flight (written by m4-sitl fly).",
              "[control]", *rate, "", "[link]",
-             f'fc_url = "udpin:127.0.0.1:{mavlink_port}"', ""]
+             f'fc_url = "udpin:127.0.0.1:{mavlink_port}"', "",
+             "[log]", f'dir = "{COMPANION_LOG_DIR}"', ""]
     if options.controller == "fixed-posture":
         nominal_deg = math.degrees(load_airframe().nominal_hip_rad)
         lines += ["[nmpc]", "# the fixed-posture variant: every hip pinned at the nominal angle",

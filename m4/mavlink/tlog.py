@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 from typing import Self
 
-_TIME = struct.Struct(">Q")
+TLOG_TIME = struct.Struct(">Q")          # each record's Unix time in microseconds, before the packet
 
 
 class TlogWriter:
@@ -29,7 +29,7 @@ class TlogWriter:
         if unix_time_us is None:
             unix_time_us = time.time_ns() // 1000
         with self._lock:
-            self._file.write(_TIME.pack(unix_time_us & ~0x3) + bytes(packet))
+            self._file.write(TLOG_TIME.pack(unix_time_us & ~0x3) + bytes(packet))
             self.records += 1
 
     def close(self) -> None:

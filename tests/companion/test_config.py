@@ -32,12 +32,15 @@ def test_defaults_fly_the_reference_airframe_at_50_hz_on_the_sitl_link(tmp_path)
     assert load_config(write(tmp_path, "")) == c          # an empty file is all defaults
 
 
-def test_example_file_loads_and_differs_from_the_defaults_only_in_link_and_feed():
+def test_example_file_loads_and_differs_from_the_defaults_only_in_link_feed_and_log_folder():
     c = load_config(EXAMPLE)
     assert c.link.fc_url == "/dev/ttyTHS1,921600"
     assert c.feed.enabled and c.feed.vehicle == "m4" and c.feed.zenoh_config == Path("/etc/m4/zenoh-companion.json5")
+    assert c.log.dir == Path("/var/log/m4")                  # the tests' default is $M4_LOG_DIR
     # A default changed in code and not in the example (or the reverse) shows up here.
-    assert dataclasses.replace(c, link=CompanionConfig().link, feed=CompanionConfig().feed) == load_config()
+    defaults = CompanionConfig()
+    assert dataclasses.replace(c, link=defaults.link, feed=defaults.feed,
+                               log=dataclasses.replace(c.log, dir=defaults.log.dir)) == load_config()
 
 
 def _file_keys(settings) -> set[str]:
@@ -50,7 +53,7 @@ def test_example_file_names_every_key_of_every_table():
     keys = (_file_keys(c.nmpc) - {"weights", "control_period_s"} | _file_keys(c.nmpc.weights)
             | _file_keys(c.fault_detector) | _file_keys(c.reference) | _file_keys(c.touchdown)
             | {"rate_hz", "disturbance_gain", "airframe_file", "mission_file", "fc_url", "signing_key_file",
-               "telemetry_timeout_s", "fc_system_id", "fc_component_id"})
+               "telemetry_timeout_s", "fc_system_id", "fc_component_id"} | _file_keys(c.log))
     missing = sorted(k for k in keys if f"\n{k} = " not in text and f"\n# {k} = " not in text)
     assert not missing, f"deploy/companion.toml does not document {missing}"
 

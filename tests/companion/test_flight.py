@@ -47,7 +47,8 @@ def _serve(app, *serve_args):
 
 
 def _fly(tmp_path):
-    config = parse_config({"control": {"rate_hz": RATE_HZ}, "link": {"fc_url": "udpin:127.0.0.1:0"}}, "test")
+    config = parse_config({"control": {"rate_hz": RATE_HZ}, "link": {"fc_url": "udpin:127.0.0.1:0"},
+                           "log": {"dir": str(tmp_path / "logs")}}, "test")
     config = dataclasses.replace(config, mission=scenarios.resolve(SCENARIO).mission)
     app = open_app(config)
     published = []
@@ -115,6 +116,21 @@ def test_the_feed_says_what_the_statustext_says_and_carries_every_topic(flight):
     assert 1.0 < confirmed[0]["detected_at_s"] <= 1.3
     nmpc = [p for topic, p in payloads if topic == "nmpc"]
     assert len(nmpc) >= 0.9 * SECONDS * RATE_HZ       # every control step (no rate cap on this feed)
+
+
+def test_the_companion_logs_what_the_link_carried_and_what_it_decided(flight):
+    app, tlog, _, _ = flight
+    [companion_log] = app.flight_log.files
+    ours, sitl = _messages(companion_log), _messages(tlog)
+
+    def count(msgs, kind):
+        return sum(m.get_type() == kind for m in msgs)
+    for kind in ("M4_SETPOINT", "M4_FAULT_STATUS", "M4_THRUSTER_STATUS", "STATUSTEXT"):
+        assert abs(count(ours, kind) - count(sitl, kind)) <= 5 and count(ours, kind), kind   # the ends differ
+    solve = [m for m in ours if m.get_type() == "NAMED_VALUE_FLOAT" and m.name == "nmpc_ms"]
+    latency = [m.value for m in ours if m.get_type() == "NAMED_VALUE_FLOAT" and m.name == "step_ms"]
+    assert len(solve) >= 0.9 * count(ours, "M4_SETPOINT") and all(m.value > 0 for m in solve)
+    assert len(latency) == count(ours, "M4_SETPOINT") and 0 < np.median(latency) < 100
 
 
 @pytest.mark.parametrize("same_key", [True, False], ids=["same key", "another key"])

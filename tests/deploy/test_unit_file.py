@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 
+from companion.config import default_log_dir
 from companion.core.codegen_cache import CACHE_ENV
 
 UNIT = Path(__file__).resolve().parents[2] / "deploy" / "m4-companion.service"
@@ -73,6 +74,13 @@ def test_system_is_read_only_but_for_the_cache_the_nmpc_code_reads(unit):
     env = dict(e.split("=", 1) for v in unit["Service"]["Environment"] for e in shlex.split(v))
     assert env[CACHE_ENV] in writable                    # compiled NMPC functions can be stored
     assert unit["Service"].get("LogsDirectory") or unit["Service"].get("ReadWritePaths"), "no writable log dir"
+
+
+def test_flight_logs_go_to_the_folder_systemd_makes_for_them(unit, monkeypatch):
+    assert one(unit, "Service", "LogsDirectory") == "m4"
+    monkeypatch.delenv("M4_LOG_DIR", raising=False)
+    monkeypatch.setenv("LOGS_DIRECTORY", "/var/log/m4")       # what systemd sets for LogsDirectory=m4
+    assert default_log_dir() == Path("/var/log/m4")
 
 
 def test_control_loop_runs_ahead_of_ordinary_work_but_not_real_time(unit):

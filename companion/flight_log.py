@@ -1,0 +1,210 @@
+"""The companion's flight log on the robot: one tlog per flight, with its own decisions in it.
+
+Every MAVLink packet that crosses the link to the flight controller, in both directions (the
+link hands each to `record()`, as to a TlogWriter), plus what the companion decided at each
+control step as MAVLink messages of its own (system 1, component 191, never sent on the
+link), so that any tlog tool (mavlogdump, MAVExplorer, `m4-companion plot`) reads one file:
+
+- NAMED_VALUE_FLOAT at each answered telemetry instant (time_boot_ms: the FC's): `nmpc_ms`
+  (solve time), `nmpc_iter`, `nmpc_cost`, `nmpc_ok` (1/0), `nmpc_fb` (fallback 1/0),
+  `step_ms` (from the frame's arrival to the setpoint sent: the companion's latency),
+  `com_n`/`com_e`/`com_d` (the centre of mass it planned from, NED m) and
+  `ref_n`/`ref_e`/`ref_d` (the mission reference there).
+- The detector's state is M4_FAULT_STATUS and the fault announcement STATUSTEXT: both go out
+  on the link, so they are in the log already.
+
+Files: `<dir>/flight-YYYYmmdd-HHMMSS.tlog` (UTC, the time the file was opened). A flight is
+from process start, or from the FC's HEARTBEAT turning armed after it was disarmed, to the
+next such arming or to the process's end. A file larger than `max_file_mb` is continued in
+a new one (`...-HHMMSS-2.tlog`). When a file is closed, the oldest logs of the folder go
+until all of them fit in `max_total_mb` (the file being written is never removed).
+
+Timing: the control loop only appends to a queue (a deque: no lock, no I/O, no packing); a
+thread of its own packs the decisions, writes and flushes every `FLUSH_S`. If the folder
+cannot be written at start the companion says so and flies without a log (a flight without a
+log beats no flight); a write error later is reported once and ends the logging.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from companion.config import LogSettings
+from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
+from m4.mavlink.tlog import TLOG_TIME
+
+log = logging.getLogger("m4-companion")
+
+FLUSH_S = 0.2
+PATTERN = "flight-*.tlog"
+_NEW_FLIGHT = object()            # a queue entry: start a new file here
+
+
+@dataclass(frozen=True)
+class Decision:
+    time_ms: int
+    values: tuple[tuple[str, float], ...]
+
+
+class FlightLog:
+    """Open with `open_flight_log()`; `FlightLog.disabled()` records nothing."""
+
+    def __init__(self, settings: LogSettings, clock_ns=time.time_ns):
+        self.settings = settings
+        self.dir = Path(settings.dir)
+        self.files: list[Path] = []                   # written by this process, in order
+        self.records = 0
+        self._clock_ns = clock_ns
+        self._queue: collections.deque = collections.deque()
+        self._armed: bool | None = None
+        self._file = None
+        self._size = 0
+        self._stop = threading.Event()
+        self._packets: list[bytes] = []               # what self._mav packs (the writer thread's)
+        self._mav = new_mav(self, FC_SYSTEM_ID, COMPANION_COMPONENT_ID)
+        self._thread: threading.Thread | None = None
+
+    @classmethod
+    def disabled(cls) -> FlightLog:
+        return cls(LogSettings(enabled=False))
+
+    @property
+    def enabled(self) -> bool:
+        return self._thread is not None
+
+    def start(self) -> FlightLog:
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self._open()                                  # fails here, at start, if the folder is not writable
+        self._thread = threading.Thread(target=self._run, name="flight-log", daemon=True)
+        self._thread.start()
+        return self
+
+    # -- the control loop's side: appends only -----------------------------------------------
+    def record(self, packet: bytes, unix_time_us: int | None = None) -> None:
+        """One packet sent or received (the link's tlog interface)."""
+        if self._thread is not None:
+            self._queue.append((self._clock_ns() // 1000 if unix_time_us is None else unix_time_us, bytes(packet)))
+
+    def observe(self, msgs) -> None:
+        """The FC's messages as received: its HEARTBEAT turning armed after disarmed starts a new flight."""
+        for msg in msgs:
+            if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+                armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+                if armed and self._armed is False and self._thread is not None:
+                    self._queue.append(_NEW_FLIGHT)
+                self._armed = armed
+
+    def decision(self, time_ms: int, step, latency_s: float) -> None:
+        """What the controller decided for the telemetry instant `time_ms` (a ControlStep)."""
+        if self._thread is None:
+            return
+        values = [("step_ms", latency_s * 1e3), ("com_n", step.state[0]), ("com_e", step.state[1]),
+                  ("com_d", step.state[2])]
+        if step.reference is not None:
+            values += [("ref_n", step.reference[0, 0]), ("ref_e", step.reference[0, 1]),
+                       ("ref_d", step.reference[0, 2])]
+        if step.nmpc is not None:
+            r = step.nmpc
+            values += [("nmpc_ms", r.solve_ms), ("nmpc_iter", r.iterations), ("nmpc_cost", r.cost),
+                       ("nmpc_ok", r.ok), ("nmpc_fb", r.fallback)]
+        self._queue.append((self._clock_ns() // 1000, Decision(int(time_ms), tuple(values))))
+
+    # -- the writer thread -------------------------------------------------------------------
+    def write(self, packet: bytes) -> None:
+        """Where self._mav puts a packed decision (writer thread only)."""
+        self._packets.append(bytes(packet))
+
+    def _run(self) -> None:
+        while not self._stop.wait(FLUSH_S):
+            if not self._drain():
+                return
+        self._drain()
+
+    def _drain(self) -> bool:
+        """Write what is queued; False after a write error (reported once; logging ends)."""
+        try:
+            while self._queue:
+                entry = self._queue.popleft()
+                if entry is _NEW_FLIGHT:
+                    self._close_file()
+                    self._open()
+                    continue
+                time_us, payload = entry
+                for packet in self._pack(payload):
+                    self._write(time_us, packet)
+            if self._file is not None:
+                self._file.flush()
+            return True
+        except OSError as e:
+            log.error("flight log: cannot write %s (%s); no more flight log this run", self.files[-1], e.strerror or e)
+            self._queue.clear()
+            self._thread = None
+            return False
+
+    def _pack(self, payload) -> list[bytes]:
+        if not isinstance(payload, Decision):
+            return [payload]
+        for name, value in payload.values:
+            self._mav.named_value_float_send(payload.time_ms, name.encode(), float(value))
+        packets, self._packets = self._packets, []
+        return packets
+
+    def _write(self, time_us: int, packet: bytes) -> None:
+        if self._size >= self.settings.max_file_mb * 1e6:
+            self._close_file()
+            self._open()
+        self._file.write(TLOG_TIME.pack(time_us & ~0x3) + packet)
+        self._size += TLOG_TIME.size + len(packet)
+        self.records += 1
+
+    def _open(self) -> None:
+        stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime(self._clock_ns() / 1e9))
+        path, n = self.dir / f"flight-{stamp}.tlog", 1
+        while path.exists() or path in self.files:
+            n += 1
+            path = self.dir / f"flight-{stamp}-{n}.tlog"
+        self._file = path.open("wb")
+        self._size = 0
+        self.files.append(path)
+
+    def _close_file(self) -> None:
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+            self._trim()
+
+    def _trim(self) -> None:
+        """Remove the oldest logs until the folder's fit in max_total_mb (never the newest file)."""
+        logs = sorted(self.dir.glob(PATTERN), key=lambda p: (p.stat().st_mtime, p.name))
+        total = sum(p.stat().st_size for p in logs)
+        for old in logs[:-1]:
+            if total <= self.settings.max_total_mb * 1e6:
+                break
+            total -= old.stat().st_size
+            old.unlink()
+
+    def close(self) -> None:
+        """Write everything queued and close the file."""
+        thread, self._thread = self._thread, None
+        if thread is not None:
+            self._stop.set()
+            thread.join()
+        self._close_file()
+
+
+def open_flight_log(settings: LogSettings) -> FlightLog:
+    """The flight log as the settings ask; a folder that cannot be written is said, not fatal."""
+    if not settings.enabled:
+        return FlightLog.disabled()
+    flight_log = FlightLog(settings)
+    try:
+        return flight_log.start()
+    except OSError as e:
+        log.error("flight log off: cannot write %s (%s); set [log] dir, or enabled = false", settings.dir,
+                  e.strerror or e)
+        return FlightLog.disabled()

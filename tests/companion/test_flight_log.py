@@ -1,0 +1,116 @@
+"""The companion's flight log: every packet both ways and its decisions, one tlog per flight,
+rotated by size, the folder kept under its cap; an unwritable folder does not stop a flight."""
+
+from __future__ import annotations
+
+import logging
+import os
+from types import SimpleNamespace
+
+import numpy as np
+
+from companion.config import LogSettings, parse_config
+from companion.flight_log import FlightLog, open_flight_log
+from m4.mavlink import COMPANION_COMPONENT_ID, mavlink, mavutil, new_mav
+
+
+class _Packets:
+    def __init__(self):
+        self.packets = []
+
+    def write(self, packet):
+        self.packets.append(bytes(packet))
+
+
+def _packets_of(*msgs, component=1):
+    out = _Packets()
+    mav = new_mav(out, 1, component)
+    for msg in msgs:
+        mav.send(msg)
+    return out.packets
+
+
+def _heartbeat(armed: bool):
+    base = mavlink.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0
+    msg = mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_GENERIC, base, 0, 4, 3)
+    packet = _packets_of(msg)[0]
+    return new_mav(None, 1, 191).parse_char(packet), packet
+
+
+def _read(path):
+    conn = mavutil.mavlink_connection(str(path), dialect="m4")
+    out = []
+    while (msg := conn.recv_match()) is not None:
+        out.append(msg)
+    conn.close()
+    return out
+
+
+def _step(nmpc=True):
+    reference = np.zeros((6, 20))
+    reference[0, :3] = (0.0, 0.0, -2.0)
+    result = SimpleNamespace(solve_ms=1.25, iterations=3, cost=0.5, ok=True, fallback=False) if nmpc else None
+    return SimpleNamespace(state=np.array([0.1, 0.2, -1.9] + [0.0] * 17), reference=reference, nmpc=result)
+
+
+def test_packets_and_decisions_land_in_one_tlog_per_flight(tmp_path):
+    flight_log = FlightLog(LogSettings(dir=tmp_path)).start()
+    armed, armed_packet = _heartbeat(True)
+    disarmed, disarmed_packet = _heartbeat(False)
+    setpoint = _packets_of(mavlink.MAVLink_m4_setpoint_message(1, 1, 20, 20, [14.7] * 4, [0.78] * 4, [0.0] * 4, 0),
+                           component=COMPANION_COMPONENT_ID)[0]
+    for packet, msgs in ((armed_packet, [armed]), (setpoint, []), (disarmed_packet, [disarmed])):
+        flight_log.record(packet)
+        flight_log.observe(msgs)
+    flight_log.decision(20, _step(), latency_s=0.0021)
+    flight_log.observe([armed])                       # armed again: a second flight
+    flight_log.record(armed_packet)
+    flight_log.decision(40, _step(nmpc=False), latency_s=0.001)
+    flight_log.close()
+
+    assert len(flight_log.files) == 2 and sorted(tmp_path.glob("flight-*.tlog")) == sorted(flight_log.files)
+    first, second = (_read(p) for p in flight_log.files)
+    assert [m.get_type() for m in first[:3]] == ["HEARTBEAT", "M4_SETPOINT", "HEARTBEAT"]
+    decided = {m.name: m.value for m in first if m.get_type() == "NAMED_VALUE_FLOAT"}
+    assert decided["nmpc_ms"] == 1.25 and decided["nmpc_iter"] == 3 and decided["nmpc_ok"] == 1.0
+    assert abs(decided["step_ms"] - 2.1) < 1e-4 and abs(decided["com_d"] + 1.9) < 1e-6 and decided["ref_d"] == -2.0
+    assert {m.time_boot_ms for m in first if m.get_type() == "NAMED_VALUE_FLOAT"} == {20}
+    assert all(m.get_srcComponent() == COMPANION_COMPONENT_ID for m in first if m.get_type() == "NAMED_VALUE_FLOAT")
+    assert second[0].get_type() == "HEARTBEAT"
+    assert "nmpc_ms" not in {m.name for m in second if m.get_type() == "NAMED_VALUE_FLOAT"}    # no solve ran
+
+
+def test_a_long_flight_goes_on_in_new_files_and_the_folder_stays_under_its_cap(tmp_path):
+    old = [tmp_path / f"flight-2020010{i}-000000.tlog" for i in range(1, 4)]
+    for i, path in enumerate(old):
+        path.write_bytes(b"\0" * 4000)
+        os.utime(path, (1e9 + i, 1e9 + i))
+    flight_log = FlightLog(LogSettings(dir=tmp_path, max_file_mb=0.002, max_total_mb=0.009)).start()
+    packet = _packets_of(mavlink.MAVLink_m4_setpoint_message(1, 1, 20, 20, [14.7] * 4, [0.78] * 4, [0.0] * 4, 0))[0]
+    for _ in range(200):                              # about 15 kB
+        flight_log.record(packet)
+    flight_log.close()
+    assert len(flight_log.files) >= 7
+    left = sorted(tmp_path.glob("flight-*.tlog"))
+    assert sum(p.stat().st_size for p in left) <= 9000
+    assert not any(p.exists() for p in old)           # the oldest went first
+    assert flight_log.files[-1].exists()
+    assert sum(len(_read(p)) for p in left) > 0
+
+
+def test_an_unwritable_folder_is_said_and_the_flight_goes_on(tmp_path, caplog):
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("")
+    with caplog.at_level(logging.ERROR, logger="m4-companion"):
+        flight_log = open_flight_log(LogSettings(dir=blocker / "logs"))
+    assert not flight_log.enabled
+    flight_log.record(b"\xfd")
+    flight_log.close()
+    assert "flight log off: cannot write" in caplog.text and "[log] dir" in caplog.text
+
+
+def test_the_log_table_is_read_and_checked(tmp_path):
+    config = parse_config({"log": {"dir": "logs", "max_file_mb": 10, "max_total_mb": 100}}, "c.toml", tmp_path)
+    assert config.log == LogSettings(enabled=True, dir=tmp_path / "logs", max_file_mb=10.0, max_total_mb=100.0)
+    assert parse_config({}, "defaults").log.dir.name      # a default folder ($M4_LOG_DIR in the tests)
+    assert not parse_config({"log": {"enabled": False}}, "c.toml").log.enabled
