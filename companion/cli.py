@@ -71,12 +71,21 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run.run)
 
 
+def _add_plot(sub: argparse._SubParsersAction) -> None:
+    from companion import plot
+
+    p = sub.add_parser("plot", help="figures and metrics of a flight from its tlog (the plot extra)")
+    plot.add_arguments(p)
+    p.set_defaults(func=plot.run)
+
+
 # One line per subcommand.
 SUBCOMMANDS = (
     _add_bench,
     _add_watch,
     _add_dashboard,
     _add_run,
+    _add_plot,
 )
 
 

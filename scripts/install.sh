@@ -26,4 +26,6 @@ python -m pip install --upgrade pip
 python -m pip install -e ".[sim,test,cluster]"
 # Byte-compile the project once: with PYTHONDONTWRITEBYTECODE set (as here and in CI) every
 # process would otherwise recompile the 2 MB generated dialect (1-3 s per companion/SITL start).
-python -m compileall -q m4 companion sitl research >/dev/null
+python -m compileall -q m4 companion sitl research analysis >/dev/null
+# pymavlink's own tools (mavlogdump.py, MAVExplorer.py, mavproxy.py) decode our messages by name.
+python -m m4.mavlink.install_dialect

@@ -1,14 +1,13 @@
-"""The flight's figures (PNG, matplotlib's Agg backend: no display needed), like the paper's.
+"""A simulated flight's figures (PNG, matplotlib's Agg backend: no display needed), like the paper's.
 
-- trajectory.png: position of the centre of mass against the reference, roll and pitch, and
-  yaw on a panel of its own (after a rotor loss it spins through thousands of degrees, which
-  would flatten roll and pitch into a line);
-- velocities_rates.png: body-frame velocities and angular rates;
-- actuators.png: delivered thrust per rotor with its limit, and hip angles;
-- snapshots.png: drawings of the robot from above and from the side at a few instants;
+- trajectory, velocities_rates, actuators, yaw_rate: drawn from the flight's tlog by the same
+  code as `m4-companion plot` (analysis.figures), the companion's own log when it wrote one
+  (it holds the reference), else the SITL's flight.tlog; the faults marked where the scenario
+  put them, their detection where sitl.metrics found it;
+- snapshots.png: drawings of the robot from above and from the side at a few instants (the
+  simulator's truth);
 - model_matching.png (sitl.model_matching): the reduced-order model's open-loop prediction
   against the plant after rotor 4 stops.
-Every time plot marks each fault (dashed) and its detection (dotted).
 """
 
 from __future__ import annotations
@@ -21,86 +20,16 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from analysis.figures import ROTOR_COLOURS, draw
+from analysis.tlog_reader import read_tlog
 from m4.airframe import ROTOR_COUNT, Airframe
 from m4.attitude import rotation_ned_from_frd
+from sitl.flight_run import FlightFiles
 from sitl.model_matching import FAILED_ROTOR, MatchResult
 from sitl.truth import Truth
 
-ROTOR_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red")
 SNAPSHOT_OFFSETS_S = (-0.5, 0.0, 0.3, 0.6, 1.0, 2.0)     # around the first fault
 DPI = 110
-
-
-def _mark_faults(ax, faults: list[dict]) -> None:
-    for f in faults:
-        ax.axvline(f["at_s"], color="crimson", ls="--", lw=1.0)
-        if f.get("detected_at_s") is not None:
-            ax.axvline(f["detected_at_s"], color="crimson", ls=":", lw=1.0)
-
-
-def _finish(fig, axes, faults: list[dict], path: Path, title: str) -> Path:
-    for ax in axes:
-        _mark_faults(ax, faults)
-        ax.grid(alpha=0.3)
-    axes[-1].set_xlabel("time (s)")
-    fig.suptitle(title + "   (-- fault, ·· detected)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=DPI)
-    plt.close(fig)
-    return path
-
-
-def trajectory_figure(path: Path, title: str, truth: Truth, ref_ned_m: np.ndarray, faults: list[dict]) -> Path:
-    t = truth.time_s
-    fig, axes = plt.subplots(3, 1, figsize=(9, 9), sharex=True, height_ratios=(3, 3, 2))
-    for i, (name, sign) in enumerate((("north", 1), ("east", 1), ("altitude", -1))):
-        line, = axes[0].plot(t, sign * truth.com_ned_m[:, i], label=f"{name}")
-        axes[0].plot(t, sign * ref_ned_m[:, i], ls="--", color=line.get_color(), lw=1, label=f"{name} ref")
-    axes[0].set_ylabel("centre of mass (m)")
-    axes[0].legend(ncol=3, fontsize=8)
-    for i, name in enumerate(("roll", "pitch")):
-        axes[1].plot(t, np.degrees(truth.euler_rad[:, i]), label=name)
-    axes[1].set_ylabel("roll, pitch (deg)")
-    axes[1].legend(fontsize=8)
-    axes[2].plot(t, np.degrees(np.unwrap(truth.euler_rad[:, 2])), color="tab:green", label="yaw")
-    axes[2].set_ylabel("yaw (deg, unwrapped)")
-    axes[2].legend(fontsize=8)
-    return _finish(fig, axes, faults, path, title)
-
-
-def body_velocities(truth: Truth) -> np.ndarray:
-    """(n, 3) velocity of the hull in the body frame FRD."""
-    return np.array([rotation_ned_from_frd(e).T @ v for e, v in zip(truth.euler_rad, truth.vel_ned_m_s)])
-
-
-def velocities_rates_figure(path: Path, title: str, truth: Truth, faults: list[dict]) -> Path:
-    t = truth.time_s
-    fig, axes = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
-    vel_frd_m_s = body_velocities(truth)
-    for i, name in enumerate(("u (forward)", "v (right)", "w (down)")):
-        axes[0].plot(t, vel_frd_m_s[:, i], label=name)
-    axes[0].set_ylabel("body velocity (m/s)")
-    axes[0].legend(fontsize=8)
-    for i, name in enumerate(("p (roll)", "q (pitch)", "r (yaw)")):
-        axes[1].plot(t, truth.rates_frd_rad_s[:, i], label=name)
-    axes[1].set_ylabel("body rates (rad/s)")
-    axes[1].legend(fontsize=8)
-    return _finish(fig, axes, faults, path, title)
-
-
-def actuators_figure(path: Path, title: str, truth: Truth, faults: list[dict]) -> Path:
-    t = truth.time_s
-    fig, axes = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
-    for i in range(ROTOR_COUNT):
-        c = ROTOR_COLOURS[i]
-        axes[0].plot(t, truth.thrust_n[:, i], color=c, label=f"rotor {i + 1}")
-        axes[0].plot(t, truth.thrust_limit_n[:, i], color=c, ls=":", lw=1)
-        axes[1].plot(t, np.degrees(truth.hip_rad[:, i]), color=c, label=f"hip {i + 1}")
-    axes[0].set_ylabel("delivered thrust (N)\n(dotted: limit)")
-    axes[0].legend(ncol=4, fontsize=8)
-    axes[1].set_ylabel("hip angle (deg)")
-    axes[1].legend(ncol=4, fontsize=8)
-    return _finish(fig, axes, faults, path, title)
 
 
 def snapshot_instants(truth: Truth, fault_s: float | None) -> list[int]:
@@ -186,12 +115,15 @@ def model_matching_figure(path: Path, result: MatchResult) -> Path:
     return path
 
 
-def flight_figures(out_dir: Path, title: str, af: Airframe, truth: Truth, ref_ned_m: np.ndarray,
-                   faults: list[dict]) -> list[Path]:
-    out_dir = Path(out_dir)
+def flight_tlog(files: FlightFiles) -> Path:
+    """The tlog the figures are drawn from: the companion's newest flight log, else the SITL's."""
+    logs = sorted(files.companion_tlogs.glob("flight-*.tlog")) if files.companion_tlogs.is_dir() else []
+    return logs[-1] if logs else files.tlog
+
+
+def flight_figures(files: FlightFiles, title: str, af: Airframe, truth: Truth, faults: list[dict]) -> list[Path]:
+    """Every figure of a flown flight into its folder; `faults`: metrics.json's."""
     fault_s = faults[0]["at_s"] if faults else None
-    return [trajectory_figure(out_dir / "trajectory.png", title, truth, ref_ned_m, faults),
-            velocities_rates_figure(out_dir / "velocities_rates.png", title, truth, faults),
-            actuators_figure(out_dir / "actuators.png", title, truth, faults),
-            snapshots_figure(out_dir / "snapshots.png", title, af, truth, fault_s, {f["rotor"] for f in faults
-                                                                                     if f["loss"] >= 1.0})]
+    paths = draw(read_tlog(flight_tlog(files)), files.out_dir, title, faults)
+    return paths + [snapshots_figure(files.out_dir / "snapshots.png", title, af, truth, fault_s,
+                                     {f["rotor"] for f in faults if f["loss"] >= 1.0})]

@@ -56,7 +56,7 @@ def evaluate(files: FlightFiles, scenario: Scenario, controller: str, af: Airfra
     if figures:
         from sitl.figures import flight_figures
 
-        flight_figures(files.out_dir, f"{scenario.name} ({controller})", af, truth, ref, metrics["faults"])
+        flight_figures(files, f"{scenario.name} ({controller})", af, truth, metrics["faults"])
     return metrics
 
 

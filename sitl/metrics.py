@@ -31,6 +31,7 @@ import math
 
 import numpy as np
 
+from analysis.measures import TILT_RECOVERED_DEG, tilt_deg, tilt_recovered_s, time_to_yaw_saturation, yaw_rate_final
 from m4.airframe import Airframe
 from m4.mission_plan import MissionPlan
 from m4.mavlink import mavlink
@@ -39,11 +40,7 @@ from sitl.records import FaultStatusLog, NmpcLog
 from sitl.truth import Truth
 
 CONFIRMED = mavlink.M4_FAULT_STATE_CONFIRMED
-TILT_RECOVERED_DEG = 10.0
 TILT_UPSIDE_DOWN_DEG = 90.0
-YAW_FINAL_WINDOW_S = 1.0
-YAW_SATURATION_FRACTION = 0.9
-YAW_SPIN_MIN_RAD_S = 1.0
 DETECTION_MARGIN = 0.25
 COMPLETE_TOLERANCE_S = 0.05
 AT_REST_SPEED_M_S = 0.2
@@ -51,12 +48,6 @@ TOUCHDOWN_WINDOW_S = 0.2
 # Survival: what every built-in scenario must achieve.
 ALTITUDE_LOSS_MAX_M = 0.5
 TOUCHDOWN_SPEED_MAX_M_S = 1.0
-
-
-def tilt_deg(euler_rad: np.ndarray) -> np.ndarray:
-    """Angle between body z and the vertical for ZYX Euler angles (n, 3)."""
-    e = np.asarray(euler_rad, dtype=float).reshape(-1, 3)
-    return np.degrees(np.arccos(np.clip(np.cos(e[:, 0]) * np.cos(e[:, 1]), -1.0, 1.0)))
 
 
 def touchdown_index(time_s: np.ndarray, on_ground: np.ndarray, land_s: float | None) -> int | None:
@@ -97,26 +88,6 @@ def altitude_loss_m(time_s: np.ndarray, com_z_ned_m: np.ndarray, ref_z_ned_m: np
     span = slice(int(np.searchsorted(time_s, from_s)), airborne_end + 1)
     drop = com_z_ned_m[span] - ref_z_ned_m[span]            # NED: positive is below the reference
     return float(max(np.max(drop, initial=0.0), 0.0))
-
-
-def tilt_recovered_s(time_s: np.ndarray, tilt: np.ndarray, from_s: float, airborne_end: int) -> float | None:
-    span = np.arange(int(np.searchsorted(time_s, from_s)), airborne_end + 1)
-    if span.size == 0 or tilt[span[-1]] > TILT_RECOVERED_DEG:
-        return None
-    above = span[tilt[span] > TILT_RECOVERED_DEG]
-    return 0.0 if above.size == 0 else float(time_s[above[-1] + 1] - from_s)
-
-
-def yaw_rate_final(time_s: np.ndarray, yaw_rate: np.ndarray, until_s: float) -> float:
-    keep = (time_s <= until_s) & (time_s > until_s - YAW_FINAL_WINDOW_S)
-    return float(np.mean(yaw_rate[keep])) if np.any(keep) else 0.0
-
-
-def time_to_yaw_saturation(time_s: np.ndarray, yaw_rate: np.ndarray, from_s: float, final: float) -> float | None:
-    if abs(final) < YAW_SPIN_MIN_RAD_S:
-        return None
-    hits = np.flatnonzero((time_s >= from_s) & (np.abs(yaw_rate) >= YAW_SATURATION_FRACTION * abs(final)))
-    return float(time_s[hits[0]] - from_s) if hits.size else None
 
 
 def detections(scenario: Scenario, status: FaultStatusLog, hover_thrust_n: float) -> list[dict]:

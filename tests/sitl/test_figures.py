@@ -1,8 +1,6 @@
-"""Flight figures from synthetic records: files written, body-frame velocities, snapshot instants."""
+"""The simulator's own figures from synthetic truth: snapshot instants (the tlog figures: tests/analysis)."""
 
 from __future__ import annotations
-
-import math
 
 import numpy as np
 
@@ -23,23 +21,9 @@ def _truth(n=300, dt=0.01, yaw_rad=0.0, vel_ned=(0.0, 0.0, 0.0)) -> Truth:
                  on_ground=np.zeros(n, bool))
 
 
-def test_flying_north_while_facing_east_is_flying_to_the_left_in_the_body_frame():
-    body = figures.body_velocities(_truth(n=3, yaw_rad=math.pi / 2, vel_ned=(2.0, 0.0, 0.5)))
-    assert np.allclose(body, [[0.0, -2.0, 0.5]] * 3, atol=1e-12)
-
-
 def test_snapshots_are_taken_around_the_first_fault_or_across_the_flight():
     truth = _truth()
     picks = figures.snapshot_instants(truth, fault_s=1.0)
     assert truth.time_s[picks[0]] == 0.5 and truth.time_s[picks[1]] == 1.0 and truth.time_s[picks[-1]] == 2.99
     spread = figures.snapshot_instants(truth, fault_s=None)
     assert spread[0] == 0 and spread[-1] == len(truth.time_s) - 1 and len(spread) == 6
-
-
-def test_every_flight_figure_is_written_as_a_png(tmp_path):
-    truth = _truth()
-    faults = [{"at_s": 1.0, "rotor": 4, "loss": 1.0, "detected_at_s": 1.12, "detected_rotor": 4}]
-    paths = figures.flight_figures(tmp_path, "synthetic", AF, truth, truth.com_ned_m, faults)
-    assert [p.name for p in paths] == ["trajectory.png", "velocities_rates.png", "actuators.png", "snapshots.png"]
-    for p in paths:
-        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

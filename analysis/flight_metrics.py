@@ -1,0 +1,119 @@
+"""The metrics a tlog alone gives (metrics.json of `m4-companion plot`): what the flight
+controller measured and what the companion did, no simulator truth.
+
+Positions are the hull's (the IMU's, LOCAL_POSITION_NED) unless the companion's log holds its
+centre of mass and reference (NAMED_VALUE_FLOAT com_*, ref_*). Definitions as sitl.metrics
+where both have them (analysis.measures):
+- faults: those injected by command (or given), each with the first confirmed M4_FAULT_STATUS
+  naming a rotor at or after it (detected_at_s, detected_rotor, latency_s);
+- altitude_loss_m: largest drop after the first fault below the reference altitude (the
+  companion's, when logged; else the altitude at the fault);
+- max_tilt_deg_after_fault, tilt_recovered_s (within 10 deg to the end), yaw_rate_final_rad_s
+  (mean over the last second), time_to_yaw_saturation_s;
+- the largest thrust commanded (M4_SETPOINT) and delivered (M4_THRUSTER_STATUS) after it;
+- the NMPC's solve times and failures and the companion's step latency, when logged;
+- position_rmse_m of the centre of mass against the reference, when both are logged.
+With no fault, "after the fault" is the whole flight.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from analysis.measures import tilt_deg, tilt_recovered_s, time_to_yaw_saturation, yaw_rate_final
+from analysis.tlog_reader import Fault, FlightRecord, Series
+from m4.mavlink import mavlink
+
+CONFIRMED = mavlink.M4_FAULT_STATE_CONFIRMED
+
+
+def detections(record: FlightRecord, faults: list[Fault]) -> list[dict]:
+    """Each fault with the first confirmation at or after it and before the next fault."""
+    fs = record.fault_state
+    confirmed = np.flatnonzero((fs.values[:, 0] == CONFIRMED) & (fs.values[:, 1] > 0)) if len(fs) else []
+    ends = [f.at_s for f in faults[1:]] + [math.inf]
+    out = []
+    for fault, end_s in zip(faults, ends):
+        hit = next((k for k in confirmed if fault.at_s <= fs.time_s[k] < end_s), None)
+        detected_at = None if hit is None else float(fs.time_s[hit])
+        out.append({"at_s": fault.at_s, "rotor": fault.rotor, "loss": fault.loss, "detected_at_s": detected_at,
+                    "detected_rotor": None if hit is None else int(fs.values[hit, 1]),
+                    "latency_s": None if hit is None else detected_at - fault.at_s})
+    return out
+
+
+def first_confirmation_s(record: FlightRecord) -> float | None:
+    fs = record.fault_state
+    hits = np.flatnonzero(fs.values[:, 0] == CONFIRMED) if len(fs) else []
+    return float(fs.time_s[hits[0]]) if len(hits) else None
+
+
+def _stats(series: Series | None) -> dict | None:
+    if series is None or not len(series):
+        return None
+    v = series.values[:, 0]
+    return {"median": float(np.median(v)), "p99": float(np.percentile(v, 99)), "max": float(np.max(v))}
+
+
+def _after(series: Series, from_s: float) -> np.ndarray:
+    return series.values[series.time_s >= from_s]
+
+
+def _reference_altitude(record: FlightRecord, from_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """(times, reference altitude below which a drop counts), NED down positive."""
+    ref = record.named.get("ref_d")
+    if ref is not None and len(ref):
+        return ref.time_s, ref.values[:, 0]
+    pos = record.position_ned_m
+    k = min(int(np.searchsorted(pos.time_s, from_s)), len(pos) - 1)
+    return pos.time_s, np.full(len(pos), pos.values[k, 2])
+
+
+def _position_rmse(record: FlightRecord) -> float | None:
+    parts = [record.named.get(f"{kind}_{axis}") for kind in ("com", "ref") for axis in "ned"]
+    if any(p is None or not len(p) for p in parts):
+        return None
+    n = min(len(p) for p in parts)
+    com = np.column_stack([p.values[:n, 0] for p in parts[:3]])
+    ref = np.column_stack([p.values[:n, 0] for p in parts[3:]])
+    return float(np.sqrt(np.mean(np.sum((com - ref) ** 2, axis=1))))
+
+
+def telemetry_metrics(record: FlightRecord, faults: list[Fault]) -> dict:
+    """Every metric a tlog gives (see the module's docstring)."""
+    pos, att, rates = record.position_ned_m, record.euler_rad, record.rates_frd_rad_s
+    if not len(pos) or not len(att):
+        raise ValueError("no LOCAL_POSITION_NED or ATTITUDE from the flight controller in this tlog")
+    start_s = faults[0].at_s if faults else float(pos.time_s[0])
+    spin_s = next((f.at_s for f in faults if f.loss >= 1.0), start_s)
+    ref_t, ref_d = _reference_altitude(record, start_s)
+    after = pos.time_s >= start_s
+    drop = pos.values[after, 2] - np.interp(pos.time_s[after], ref_t, ref_d)
+    tilt = tilt_deg(att.values)
+    yaw_rate = rates.values[:, 2]
+    final = yaw_rate_final(rates.time_s, yaw_rate, float(rates.time_s[-1]))
+    setpoints = record.setpoint_thrust_n
+    span_s = float(setpoints.time_s[-1] - setpoints.time_s[0]) if len(setpoints) > 1 else 0.0
+    nmpc_ok = record.named.get("nmpc_ok")
+    return {
+        "duration_s": record.duration_s,
+        "faults": detections(record, faults),
+        "first_confirmation_s": first_confirmation_s(record),
+        "altitude_loss_m": float(max(np.max(drop, initial=0.0), 0.0)),
+        "max_tilt_deg_after_fault": float(np.max(tilt[att.time_s >= start_s], initial=0.0)),
+        "tilt_recovered_s": tilt_recovered_s(att.time_s, tilt, start_s, len(att) - 1),
+        "yaw_rate_final_rad_s": final,
+        "time_to_yaw_saturation_s": time_to_yaw_saturation(rates.time_s, yaw_rate, spin_s, final),
+        "max_thrust_commanded_n": float(np.max(_after(setpoints, start_s), initial=0.0)),
+        "max_thrust_delivered_n": float(np.nanmax(_after(record.thrust_n, start_s), initial=0.0)),
+        "position_rmse_m": _position_rmse(record),
+        "setpoints": len(setpoints),
+        "setpoint_rate_hz": (len(setpoints) - 1) / span_s if span_s > 0 else None,
+        "nmpc_solve_ms": _stats(record.named.get("nmpc_ms")),
+        "nmpc_failures": None if nmpc_ok is None else int(np.count_nonzero(nmpc_ok.values[:, 0] == 0)),
+        "step_latency_ms": _stats(record.named.get("step_ms")),
+        "critical_messages": [text for _, _, severity, text in record.statustext
+                              if severity <= mavlink.MAV_SEVERITY_CRITICAL],
+    }

@@ -1,0 +1,133 @@
+"""A flight's tlog read back into arrays on the flight controller's clock.
+
+What the FC measured (LOCAL_POSITION_NED, ATTITUDE, M4_JOINT_STATE, M4_THRUSTER_STATUS:
+component 1), what the companion commanded and decided (M4_SETPOINT, M4_FAULT_STATUS and the
+NAMED_VALUE_FLOAT of its flight log: component 191), STATUSTEXT from either, and the faults
+injected by command (MAV_CMD_INJECT_FAILURE, MAV_CMD_M4_ROTOR_LOSS, once the FC accepted
+them). Times are the FC's time_boot_ms in seconds; a message without one (STATUSTEXT, a
+command) takes the newest FC instant logged before it. Repeats of an instant (a lockstep
+frame sent again) are dropped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, mavlink, mavutil
+
+m = mavlink
+
+
+@dataclass(frozen=True)
+class Series:
+    time_s: np.ndarray             # (n,)
+    values: np.ndarray             # (n, k)
+
+    @classmethod
+    def of(cls, rows: list[tuple[float, list[float]]], width: int) -> Series:
+        if not rows:
+            return cls(np.zeros(0), np.zeros((0, width)))
+        t = np.array([r[0] for r in rows])
+        v = np.array([r[1] for r in rows], dtype=float).reshape(len(rows), width)
+        order = np.argsort(t, kind="stable")
+        t, v = t[order], v[order]
+        keep = np.concatenate(([True], np.diff(t) > 0))
+        return cls(t[keep], v[keep])
+
+    def __len__(self) -> int:
+        return len(self.time_s)
+
+
+@dataclass(frozen=True)
+class Fault:
+    at_s: float
+    rotor: int                     # 1..4, 0: all
+    loss: float                    # 0 restores
+
+
+@dataclass(frozen=True)
+class FlightRecord:
+    position_ned_m: Series         # LOCAL_POSITION_NED x, y, z (the hull, as the FC measures it)
+    velocity_ned_m_s: Series
+    euler_rad: Series              # ATTITUDE roll, pitch, yaw
+    rates_frd_rad_s: Series
+    hip_rad: Series                # M4_JOINT_STATE (measured)
+    thrust_n: Series               # M4_THRUSTER_STATUS delivered (as ESC telemetry gives it)
+    thrust_limit_n: Series
+    setpoint_thrust_n: Series      # M4_SETPOINT (commanded by the companion)
+    setpoint_hip_rad: Series
+    fault_state: Series            # M4_FAULT_STATUS: state, rotor, then thrust_max_estimate_n[4]
+    named: dict[str, Series] = field(default_factory=dict)     # the companion's NAMED_VALUE_FLOAT
+    statustext: list[tuple[float, int, int, str]] = field(default_factory=list)   # (t, component, severity, text)
+    injected: list[Fault] = field(default_factory=list)
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.position_ned_m.time_s[-1]) if len(self.position_ned_m) else 0.0
+
+
+_INJECT = (m.MAV_CMD_INJECT_FAILURE, m.MAV_CMD_M4_ROTOR_LOSS)
+
+
+def _injected_fault(cmd, t_s: float) -> Fault | None:
+    if cmd.command == m.MAV_CMD_M4_ROTOR_LOSS:
+        return Fault(t_s, int(cmd.param1), float(cmd.param2))
+    if cmd.param1 == m.FAILURE_UNIT_SYSTEM_MOTOR and cmd.param2 in (m.FAILURE_TYPE_OFF, m.FAILURE_TYPE_OK):
+        return Fault(t_s, int(cmd.param3), 1.0 if cmd.param2 == m.FAILURE_TYPE_OFF else 0.0)
+    return None
+
+
+def read_tlog(path: str | Path) -> FlightRecord:
+    """Every series of the flight in the tlog at `path` (OSError when it cannot be read)."""
+    rows: dict[str, list] = {k: [] for k in ("pos", "vel", "att", "rates", "hip", "thrust", "limit", "sp_thrust",
+                                             "sp_hip", "fault")}
+    named: dict[str, list] = {}
+    texts, injected, pending = [], [], {}
+    now_s = 0.0
+    conn = mavutil.mavlink_connection(str(path), dialect="m4")
+    try:
+        while (msg := conn.recv_match()) is not None:
+            kind, comp = msg.get_type(), msg.get_srcComponent()
+            t = getattr(msg, "time_boot_ms", None)
+            t_s = now_s if t is None else t / 1000.0
+            if comp == FC_COMPONENT_ID and t is not None:
+                now_s = max(now_s, t_s)
+            if kind == "LOCAL_POSITION_NED" and comp == FC_COMPONENT_ID:
+                rows["pos"].append((t_s, [msg.x, msg.y, msg.z]))
+                rows["vel"].append((t_s, [msg.vx, msg.vy, msg.vz]))
+            elif kind == "ATTITUDE" and comp == FC_COMPONENT_ID:
+                rows["att"].append((t_s, [msg.roll, msg.pitch, msg.yaw]))
+                rows["rates"].append((t_s, [msg.rollspeed, msg.pitchspeed, msg.yawspeed]))
+            elif kind == "M4_JOINT_STATE" and comp == FC_COMPONENT_ID:
+                rows["hip"].append((t_s, list(msg.hip_angle_rad)))
+            elif kind == "M4_THRUSTER_STATUS" and comp == FC_COMPONENT_ID:
+                rows["thrust"].append((t_s, list(msg.thrust_n)))
+                rows["limit"].append((t_s, list(msg.thrust_limit_n)))
+            elif kind == "M4_SETPOINT" and comp == COMPANION_COMPONENT_ID:
+                rows["sp_thrust"].append((t_s, list(msg.thrust_n)))
+                rows["sp_hip"].append((t_s, list(msg.hip_angle_rad)))
+            elif kind == "M4_FAULT_STATUS" and comp == COMPANION_COMPONENT_ID:
+                rows["fault"].append((t_s, [msg.state, msg.rotor, *msg.thrust_max_estimate_n]))
+            elif kind == "NAMED_VALUE_FLOAT" and comp == COMPANION_COMPONENT_ID:
+                named.setdefault(msg.name, []).append((t_s, [msg.value]))
+            elif kind == "STATUSTEXT":
+                texts.append((t_s, comp, msg.severity, msg.text))
+            elif kind in ("COMMAND_LONG", "COMMAND_INT") and msg.command in _INJECT and msg.target_component in (
+                    0, FC_COMPONENT_ID):
+                pending[msg.command] = (msg, t_s)
+            elif kind == "COMMAND_ACK" and msg.command in pending and msg.result == m.MAV_RESULT_ACCEPTED:
+                fault = _injected_fault(*pending.pop(msg.command))
+                if fault is not None:
+                    injected.append(fault)
+    finally:
+        conn.close()
+    return FlightRecord(
+        position_ned_m=Series.of(rows["pos"], 3), velocity_ned_m_s=Series.of(rows["vel"], 3),
+        euler_rad=Series.of(rows["att"], 3), rates_frd_rad_s=Series.of(rows["rates"], 3),
+        hip_rad=Series.of(rows["hip"], 4), thrust_n=Series.of(rows["thrust"], 4),
+        thrust_limit_n=Series.of(rows["limit"], 4), setpoint_thrust_n=Series.of(rows["sp_thrust"], 4),
+        setpoint_hip_rad=Series.of(rows["sp_hip"], 4), fault_state=Series.of(rows["fault"], 6),
+        named={name: Series.of(r, 1) for name, r in named.items()}, statustext=texts, injected=injected)

@@ -1,0 +1,72 @@
+"""`m4-companion plot FLIGHT.tlog`: the paper's figures and the telemetry metrics of any
+flight's tlog (the companion's flight log, `m4-sitl serve --tlog`, a ground station's), on a
+laptop without MuJoCo: `pip install "m4-fault-recovery[plot]"`.
+
+    m4-companion plot FLIGHT.tlog [--out DIR] [--format png|pdf|svg] [--fault AT_S:ROTOR[:LOSS]]...
+
+Writes DIR/metrics.json (analysis.flight_metrics) and DIR/{trajectory, velocities_rates,
+actuators, yaw_rate}.FORMAT (analysis.figures); DIR defaults to a folder beside the tlog,
+named after it. Faults injected by command are in the tlog; `--fault` adds one that is not
+(a simulator scenario's, a rotor cut by hand), at AT_S seconds of the flight controller's clock.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from m4 import extras
+
+EXIT_BAD_INPUT = 2
+
+
+def _fault(text: str):
+    from analysis.tlog_reader import Fault
+
+    parts = text.split(":")
+    try:
+        at_s, rotor, loss = float(parts[0]), int(parts[1]), float(parts[2]) if len(parts) > 2 else 1.0
+    except (ValueError, IndexError):
+        raise argparse.ArgumentTypeError(f"expected AT_S:ROTOR[:LOSS], e.g. 1.0:4, got {text!r}") from None
+    if len(parts) > 3 or not 0 <= rotor <= 4 or not 0.0 <= loss <= 1.0 or at_s < 0:
+        raise argparse.ArgumentTypeError(f"expected AT_S >= 0, ROTOR 0..4, LOSS 0..1, got {text!r}")
+    return Fault(at_s, rotor, loss)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("tlog", type=Path, metavar="FLIGHT.tlog", help="the flight's tlog")
+    p.add_argument("--out", type=Path, metavar="DIR", help="output folder (default: beside the tlog, named after it)")
+    p.add_argument("--format", choices=("png", "pdf", "svg"), default="png", help="figure format (default png)")
+    p.add_argument("--fault", type=_fault, action="append", default=[], metavar="AT_S:ROTOR[:LOSS]",
+                   help="a fault the tlog does not show (repeat for more)")
+
+
+def run(args: argparse.Namespace) -> int:
+    if hint := extras.extra_hint("m4-companion plot", "plot", extras.PLOT):
+        return _error(hint)
+    from analysis.figures import draw
+    from analysis.flight_metrics import telemetry_metrics
+    from analysis.tlog_reader import read_tlog
+
+    if not args.tlog.is_file():
+        return _error(f"no such tlog: {args.tlog}")
+    out = args.out or args.tlog.with_suffix("")
+    try:
+        record = read_tlog(args.tlog)
+        faults = sorted([*record.injected, *args.fault], key=lambda f: f.at_s)
+        metrics = telemetry_metrics(record, faults)
+    except (OSError, ValueError) as e:
+        return _error(f"{args.tlog}: {e}")
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    paths = draw(record, out, args.tlog.name, metrics["faults"], args.format)
+    print(f"{args.tlog}: {record.duration_s:.1f} s of flight -> {out}/metrics.json, "
+          + ", ".join(p.name for p in paths))
+    return 0
+
+
+def _error(text: str) -> int:
+    print(f"m4-companion: error: {text}", file=sys.stderr)
+    return EXIT_BAD_INPUT

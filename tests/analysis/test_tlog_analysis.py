@@ -1,0 +1,167 @@
+"""Figures and metrics from a tlog alone (analysis/, `m4-companion plot`), on a synthetic flight:
+rotor 4 cut by command at 1 s, detected at 1.06 s, the robot sags 0.1 m, tilts and spins up."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from analysis.figures import body_velocities, draw
+from analysis.flight_metrics import telemetry_metrics
+from analysis.tlog_reader import Fault, read_tlog
+from companion.cli import main
+from m4.mavlink import mavlink, new_mav
+from m4.mavlink.tlog import TlogWriter
+
+m = mavlink
+ROOT = Path(__file__).resolve().parents[2]
+FAULT_S, DETECTED_S = 1.0, 1.06
+
+
+class _Tlog:
+    """Packs messages as (system 1, component) and records them at a simulated Unix time."""
+
+    def __init__(self, path):
+        self.writer = TlogWriter(path)
+        self.mavs = {}
+        self.t_s = 0.0
+
+    def write(self, packet):
+        self.writer.record(packet, unix_time_us=round(1.7e15 + self.t_s * 1e6))
+
+    def send(self, component, msg):
+        if component not in self.mavs:
+            self.mavs[component] = new_mav(self, 255 if component == 190 else 1, component)
+        self.mavs[component].send(msg)
+
+
+def _flight(path, yaw_rad=0.0, vel_ned=(0.0, 0.0, 0.0)):
+    log = _Tlog(path)
+    for k in range(151):
+        t_s = k * 0.02
+        log.t_s, t_ms = t_s, k * 20
+        after = t_s >= FAULT_S
+        z = -2.0 + (0.1 * min(t_s - FAULT_S, 0.5) / 0.5 if after else 0.0)
+        roll = 0.2 if 1.1 <= t_s < 1.4 else 0.0
+        r = 5.0 * min(max(t_s - 1.5, 0.0) / 0.5, 1.0)
+        log.send(1, m.MAVLink_heartbeat_message(m.MAV_TYPE_QUADROTOR, m.MAV_AUTOPILOT_GENERIC, 128, 0, 4, 3))
+        log.send(1, m.MAVLink_attitude_message(t_ms, roll, 0.0, yaw_rad, 0.0, 0.0, r))
+        log.send(1, m.MAVLink_local_position_ned_message(t_ms, 0.0, 0.0, z, *vel_ned))
+        log.send(1, m.MAVLink_m4_joint_state_message(t_ms, [0.78] * 4, [0.0] * 4))
+        thrust = [22.0, 22.0, 15.0, 0.0] if after else [14.7] * 4
+        log.send(1, m.MAVLink_m4_thruster_status_message(t_ms, thrust, thrust, [30.0] * 4))
+        log.send(191, m.MAVLink_m4_setpoint_message(1, 1, t_ms, 20, [29.0 if after else 14.7] * 4, [0.78] * 4,
+                                                   [0.0] * 4, 0))
+        confirmed = t_s >= DETECTED_S
+        log.send(191, m.MAVLink_m4_fault_status_message(t_ms, 4 if confirmed else 0, [30.0] * 3 + [0.0 if confirmed
+                                                        else 30.0], 1060 if confirmed else 0, 2 if confirmed else 0))
+        for name, value in (("nmpc_ms", 1.0 + k % 3), ("ref_d", -2.0), ("step_ms", 2.0), ("nmpc_ok", 1.0)):
+            log.send(191, m.MAVLink_named_value_float_message(t_ms, name.encode(), value))
+        if k == 50:
+            log.send(190, m.MAVLink_command_long_message(1, 1, m.MAV_CMD_M4_ROTOR_LOSS, 0, 4, 1, 0, 0, 0, 0, 0))
+            log.send(1, m.MAVLink_command_ack_message(m.MAV_CMD_M4_ROTOR_LOSS, m.MAV_RESULT_ACCEPTED, 0, 0, 255, 190))
+        if k == 53:
+            log.send(191, m.MAVLink_statustext_message(m.MAV_SEVERITY_CRITICAL, b"thrust loss rotor 4"))
+    log.writer.close()
+    return path
+
+
+@pytest.fixture(scope="module")
+def tlog(tmp_path_factory):
+    return _flight(tmp_path_factory.mktemp("tlog") / "flight.tlog")
+
+
+def test_the_tlog_reads_back_into_series_and_the_injected_fault(tlog):
+    record = read_tlog(tlog)
+    assert len(record.position_ned_m) == 151 and record.duration_s == pytest.approx(3.0)
+    assert record.injected == [Fault(FAULT_S, 4, 1.0)]
+    assert len(record.setpoint_thrust_n) == 151 and set(record.named) == {"nmpc_ms", "ref_d", "step_ms", "nmpc_ok"}
+    assert [(t, text) for t, _, _, text in record.statustext] == [(1.06, "thrust loss rotor 4")]
+
+
+def test_metrics_from_telemetry(tlog):
+    record = read_tlog(tlog)
+    metrics = telemetry_metrics(record, record.injected)
+    [fault] = metrics["faults"]
+    assert fault["detected_rotor"] == 4 and fault["latency_s"] == pytest.approx(DETECTED_S - FAULT_S)
+    assert metrics["altitude_loss_m"] == pytest.approx(0.1, abs=1e-6)
+    assert metrics["max_tilt_deg_after_fault"] == pytest.approx(math.degrees(0.2), abs=1e-3)
+    assert metrics["tilt_recovered_s"] == pytest.approx(0.4)      # 11.5 deg from 1.1 to 1.4 s
+    assert metrics["yaw_rate_final_rad_s"] == pytest.approx(5.0)
+    assert metrics["time_to_yaw_saturation_s"] == pytest.approx(0.5 + 0.9 * 0.5, abs=0.021)
+    assert metrics["max_thrust_commanded_n"] == 29.0 and metrics["max_thrust_delivered_n"] == 22.0
+    assert metrics["nmpc_solve_ms"]["max"] == 3.0 and metrics["nmpc_failures"] == 0
+    assert metrics["setpoint_rate_hz"] == pytest.approx(50.0) and metrics["critical_messages"] == ["thrust loss rotor 4"]
+    json.dumps(metrics)
+
+
+def test_flying_north_while_facing_east_is_flying_to_the_left_in_the_body_frame(tmp_path):
+    record = read_tlog(_flight(tmp_path / "east.tlog", yaw_rad=math.pi / 2, vel_ned=(2.0, 0.0, 0.5)))
+    assert np.allclose(body_velocities(record).values[:3], [[0.0, -2.0, 0.5]] * 3, atol=1e-6)
+
+
+@pytest.mark.parametrize("fmt, magic", [("png", b"\x89PNG"), ("pdf", b"%PDF"), ("svg", b"<?xml")])
+def test_every_figure_in_every_format_with_legends_beside_the_data(tlog, tmp_path, fmt, magic):
+    record = read_tlog(tlog)
+    faults = telemetry_metrics(record, record.injected)["faults"]
+    paths = draw(record, tmp_path, "synthetic", faults, fmt)
+    assert [p.name for p in paths] == [f"{n}.{fmt}" for n in ("trajectory", "velocities_rates", "actuators",
+                                                               "yaw_rate")]
+    assert all(p.read_bytes().startswith(magic) for p in paths)
+
+
+def test_legends_sit_outside_the_panels_and_name_fault_and_detection(tlog, tmp_path, monkeypatch):
+    import matplotlib.pyplot as plt
+
+    record = read_tlog(tlog)
+    faults = telemetry_metrics(record, record.injected)["faults"]
+    seen = []
+    monkeypatch.setattr(plt, "close", lambda fig: seen.append(fig))
+    draw(record, tmp_path, "synthetic", faults)
+    for fig in seen:
+        fig.canvas.draw()
+        for ax in fig.axes:
+            legend = ax.get_legend()
+            assert legend.get_window_extent().x0 >= ax.get_window_extent().x1        # hides no data
+            labels = [t.get_text() for t in legend.get_texts()]
+            assert "fault: rotor 4, 100 % (1.00 s)" in labels and "detected: rotor 4 (1.06 s)" in labels
+            styles = {line.get_label(): (line.get_color(), line.get_linestyle()) for line in ax.get_lines()}
+            assert styles["fault: rotor 4, 100 % (1.00 s)"] != styles["detected: rotor 4 (1.06 s)"]
+
+
+def test_plot_command_writes_metrics_and_figures(tlog, tmp_path, capsys):
+    assert main(["plot", str(tlog), "--out", str(tmp_path), "--format", "svg", "--fault", "2.0:3:0.5"]) == 0
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert [(f["at_s"], f["rotor"]) for f in metrics["faults"]] == [(1.0, 4), (2.0, 3)]
+    assert (tmp_path / "actuators.svg").exists() and "metrics.json" in capsys.readouterr().out
+
+
+def test_plot_of_a_missing_tlog_says_so_in_one_line(capsys):
+    assert main(["plot", "nope.tlog"]) == 2
+    assert capsys.readouterr().err.strip() == "m4-companion: error: no such tlog: nope.tlog"
+
+
+def test_a_malformed_fault_is_refused_by_the_argument_parser(tlog, capsys):
+    with pytest.raises(SystemExit):
+        main(["plot", str(tlog), "--fault", "x:4"])
+    assert "expected AT_S:ROTOR[:LOSS]" in capsys.readouterr().err
+
+
+def test_plot_without_matplotlib_names_the_plot_extra(tlog):
+    script = textwrap.dedent(f"""
+        import sys
+        sys.modules["matplotlib"] = None
+        from companion.cli import main
+        sys.exit(main(["plot", {str(tlog)!r}]))
+    """)
+    result = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    assert result.stderr.strip() == ("m4-companion: error: m4-companion plot needs the 'plot' extra (matplotlib not "
+                                     "installed): pip install 'm4-fault-recovery[plot]'")
