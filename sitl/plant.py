@@ -170,8 +170,17 @@ class Plant:
                 if not self._hips.settled:
                     self._update_servo_reference()
             k = min(n, self._servo_countdown)
-            mujoco.mj_step(m, d, nstep=k)
-            self._advance_rotors(k * self.physics_dt_s)
+            # The rotor model and the pack advance one physics step at a time, so the same flight
+            # gives the same numbers whatever lengths the caller steps by (those depend on when
+            # commands arrive); a sagging pack feeds back into the thrusts at every step.
+            if self.battery.sags:
+                for _ in range(k):
+                    mujoco.mj_step(m, d)
+                    self._advance_rotors(self.physics_dt_s)
+            else:
+                mujoco.mj_step(m, d, nstep=k)
+                for _ in range(k):
+                    self._advance_rotors(self.physics_dt_s)
             self._servo_countdown -= k
             n -= k
 

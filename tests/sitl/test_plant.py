@@ -288,6 +288,23 @@ def test_sensor_noise_depends_on_the_instant_and_seed_not_on_how_often_it_was_dr
     assert other_seed.measured_state().pos_ned_m != pytest.approx(once.measured_state().pos_ned_m)
 
 
+@pytest.mark.parametrize("battery", [False, True], ids=["steady pack", "sagging pack"])
+def test_the_same_flight_whatever_lengths_the_caller_steps_by(battery):
+    """The FC steps the plant from event to event, and when a command lands depends on the wall
+    clock: stepping 1 + 3 + 6 ms must give the very numbers stepping 10 ms does."""
+    plants = [Plant(AF, PlantOptions(battery=battery), start_ned_m=(0.0, 0.0, -2.0)) for _ in range(2)]
+    for plant in plants:
+        plant.command(np.array([16.0, 14.0, 15.0, 13.0]), np.full(ROTOR_COUNT, AF.nominal_hip_rad + 0.2))
+    for _ in range(20):
+        plants[0].step(0.010)
+        for dt in (0.001, 0.003, 0.006):
+            plants[1].step(dt)
+    a, b = (p.state() for p in plants)
+    for name in ("pos_ned_m", "vel_ned_m_s", "euler_rad", "hip_rad", "thrust_n"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    assert np.array_equal(plants[0].thrusters.speed_rad_s, plants[1].thrusters.speed_rad_s)   # the ESCs' rpm
+
+
 def test_random_commands_through_the_api_never_raise_a_mujoco_warning():
     plant = Plant(AF, start_ned_m=(0.0, 0.0, -3.0))
     rng = np.random.default_rng(11)
