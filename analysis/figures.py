@@ -5,8 +5,9 @@
   would flatten the others);
 - velocities_rates: body-frame velocities (the measured NED velocity rotated by the attitude)
   and body rates;
-- actuators: per rotor the thrust commanded (M4_SETPOINT, dashed) against the thrust delivered
-  (M4_THRUSTER_STATUS, solid) and its limit (dotted); the hips commanded against measured;
+- actuators: per rotor the thrust the companion commanded (M4_SETPOINT, dashed) against what
+  the FC sent its ESC (M4_THRUSTER_STATUS: clamped, or its failsafe's; solid) and the limit it
+  knows (dotted; no FC measures delivered thrust); the hips commanded against measured;
 - yaw_rate: the body yaw rate alone.
 Every time plot marks each fault (red dashed line) and its detection (black solid line), both
 named in the legend. Legends sit to the right of their panel, outside the data.
@@ -101,9 +102,10 @@ def actuators_figure(path: Path, title: str, record: FlightRecord, faults: list[
     fig, axes = _figure(2, 8)
     for i, colour in enumerate(ROTOR_COLOURS):
         n = i + 1
-        axes[0].plot(record.thrust_n.time_s, record.thrust_n.values[:, i], color=colour, label=f"rotor {n} delivered")
+        axes[0].plot(record.thrust_cmd_n.time_s, record.thrust_cmd_n.values[:, i], color=colour,
+                     label=f"rotor {n} to the ESC (FC)")
         axes[0].plot(record.setpoint_thrust_n.time_s, record.setpoint_thrust_n.values[:, i], color=colour, ls="--",
-                     lw=1, label=f"rotor {n} commanded")
+                     lw=1, label=f"rotor {n} commanded (companion)")
         axes[0].plot(record.thrust_limit_n.time_s, record.thrust_limit_n.values[:, i], color=colour, ls=":", lw=1,
                      label=f"rotor {n} limit")
         axes[1].plot(record.hip_rad.time_s, np.degrees(record.hip_rad.values[:, i]), color=colour,

@@ -10,7 +10,7 @@ where both have them (analysis.measures):
   companion's, when logged; else the altitude at the fault);
 - max_tilt_deg_after_fault, tilt_recovered_s (within 10 deg to the end), yaw_rate_final_rad_s
   (mean over the last second), time_to_yaw_saturation_s;
-- the largest thrust commanded (M4_SETPOINT) and delivered (M4_THRUSTER_STATUS) after it;
+- the largest thrust commanded (M4_SETPOINT) and sent to an ESC (M4_THRUSTER_STATUS) after it;
 - the NMPC's solve times and failures and the companion's step latency, when logged;
 - position_rmse_m of the centre of mass against the reference, when both are logged.
 With no fault, "after the fault" is the whole flight.
@@ -107,7 +107,7 @@ def telemetry_metrics(record: FlightRecord, faults: list[Fault]) -> dict:
         "yaw_rate_final_rad_s": final,
         "time_to_yaw_saturation_s": time_to_yaw_saturation(rates.time_s, yaw_rate, spin_s, final),
         "max_thrust_commanded_n": float(np.max(_after(setpoints, start_s), initial=0.0)),
-        "max_thrust_delivered_n": float(np.nanmax(_after(record.thrust_n, start_s), initial=0.0)),
+        "max_thrust_to_esc_n": float(np.nanmax(_after(record.thrust_cmd_n, start_s), initial=0.0)),
         "position_rmse_m": _position_rmse(record),
         "setpoints": len(setpoints),
         "setpoint_rate_hz": (len(setpoints) - 1) / span_s if span_s > 0 else None,

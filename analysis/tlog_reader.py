@@ -55,7 +55,7 @@ class FlightRecord:
     euler_rad: Series              # ATTITUDE roll, pitch, yaw
     rates_frd_rad_s: Series
     hip_rad: Series                # M4_JOINT_STATE (measured)
-    thrust_n: Series               # M4_THRUSTER_STATUS delivered (as ESC telemetry gives it)
+    thrust_cmd_n: Series           # M4_THRUSTER_STATUS: what the FC sent its ESCs (clamped, or its failsafe's)
     thrust_limit_n: Series
     setpoint_thrust_n: Series      # M4_SETPOINT (commanded by the companion)
     setpoint_hip_rad: Series
@@ -104,7 +104,7 @@ def read_tlog(path: str | Path) -> FlightRecord:
             elif kind == "M4_JOINT_STATE" and comp == FC_COMPONENT_ID:
                 rows["hip"].append((t_s, list(msg.hip_angle_rad)))
             elif kind == "M4_THRUSTER_STATUS" and comp == FC_COMPONENT_ID:
-                rows["thrust"].append((t_s, list(msg.thrust_n)))
+                rows["thrust"].append((t_s, list(msg.thrust_cmd_n)))
                 rows["limit"].append((t_s, list(msg.thrust_limit_n)))
             elif kind == "M4_SETPOINT" and comp == COMPANION_COMPONENT_ID:
                 rows["sp_thrust"].append((t_s, list(msg.thrust_n)))
@@ -127,7 +127,7 @@ def read_tlog(path: str | Path) -> FlightRecord:
     return FlightRecord(
         position_ned_m=Series.of(rows["pos"], 3), velocity_ned_m_s=Series.of(rows["vel"], 3),
         euler_rad=Series.of(rows["att"], 3), rates_frd_rad_s=Series.of(rows["rates"], 3),
-        hip_rad=Series.of(rows["hip"], 4), thrust_n=Series.of(rows["thrust"], 4),
+        hip_rad=Series.of(rows["hip"], 4), thrust_cmd_n=Series.of(rows["thrust"], 4),
         thrust_limit_n=Series.of(rows["limit"], 4), setpoint_thrust_n=Series.of(rows["sp_thrust"], 4),
         setpoint_hip_rad=Series.of(rows["sp_hip"], 4), fault_state=Series.of(rows["fault"], 6),
         named={name: Series.of(r, 1) for name, r in named.items()}, statustext=texts, injected=injected)

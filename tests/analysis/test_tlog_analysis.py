@@ -56,7 +56,7 @@ def _flight(path, yaw_rad=0.0, vel_ned=(0.0, 0.0, 0.0)):
         log.send(1, m.MAVLink_local_position_ned_message(t_ms, 0.0, 0.0, z, *vel_ned))
         log.send(1, m.MAVLink_m4_joint_state_message(t_ms, [0.78] * 4, [0.0] * 4))
         thrust = [22.0, 22.0, 15.0, 0.0] if after else [14.7] * 4
-        log.send(1, m.MAVLink_m4_thruster_status_message(t_ms, thrust, thrust, [30.0] * 4))
+        log.send(1, m.MAVLink_m4_thruster_status_message(t_ms, thrust, [30.0] * 4))
         log.send(191, m.MAVLink_m4_setpoint_message(1, 1, t_ms, 20, [29.0 if after else 14.7] * 4, [0.78] * 4,
                                                    [0.0] * 4, 0))
         confirmed = t_s >= DETECTED_S
@@ -96,7 +96,7 @@ def test_metrics_from_telemetry(tlog):
     assert metrics["tilt_recovered_s"] == pytest.approx(0.4)      # 11.5 deg from 1.1 to 1.4 s
     assert metrics["yaw_rate_final_rad_s"] == pytest.approx(5.0)
     assert metrics["time_to_yaw_saturation_s"] == pytest.approx(0.5 + 0.9 * 0.5, abs=0.021)
-    assert metrics["max_thrust_commanded_n"] == 29.0 and metrics["max_thrust_delivered_n"] == 22.0
+    assert metrics["max_thrust_commanded_n"] == 29.0 and metrics["max_thrust_to_esc_n"] == 22.0
     assert metrics["nmpc_solve_ms"]["max"] == 3.0 and metrics["nmpc_failures"] == 0
     assert metrics["setpoint_rate_hz"] == pytest.approx(50.0) and metrics["critical_messages"] == ["thrust loss rotor 4"]
     json.dumps(metrics)
