@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -50,7 +51,7 @@ def test_a_message_id_above_255_round_trips():
     assert msg.flags & mavlink.M4_SETPOINT_FLAG_THRUST_CUT
 
 
-def test_mavutil_connections_find_the_dialect_without_site_packages(tmp_path):
+def test_mavutil_connections_use_the_projects_dialect_module(tmp_path):
     log = tmp_path / "x.tlog"
     sink = _Sink()
     new_mav(sink, 1, 1).send(mavlink.MAVLink_m4_joint_state_message(5, [0.1] * 4, [0.0] * 4))
@@ -58,7 +59,7 @@ def test_mavutil_connections_find_the_dialect_without_site_packages(tmp_path):
     conn = mavutil.mavlink_connection(str(log), dialect=DIALECT)
     msg = conn.recv_match(blocking=False)
     assert msg.get_type() == "M4_JOINT_STATE"
-    assert not (PYMAVLINK_V20_DIR / f"{DIALECT}.py").exists()
+    assert sys.modules[f"pymavlink.dialects.v20.{DIALECT}"] is mavlink     # ours, not a copy install_dialect wrote
 
 
 def _ids(path: Path, tag: str) -> set[int]:
@@ -72,7 +73,9 @@ def _ids(path: Path, tag: str) -> set[int]:
 def test_our_ids_are_used_by_no_bundled_dialect():
     ours_msgs, ours_cmds = _ids(XML_PATH, "message"), _ids(XML_PATH, "command")
     assert ours_msgs and ours_msgs <= set(OUR_IDS) and ours_cmds <= set(OUR_IDS)
-    for xml in PYMAVLINK_V20_DIR.glob("*.xml"):
+    bundled = [xml for xml in PYMAVLINK_V20_DIR.glob("*.xml") if xml.name != f"{DIALECT}.xml"]  # not ours, installed
+    assert bundled
+    for xml in bundled:
         assert not ours_msgs & _ids(xml, "message"), xml.name
         assert not ours_cmds & _ids(xml, "command"), xml.name
 
