@@ -28,6 +28,7 @@ from companion.core.nmpc_config import NmpcConfig, NmpcWeights
 from companion.core.reference import ReferenceConfig
 from companion.core.touchdown import TouchdownConfig
 from companion.core.upset import UpsetConfig
+from companion.realtime import PRIORITY_MAX
 from m4.feed.settings import FeedSettings, parse_feed_settings
 from m4.mission import Mission, load_mission
 from m4.toml_fields import ConfigError, Table, load_toml
@@ -77,6 +78,7 @@ class LogSettings:
 @dataclass(frozen=True)
 class CompanionConfig:
     rate_hz: float = DEFAULT_RATE_HZ
+    realtime_priority: int = 0              # SCHED_FIFO priority of the control loop, 1..99; 0: normal (companion/realtime.py)
     nmpc: NmpcConfig = field(default_factory=lambda: NmpcConfig(control_period_s=1.0 / DEFAULT_RATE_HZ,
                                                                 time_budget_share=COMPANION_TIME_BUDGET_SHARE))
     disturbance_gain: float = DEFAULT_DISTURBANCE_GAIN
@@ -111,12 +113,14 @@ def parse_config(data: dict, where: str, base_dir: Path | None = None) -> Compan
     mission_path = top.path("mission_file", base_dir, must_exist=True)
     control = top.table("control")
     rate_hz = control.number("rate_hz", DEFAULT_RATE_HZ, lo=0.0, lo_open=True, hi=RATE_MAX_HZ)
+    realtime_priority = control.integer("realtime_priority", 0, lo=0, hi=PRIORITY_MAX)
     control.finish()
     nmpc_table = top.table("nmpc")
     disturbance_gain = nmpc_table.number("disturbance_gain", DEFAULT_DISTURBANCE_GAIN, lo=0.0, lo_open=True, hi=1.0)
     nmpc = nmpc_config(nmpc_table, 1.0 / rate_hz)
     config = CompanionConfig(
         rate_hz=rate_hz,
+        realtime_priority=realtime_priority,
         nmpc=nmpc,
         disturbance_gain=disturbance_gain,
         reference=_settings(top.table("reference"), ReferenceConfig),

@@ -3,7 +3,8 @@
 Reads the configuration (defaults without --config), builds the NMPC (compiling it on a
 first start, cached) and opens the link before it says "ready" (in its log and, with
 --ready-fd, as one line written to that descriptor, which it then closes: the signal a
-supervisor such as `m4-sitl fly` waits for), then runs until SIGINT or SIGTERM. A bad
+supervisor such as `m4-sitl fly` waits for), having put its loop in the real-time class the
+configuration asks for (companion/realtime.py), then runs until SIGINT or SIGTERM. A bad
 configuration, URL, key, feed setting, ready descriptor or a port in use prints one line on
 stderr and exits with 2.
 """
@@ -69,6 +70,7 @@ def _config(args: argparse.Namespace):
 def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.INFO, format="m4-companion: %(message)s", stream=sys.stderr)
     from companion.app import close_app, open_app
+    from companion.realtime import use_realtime
     from m4.feed.transport import FeedError
     from m4.mavlink.link import LinkError
 
@@ -81,6 +83,7 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_BAD_INPUT
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: app.stop())
+    use_realtime(config.realtime_priority)       # once built: the compiler and the feed's threads stay normal
     ready = f"ready: {config.rate_hz:g} Hz on {config.link.fc_url}"
     logging.getLogger("m4-companion").info(ready)
     if args.ready_fd is not None:

@@ -49,6 +49,14 @@ def test_a_config_with_an_unknown_key_names_it(capsys, tmp_path):
     assert code == 2 and len(lines) == 1 and "ratez" in lines[0]
 
 
+@pytest.mark.parametrize("value", ["100", "-1", "40.0", '"high"'])
+def test_a_bad_realtime_priority_is_one_line_naming_it(capsys, tmp_path, value):
+    config = tmp_path / "companion.toml"
+    config.write_text(f"[control]\nrealtime_priority = {value}\n")
+    code, lines = run_cli(capsys, "--fc", "udpin:127.0.0.1:0", "--config", str(config))
+    assert code == 2 and len(lines) == 1 and "realtime_priority" in lines[0], lines
+
+
 def test_a_mission_file_without_a_mission_is_refused(capsys, tmp_path):
     mission = tmp_path / "mission.toml"
     mission.write_text("name = 'x'\n")
