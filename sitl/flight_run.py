@@ -63,6 +63,8 @@ class FlightOptions:
     record_feed: bool = True
     rate_hz: float | None = None          # the companion's control rate; None: the companion's default
     link: Impairment | None = None        # delay and loss between the SITL and the companion (real time)
+    companion_priority: int = 0           # the companion's [control] realtime_priority (SCHED_FIFO; 0: normal)
+    sitl_priority: int = 0                # the SITL's SCHED_FIFO priority (0: normal), the FC's own hardware standing in
 
 
 COMPANION_LOG_DIR = "companion-log"      # the companion's own flight log, in the flight's folder
@@ -112,8 +114,9 @@ def make_output_dir(path: Path) -> None:
 
 def companion_config_text(options: FlightOptions, mavlink_port: int, feed_port: int | None) -> str:
     rate = [] if options.rate_hz is None else [f"rate_hz = {options.rate_hz:g}"]
+    priority = [f"realtime_priority = {options.companion_priority}"] * bool(options.companion_priority)
     lines = ["# The companion's configuration for this flight (written by m4-sitl fly).",
-             "[control]", *rate, "", "[link]",
+             "[control]", *rate, *priority, "", "[link]",
              f'fc_url = "udpin:127.0.0.1:{mavlink_port}"', "",
              "[log]", f'dir = "{COMPANION_LOG_DIR}"', ""]
     if options.controller == "fixed-posture":
@@ -184,6 +187,8 @@ def run_flight(scenario: Scenario, scenario_text: str, out_dir: Path, options: F
         realtime = options.realtime or options.link is not None
         cmd += ["--realtime"] * realtime + ["--viewer"] * options.viewer
         sitl = _start(stack, cmd, files.sitl_log)
+        if options.sitl_priority:
+            _real_time(sitl, options.sitl_priority)
         while sitl.poll() is None:
             time.sleep(POLL_S)
             if progress is not None and recorder is not None and recorder.latest_t_s is not None:
@@ -201,6 +206,15 @@ def _start(stack: contextlib.ExitStack, cmd: list[str], log_path: Path, pass_fds
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=log, stdin=subprocess.DEVNULL, pass_fds=pass_fds)
     stack.callback(_stop, proc)
     return proc
+
+
+def _real_time(proc: subprocess.Popen, priority: int) -> None:
+    """SCHED_FIFO for a process just started (its threads, started later, inherit it)."""
+    try:
+        os.sched_setscheduler(proc.pid, os.SCHED_FIFO, os.sched_param(priority))
+    except (AttributeError, OSError) as e:
+        raise FlightError(f"cannot give the SITL real-time priority {priority}: "
+                          f"{getattr(e, 'strerror', None) or e}") from None
 
 
 def _await_ready(proc: subprocess.Popen, ready_fd: int, log_path: Path) -> None:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from companion.config import default_log_dir
+from companion.config import default_log_dir, load_config
 from companion.core.codegen_cache import CACHE_ENV
 
 UNIT = Path(__file__).resolve().parents[2] / "deploy" / "m4-companion.service"
@@ -83,9 +83,14 @@ def test_flight_logs_go_to_the_folder_systemd_makes_for_them(unit, monkeypatch):
     assert default_log_dir() == Path("/var/log/m4")
 
 
-def test_control_loop_runs_ahead_of_ordinary_work_but_not_real_time(unit):
-    assert -20 <= int(one(unit, "Service", "Nice")) < 0
-    assert one(unit, "Service", "RestrictRealtime") == "yes"
+def test_the_control_loop_may_take_the_real_time_priority_its_config_asks_for_and_no_more(unit):
+    """The in-process route (companion/realtime.py): an RLIMIT_RTPRIO, no capability, no
+    systemd-wide real-time class (the compiler at first start and the feed's threads stay normal)."""
+    config = load_config(UNIT.parent / "companion.toml")
+    assert 0 < config.realtime_priority == int(one(unit, "Service", "LimitRTPRIO")) < 50   # under the IRQ threads
+    assert unit["Service"].get("RestrictRealtime", ["no"])[-1] == "no"       # yes would refuse SCHED_FIFO
+    assert "CPUSchedulingPolicy" not in unit["Service"]
+    assert -20 <= int(one(unit, "Service", "Nice")) < 0                      # the rest: ahead of ordinary work
 
 
 def test_systemd_accepts_the_unit(tmp_path):

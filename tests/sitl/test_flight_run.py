@@ -38,3 +38,26 @@ def test_fly_waits_for_the_ready_line_however_long_the_start_takes(tmp_path):
     with stack:
         _await_ready(proc, ready, log)
         assert built.exists() and proc.poll() is None
+
+
+def test_the_companions_priority_reaches_its_config_and_zero_leaves_the_key_out(tmp_path):
+    from companion.config import load_config
+    from sitl.flight_run import FlightOptions, companion_config_text
+
+    for priority in (0, 40):
+        path = tmp_path / f"companion-{priority}.toml"
+        path.write_text(companion_config_text(FlightOptions(companion_priority=priority), 14550, None))
+        assert load_config(path).realtime_priority == priority
+        assert ("realtime_priority" in path.read_text()) == bool(priority)
+
+
+def test_a_sitl_priority_that_cannot_be_had_is_one_line(tmp_path, monkeypatch):
+    from sitl.flight_run import _real_time
+
+    def refuse(*_):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse, raising=False)
+    stack, proc, _, _ = _companion(tmp_path, "import time; time.sleep(30)")
+    with stack, pytest.raises(FlightError, match="^cannot give the SITL real-time priority 45: Operation not permitted$"):
+        _real_time(proc, 45)
