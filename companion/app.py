@@ -160,8 +160,7 @@ class CompanionApp:
             self.controller.resume()
             return
         sent_s = self.clock()
-        self.fc.send_setpoint(t_ms, self.period_ms, step.setpoint, sent_s)
-        self.fc.send_fault_status(t_ms, step.fault)
+        self.fc.send_setpoint(t_ms, self.period_ms, step.setpoint, sent_s, step.fault)
         self.timing.answered(read_s, sent_s)
         if (report := self.timing.report(sent_s)) is not None:
             log.warning("t=%.3f s: %s", t_s, report)

@@ -16,6 +16,8 @@
   goes back after such a silence, the FC REBOOTED: its clock, and the mission's, start over.
   `receive(now_s)` returns these events with the messages; nobody compares state before and
   after a call.
+- One datagram per control step: the setpoint, the fault status and, when due, a TIMESYNC
+  request (one sendto, one wake-up of the FC).
 - Delay: a TIMESYNC request goes with a setpoint in the same datagram (companion.link_delay:
   how late our setpoints act at the FC); the FC's TIMESYNC requests are answered with our clock.
 - Heartbeat at 1 Hz as MAV_TYPE_ONBOARD_CONTROLLER.
@@ -104,6 +106,13 @@ class LinkHealth:
 
 def _floats(values) -> list[float]:
     return [float(v) for v in np.asarray(values, dtype=float).reshape(-1)]
+
+
+def _fault_status_message(time_ms: int, status: FaultStatus) -> mavlink.MAVLink_m4_fault_status_message:
+    detected_ms = 0 if status.detected_at_s is None else round(status.detected_at_s * 1000)
+    estimate = np.nan_to_num(status.thrust_max_estimate_n, nan=0.0, posinf=0.0, neginf=0.0)
+    return mavlink.MAVLink_m4_fault_status_message(
+        int(time_ms), status.rotor or 0, _floats(estimate), detected_ms, int(status.state), int(status.kind))
 
 
 class FcLink:
@@ -231,21 +240,19 @@ class FcLink:
         return due
 
     # -- out ---------------------------------------------------------------------------------------
-    def send_setpoint(self, time_ms: int, period_ms: int, sp: Setpoint, now_s: float) -> None:
-        """The setpoint answering FC instant time_ms, with a TIMESYNC request when one is due."""
+    def send_setpoint(self, time_ms: int, period_ms: int, sp: Setpoint, now_s: float,
+                      fault: FaultStatus | None = None) -> None:
+        """The setpoint answering FC instant time_ms, with the fault status (when given) and a
+        TIMESYNC request (when one is due), in one datagram: one send per control step."""
         flags = mavlink.M4_SETPOINT_FLAG_THRUST_CUT if sp.thrust_cut else 0
         msgs = [mavlink.MAVLink_m4_setpoint_message(
             *self.fc_ids, int(time_ms), int(period_ms), _floats(sp.thrust_n), _floats(sp.hip_rad),
             _floats(sp.hip_rate_rad_s), flags)]
+        if fault is not None:
+            msgs.append(_fault_status_message(time_ms, fault))
         if self.delay.request_due(now_s):
             msgs.append(mavlink.MAVLink_timesync_message(0, self.delay.requested(time_ms, now_s)))
         self.link.send_all(msgs)
-
-    def send_fault_status(self, time_ms: int, status: FaultStatus) -> None:
-        detected_ms = 0 if status.detected_at_s is None else round(status.detected_at_s * 1000)
-        estimate = np.nan_to_num(status.thrust_max_estimate_n, nan=0.0, posinf=0.0, neginf=0.0)
-        self.link.send(mavlink.MAVLink_m4_fault_status_message(
-            int(time_ms), status.rotor or 0, _floats(estimate), detected_ms, int(status.state), int(status.kind)))
 
     def statustext(self, severity: int, text: str) -> None:
         self.link.send(mavlink.MAVLink_statustext_message(severity, text.encode("ascii", "replace")[:STATUSTEXT_MAX]))

@@ -1,11 +1,14 @@
 """How well the control loop keeps its period: each answer's duration (telemetry read to
 setpoint sent), the overruns (answers that took longer than the control period), and the rate
-achieved (answers in the last second). `report(now_s)` gives a line at most every REPORT_S
+achieved (answers in the last second), and the process's CPU time per step between the first
+and the last answer (`cpu_ms_per_step`, time.process_time: what the loop costs, whatever else
+runs on the machine). `report(now_s)` gives a line at most every REPORT_S
 when something overran since the last one, so a slow computer is said, not flooded in the log.
 """
 
 from __future__ import annotations
 
+import time
 from collections import deque
 
 REPORT_S = 5.0
@@ -21,9 +24,17 @@ class LoopTiming:
         self._since_report = 0
         self._slowest_since_report_s = 0.0
         self._last_report_s = -float("inf")
+        self._cpu_first_s: float | None = None          # process CPU time at the first answer
+        self._cpu_last_s = 0.0
+        self._cpu_steps = 0                             # answers after the first
 
     def answered(self, started_s: float, now_s: float) -> None:
         """An answer to telemetry read at started_s went out at now_s."""
+        cpu_s = time.process_time()
+        if self._cpu_first_s is None:
+            self._cpu_first_s = cpu_s
+        else:
+            self._cpu_last_s, self._cpu_steps = cpu_s, self._cpu_steps + 1
         took_s = now_s - started_s
         self.slowest_s = max(self.slowest_s, took_s)
         if took_s > self.period_s:
@@ -33,6 +44,13 @@ class LoopTiming:
         self._answers.append(now_s)
         while self._answers[0] <= now_s - RATE_WINDOW_S:
             self._answers.popleft()
+
+    @property
+    def cpu_ms_per_step(self) -> float | None:
+        """The process's CPU time from the first answer to the last, per step (None: fewer than two)."""
+        if self._cpu_steps == 0:
+            return None
+        return 1e3 * (self._cpu_last_s - self._cpu_first_s) / self._cpu_steps
 
     def rate_hz(self, now_s: float) -> float:
         """Answers per second over the last RATE_WINDOW_S."""

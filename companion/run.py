@@ -93,9 +93,10 @@ def run(args: argparse.Namespace) -> int:
     finally:
         close_app(app)
         c = app.counters
-        lead = app.fc.delay.lead_s
+        lead, cpu_ms = app.fc.delay.lead_s, app.timing.cpu_ms_per_step
         logging.getLogger("m4-companion").info(
             "stopped after %d setpoints; %d link losses; slowest solve %.1f ms; %d steps over the period; "
-            "setpoint lead %s", c.answered, c.link_losses, c.solve_ms_max, app.timing.overruns,
-            "not measured" if lead is None else f"{1e3 * lead:.0f} ms")
+            "setpoint lead %s; CPU %s per step", c.answered, c.link_losses, c.solve_ms_max, app.timing.overruns,
+            "not measured" if lead is None else f"{1e3 * lead:.0f} ms",
+            "not measured" if cpu_ms is None else f"{cpu_ms:.2f} ms")
     return 0

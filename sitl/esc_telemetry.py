@@ -25,7 +25,7 @@ import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
 from m4.mavlink import mavlink
-from sitl.state import PlantState
+from sitl.state import RotorState
 from sitl.thruster import RAD_S_TO_RPM
 
 _US_PER_MINUTE = 60e6
@@ -84,7 +84,7 @@ class EscTelemetry:
         self._rpm = [0] * ROTOR_COUNT
         self._serial = [(0, 0, 0, 0)] * ROTOR_COUNT          # (temperature, voltage, current, totalcurrent)
 
-    def sample(self, now_ms: int, truth: PlantState) -> None:
+    def sample(self, now_ms: int, truth: RotorState) -> None:
         """At an output frame of the FC (once per tick; other calls are ignored): the ESCs
         measure the rotors' truth."""
         if now_ms < self._next_ms:
@@ -99,7 +99,7 @@ class EscTelemetry:
                     self._serial_next_ms[i] += self._serial_period_ms
                 self._in_flight.append((arrival, i, self._serial_packet(i, truth)))
 
-    def _integrate(self, now_ms: int, truth: PlantState) -> None:
+    def _integrate(self, now_ms: int, truth: RotorState) -> None:
         af = self._af
         dt_s = 0.0 if self._last_ms is None else (now_ms - self._last_ms) / 1000.0
         self._last_ms = now_ms
@@ -108,13 +108,13 @@ class EscTelemetry:
         steady = af.esc_ambient_temperature_c + af.esc_temperature_rise_c_per_a * current
         self._temperature_c = steady + (self._temperature_c - steady) * math.exp(-dt_s / af.esc_thermal_time_constant_s)
 
-    def _measured_rpm(self, truth: PlantState) -> list[int]:
+    def _measured_rpm(self, truth: RotorState) -> list[int]:
         rpm = np.asarray(truth.rotor_speed_rad_s) * RAD_S_TO_RPM
         if self._noise:
             rpm = rpm / (1.0 + self._rng.normal(0.0, self._af.esc_rpm_noise_fraction, ROTOR_COUNT))
         return [min(int(r), _UINT16) for r in dshot_rpm(np.maximum(rpm, 0.0), self._af.motor_pole_pairs)]
 
-    def _serial_packet(self, i: int, truth: PlantState) -> tuple[int, int, int, int]:
+    def _serial_packet(self, i: int, truth: RotorState) -> tuple[int, int, int, int]:
         af = self._af
         voltage_v, current_a = truth.battery_voltage_v, float(truth.esc_current_a[i])
         if self._noise:

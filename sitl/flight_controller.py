@@ -155,14 +155,14 @@ class FlightController:
         if self.rotor_watch.lost is not None:
             return
         speed_rad_s = np.array(self.esc.report(now_ms).rpm, dtype=float) / RAD_S_TO_RPM
-        if self.rotor_watch.update(self.measured_state(now_ms).thrust_cmd_n, speed_rad_s, now_ms) is not None:
+        if self.rotor_watch.update(self.plant.rotor_state().thrust_cmd_n, speed_rad_s, now_ms) is not None:
             self.announce(mavlink.MAV_SEVERITY_CRITICAL, f"FC: rotor {self.rotor_watch.lost} lost (ESC speed)")
 
     def tick(self, now_ms: int) -> None:
         """Choose who flies (companion or failsafe) and command the plant accordingly; the ESCs
         answer this output frame."""
         if self.esc is not None:
-            self.esc.sample(now_ms, self.plant.state())
+            self.esc.sample(now_ms, self.plant.rotor_state())
             self._watch_rotors(now_ms)
         if not self.armed:
             self._set_mode(FcMode.LANDED)

@@ -24,7 +24,7 @@ from sitl.drag import HullDrag
 from sitl.mjcf import PHYSICS_DT_S, compile_model
 from sitl.sensors import SensorNoise
 from sitl.servo import REFERENCE_PERIOD_S, HipReference
-from sitl.state import PlantState
+from sitl.state import PlantState, RotorState
 from sitl.thruster import FailureKind, Thrusters
 
 __all__ = ["Plant", "PlantOptions", "PlantState"]
@@ -212,6 +212,12 @@ class Plant:
         if self._state is None:
             self._state = self._compute_state()
         return self._state
+
+    def rotor_state(self) -> RotorState:
+        """The rotors' part of state(), without computing the rest (the FC reads it every tick)."""
+        rotors = self.thrusters
+        return RotorState(rotor_speed_rad_s=rotors.speed_rad_s.copy(), esc_current_a=rotors.current_a,
+                          battery_voltage_v=self.battery.voltage_v, thrust_cmd_n=self._esc_cmd_n.copy())
 
     def _compute_state(self) -> PlantState:
         m, d = self.model, self.data

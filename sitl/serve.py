@@ -144,19 +144,20 @@ class Server:
     def run(self) -> None:
         if self.options.viewer:
             self._open_viewer()
-        wall0 = time.monotonic()
+        wall0, cpu0 = time.monotonic(), time.process_time()
         mode = "real time" if self.options.realtime else "lockstep"
         log(f"serving {self.options.scenario.name!r} in {mode} on "
              + ", ".join(link.endpoint.url for link in self.links))
         try:
             (self._run_realtime if self.options.realtime else self._run_lockstep)()
         finally:
-            wall = time.monotonic() - wall0
+            wall, cpu = time.monotonic() - wall0, time.process_time() - cpu0
             sim = self.vehicle.now_ms / 1000.0
             c = self.vehicle.fc.counters
             rejected = sum(link.signing_counters().rejected for link in self.links)
             reasons = ", ".join(f"{n} {reason}" for reason, n in sorted(c.dropped_by_reason.items()))
-            log(f"stopped at t={sim:.3f} s after {wall:.1f} s wall ({sim / max(wall, 1e-9):.1f}x); "
+            log(f"stopped at t={sim:.3f} s after {wall:.1f} s wall ({sim / max(wall, 1e-9):.1f}x), "
+                 f"CPU {cpu:.2f} s ({1e3 * cpu / max(sim, 1e-9):.0f} ms per simulated second); "
                  f"setpoints accepted {c.setpoints_accepted}, dropped {c.setpoints_dropped}"
                  f"{f' ({reasons})' if reasons else ''}; commands {c.commands_acked}; "
                  f"refused from others {c.refused_foreign}; unsigned/bad-signature packets rejected {rejected}; "

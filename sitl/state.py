@@ -29,3 +29,13 @@ class PlantState:
     battery_consumed_mah: float
     com_ned_m: np.ndarray          # whole-robot centre of mass (truth, for metrics)
     on_ground: bool                # any contact with the floor
+
+
+@dataclass(frozen=True)
+class RotorState:
+    """What the ESCs measure and are told, alone (truth; the names of PlantState's fields):
+    cheap to read at every FC tick, without the rest of the plant's state."""
+    rotor_speed_rad_s: np.ndarray  # (4,)
+    esc_current_a: np.ndarray      # (4,) drawn from the pack by each ESC
+    battery_voltage_v: float
+    thrust_cmd_n: np.ndarray       # (4,) sent to the ESCs

@@ -8,6 +8,7 @@ import time
 import numpy as np
 import pytest
 
+from companion.core.control_types import FaultKind, FaultState, FaultStatus
 from companion.fc_link import FcLink, LinkEvent
 from companion.telemetry import REQUESTED
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
@@ -100,6 +101,22 @@ def test_a_stray_sender_with_the_fc_ids_is_ignored_and_cannot_redirect_our_repli
     assert [m.get_type() for m in drain(fc.receive)] == ["M4_SETPOINT", "TIMESYNC"]
     time.sleep(0.05)
     assert stray.receive() == []
+
+
+def test_the_setpoint_its_fault_status_and_timesync_go_in_one_datagram(links):
+    companion, fc, _ = links
+    fc.send(heartbeat())
+    drain(received(companion))
+    ceiling_n = np.array([30.0, 30.0, 30.0, 0.0])
+    fault = FaultStatus(state=FaultState.CONFIRMED, rotor=4, kind=FaultKind.PROPELLER, thrust_max_estimate_n=ceiling_n,
+                        thrust_bound_n=ceiling_n, detected_at_s=1.04, message="thrust loss rotor 4 (propeller)",
+                        deficit_n=np.zeros(4))
+    companion.send_setpoint(60, 20, SETPOINT, 0.0, fault)
+    datagrams = drain(lambda: [msgs for _, msgs in fc.receive_from()])
+    assert [[m.get_type() for m in msgs] for msgs in datagrams] == [["M4_SETPOINT", "M4_FAULT_STATUS", "TIMESYNC"]]
+    status = datagrams[0][1]
+    assert (status.time_boot_ms, status.rotor, status.state, status.kind, status.detected_time_boot_ms) == \
+        (60, 4, mavlink.M4_FAULT_STATE_CONFIRMED, int(FaultKind.PROPELLER), 1040)
 
 
 def test_other_systems_and_components_are_dropped_and_counted(links):
