@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from importlib import resources
 from pathlib import Path
 
@@ -122,10 +123,16 @@ class Airframe:
         masses = (self.leg_hip_block_mass_kg, self.leg_link_mass_kg, self.leg_wheel_mass_kg)
         return tuple(zip(masses, LEG_LUMP_FRACTIONS))
 
-    @property
+    @cached_property
+    def hip_positions_frd_m(self) -> np.ndarray:
+        """(4, 3) hip_frd_m as an array (read-only: built once, shared by every caller)."""
+        return _read_only(np.array(self.hip_frd_m, dtype=float))
+
+    @cached_property
     def leg_direction_signs(self) -> np.ndarray:
-        """(4, 2): signs (sx, sy) of each hip's x and y; the leg points along (sx cos q, sy sin q)."""
-        return np.sign(np.array(self.hip_frd_m)[:, :2])
+        """(4, 2): signs (sx, sy) of each hip's x and y; the leg points along (sx cos q, sy sin q)
+        (read-only)."""
+        return _read_only(np.sign(self.hip_positions_frd_m[:, :2]))
 
     @property
     def same_side_pairs(self) -> tuple[tuple[int, int], tuple[int, int]]:
@@ -145,7 +152,7 @@ class Airframe:
         """(..., 4, 3) thruster hub positions in the body frame for sagittal angles hip_rad (..., 4)."""
         q = np.asarray(hip_rad, dtype=float)
         s = self.leg_direction_signs
-        out = np.broadcast_to(np.array(self.hip_frd_m), q.shape + (3,)).copy()
+        out = np.broadcast_to(self.hip_positions_frd_m, q.shape + (3,)).copy()
         out[..., 0] += self.leg_length_m * s[:, 0] * np.cos(q)
         out[..., 1] += self.leg_length_m * s[:, 1] * np.sin(q)
         return out
@@ -153,9 +160,13 @@ class Airframe:
     def com_offset_frd_m(self, hip_rad) -> np.ndarray:
         """Centre of mass of the whole robot relative to the hull centre, body frame, from the
         three lumps of every leg."""
-        hips = np.array(self.hip_frd_m)
-        reach = self.thruster_positions_frd_m(hip_rad) - hips          # hip -> hub, per leg
-        return (self.leg_mass_kg * hips.sum(axis=0) + self.leg_swing_mass_kg * reach.sum(axis=0)) / self.total_mass_kg
+        reach = self.thruster_positions_frd_m(hip_rad) - self.hip_positions_frd_m          # hip -> hub, per leg
+        return (self._legs_at_hips_kg_m + self.leg_swing_mass_kg * reach.sum(axis=0)) / self.total_mass_kg
+
+    @cached_property
+    def _legs_at_hips_kg_m(self) -> np.ndarray:
+        """The legs' masses at their hips: the first moment com_offset_frd_m starts from."""
+        return _read_only(self.leg_mass_kg * self.hip_positions_frd_m.sum(axis=0))
 
     def com_offset_rate_frd_m_s(self, hip_rad, hip_rate_rad_s) -> np.ndarray:
         """d/dt of com_offset_frd_m(hip_rad) while the hips move at hip_rate_rad_s."""
@@ -165,6 +176,11 @@ class Airframe:
         reach_rate[:, 0] = -self.leg_length_m * s[:, 0] * np.sin(q) * qd
         reach_rate[:, 1] = self.leg_length_m * s[:, 1] * np.cos(q) * qd
         return self.leg_swing_mass_kg * reach_rate.sum(axis=0) / self.total_mass_kg
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a.setflags(write=False)
+    return a
 
 
 def load_airframe(path: str | Path | None = None) -> Airframe:

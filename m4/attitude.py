@@ -13,8 +13,8 @@ import numpy as np
 
 def euler_from_quat_wxyz(q) -> np.ndarray:
     """(roll, pitch, yaw), ZYX, of the rotation body FRD -> NED given by the unit quaternion q."""
-    w, x, y, z = np.asarray(q, dtype=float) / np.linalg.norm(q)
-    sin_pitch = float(np.clip(2.0 * (w * y - x * z), -1.0, 1.0))
+    w, x, y, z = (np.asarray(q, dtype=float) / np.linalg.norm(q)).tolist()      # Python floats: cheaper
+    sin_pitch = min(max(2.0 * (w * y - x * z), -1.0), 1.0)
     return np.array([math.atan2(2.0 * (w * x + y * z), w * w - x * x - y * y + z * z),
                      math.asin(sin_pitch),
                      math.atan2(2.0 * (w * z + x * y), w * w + x * x - y * y - z * z)])

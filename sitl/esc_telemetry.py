@@ -37,18 +37,19 @@ _MAH_PER_AS = 1000.0 / 3600.0
 
 def dshot_rpm(rpm: np.ndarray, pole_pairs: int) -> np.ndarray:
     """Mechanical RPM as the FC decodes it from bidirectional DShot's period encoding."""
-    rpm = np.asarray(rpm, dtype=float)
+    return np.array([_dshot_rpm(r, pole_pairs) for r in np.asarray(rpm, dtype=float).tolist()])
+
+
+def _dshot_rpm(rpm: float, pole_pairs: int) -> float:
     erpm = rpm * pole_pairs
-    with np.errstate(divide="ignore"):
-        period_us = np.where(erpm > 0.0, _US_PER_MINUTE / erpm, np.inf)
-    out = np.zeros_like(rpm)
-    for i in np.flatnonzero(period_us < (_MANTISSA_MAX + 1) << _EXPONENT_MAX):
-        period, exponent = int(period_us[i]), 0
-        while period >> exponent > _MANTISSA_MAX:
-            exponent += 1
-        decoded_us = (period >> exponent) << exponent
-        out[i] = _US_PER_MINUTE / (decoded_us * pole_pairs) if decoded_us > 0 else 0.0
-    return out
+    period_us = _US_PER_MINUTE / erpm if erpm > 0.0 else math.inf
+    if not period_us < (_MANTISSA_MAX + 1) << _EXPONENT_MAX:
+        return 0.0
+    period, exponent = int(period_us), 0
+    while period >> exponent > _MANTISSA_MAX:
+        exponent += 1
+    decoded_us = (period >> exponent) << exponent
+    return _US_PER_MINUTE / (decoded_us * pole_pairs) if decoded_us > 0 else 0.0
 
 
 @dataclass(frozen=True)
@@ -112,7 +113,7 @@ class EscTelemetry:
         rpm = np.asarray(truth.rotor_speed_rad_s) * RAD_S_TO_RPM
         if self._noise:
             rpm = rpm / (1.0 + self._rng.normal(0.0, self._af.esc_rpm_noise_fraction, ROTOR_COUNT))
-        return [min(int(r), _UINT16) for r in dshot_rpm(np.maximum(rpm, 0.0), self._af.motor_pole_pairs)]
+        return [min(int(_dshot_rpm(max(r, 0.0), self._af.motor_pole_pairs)), _UINT16) for r in rpm.tolist()]
 
     def _serial_packet(self, i: int, truth: RotorState) -> tuple[int, int, int, int]:
         af = self._af

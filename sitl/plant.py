@@ -159,7 +159,7 @@ class Plant:
             raise ValueError(f"duration_s must be a non-negative multiple of {self.physics_dt_s} s, got {duration_s}")
         # The servo controller, the drag coefficients and the contact gate update once per servo
         # period; MuJoCo runs the physics steps in between in one call.
-        m, d = self.model, self.data
+        m, d, dt_s = self.model, self.data, self.physics_dt_s
         if n > 0:
             self._state = None
         while n > 0:
@@ -176,22 +176,14 @@ class Plant:
             if self.battery.sags:
                 for _ in range(k):
                     mujoco.mj_step(m, d)
-                    self._advance_rotors(self.physics_dt_s)
+                    self.battery.draw(self.thrusters.advance_drawing(dt_s, 1)[0], dt_s)
+                    self._update_rotors()        # the rotors head for their targets on the pack's new voltage
             else:
                 mujoco.mj_step(m, d, nstep=k)
-                for _ in range(k):
-                    self._advance_rotors(self.physics_dt_s)
+                for current_a in self.thrusters.advance_drawing(dt_s, k):
+                    self.battery.draw(current_a, dt_s)
             self._servo_countdown -= k
             n -= k
-
-    def _advance_rotors(self, dt_s: float) -> None:
-        """The rotor model follows MuJoCo's thrust filters over dt_s and the pack gives what they
-        drew; on a sagging pack the rotors then head for their targets on its new voltage."""
-        rotors = self.thrusters
-        rotors.advance(dt_s)
-        self.battery.draw(float(rotors.current_a.sum()), dt_s)
-        if self.battery.sags:
-            self._update_rotors()
 
     def _gate_contact(self) -> None:
         opt = self.model.opt
