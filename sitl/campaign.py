@@ -28,6 +28,7 @@ import numpy as np
 
 from m4.airframe import ROTOR_COUNT
 from sitl.flight_run import FlightOptions
+from sitl.link_emulation import LinkEmulation, flights_note
 from sitl.parallel import Batch, FlightJob, fly_all
 
 LOSS_LEVELS = (0.33, 0.66, 1.0)
@@ -158,7 +159,7 @@ class Campaign:
 def run_campaign(out_dir: Path = DEFAULT_OUT, samples: int = 20, seed: int = 0, grid: bool = False,
                  workers: int | None = None, rate_hz: float | None = None,
                  losses: tuple[float, ...] = LOSS_LEVELS, engine: str = "local",
-                 scheduler: str | None = None) -> Campaign:
+                 scheduler: str | None = None, link: LinkEmulation | None = None) -> Campaign:
     out_dir = Path(out_dir).resolve()
     cases = grid_cases(losses, seed) if grid else random_cases(samples, seed, losses)
     (out_dir / "scenarios").mkdir(parents=True, exist_ok=True)
@@ -167,13 +168,13 @@ def run_campaign(out_dir: Path = DEFAULT_OUT, samples: int = 20, seed: int = 0, 
         path = out_dir / "scenarios" / f"{case.name}.toml"
         path.write_text(case.scenario_toml())
         jobs.append(FlightJob(str(path), out_dir / "flights" / case.name,
-                              FlightOptions(seed=case.noise_seed, rate_hz=rate_hz)))
+                              FlightOptions(seed=case.noise_seed, rate_hz=rate_hz, link=link)))
     batch = fly_all(jobs, workers, "campaign", engine, scheduler)
     rows = [result_row(c, m) for c, m in zip(cases, batch.results)]
     with (out_dir / "campaign.csv").open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for row in rows for k in row)), restval="")
         writer.writeheader()
         writer.writerows(rows)
-    summary = summary_markdown(rows)
+    summary = flights_note(link) + summary_markdown(rows)
     (out_dir / "summary.md").write_text(summary)
     return Campaign(summary, rows, batch)

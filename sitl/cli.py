@@ -2,13 +2,13 @@
 
     m4-sitl serve [--scenario SCENARIO] [--mavlink URL]... [--realtime] [--viewer] [--tlog PATH] [--truth-log PATH]
                   [--signing-key FILE] [--signing-state FILE] [--companion SYS:COMP] [--seed N] [--duration S]
-                  [--lockstep-timeout S]
+                  [--lockstep-timeout S] [--link-delay-ms MS] [--link-loss P]
     m4-sitl list
     m4-sitl fly SCENARIO [--out DIR] [--controller nmpc|fixed-posture] [--seed N] [--port N] [--rate-hz HZ]
-                [--realtime] [--viewer]
-    m4-sitl compare [--out DIR] [--jobs N] [--rate-hz HZ]
+                [--realtime] [--viewer] [--link-delay-ms MS] [--link-loss P]
+    m4-sitl compare [--out DIR] [--jobs N] [--rate-hz HZ] [--link-delay-ms MS] [--link-loss P]
     m4-sitl campaign [--out DIR] [--samples N | --grid] [--loss X]... [--seed N] [--jobs N] [--rate-hz HZ]
-                     [--engine local|dask] [--scheduler ADDRESS]
+                     [--engine local|dask] [--scheduler ADDRESS] [--link-delay-ms MS] [--link-loss P]
 
 A subcommand is one `add_<name>(subparsers)` function that sets `func`, registered through
 `SUBCOMMANDS` (the flight subcommands live in sitl/flight_cli.py, the shared argument
@@ -31,7 +31,7 @@ from m4.mavlink.signing import load_key
 from sitl.scenario import Scenario
 from m4.toml_fields import ConfigError
 from sitl import flight_cli, scenarios
-from sitl.cli_args import BadInput, Parser, positive_number, seed_number
+from sitl.cli_args import BadInput, Parser, add_link_arguments, link_of, positive_number, seed_number
 
 EXIT_BAD_INPUT = 2
 DEFAULT_URL = "udpout:127.0.0.1:14550"
@@ -59,6 +59,8 @@ def _add_serve(sub) -> None:
                    help="stop after S simulated seconds (default: never)")
     p.add_argument("--lockstep-timeout", type=positive_number, default=5.0, metavar="S",
                    help="wall-clock wait for a setpoint before going on in failsafe (default 5)")
+    add_link_arguments(p, "with --realtime the same on the wall clock; only the first --mavlink link (the "
+                          "companion's)")
     p.set_defaults(func=_serve)
 
 
@@ -77,7 +79,7 @@ def _serve(args) -> int:
     options = ServeOptions(scenario=scenario, mavlink_urls=tuple(args.mavlink or (DEFAULT_URL,)),
                            realtime=args.realtime, viewer=args.viewer, tlog_path=args.tlog, signing_key=key,
                            seed=args.seed, duration_s=args.duration, lockstep_timeout_s=args.lockstep_timeout,
-                           truth_log_path=args.truth_log, companion_ids=args.companion,
+                           truth_log_path=args.truth_log, companion_ids=args.companion, link=link_of(args),
                            signing_state_path=args.signing_state or (
                                Path(f"{args.signing_key}.timestamps") if args.signing_key else None))
     try:

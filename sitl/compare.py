@@ -12,6 +12,7 @@ import json
 from pathlib import Path
 
 from sitl.flight_run import CONTROLLERS, FlightOptions
+from sitl.link_emulation import LinkEmulation
 from sitl.parallel import Batch, FlightJob, fly_all
 
 COMPARED = ("hover-rotor-loss", "forward-flight-fault", "waypoint-loe", "hover-rotor-loss-tight")
@@ -48,19 +49,21 @@ def markdown_table(rows: list[dict]) -> str:
 
 
 def compare(out_dir: Path = DEFAULT_OUT, scenarios: tuple[str, ...] = COMPARED, workers: int | None = None,
-            rate_hz: float | None = None) -> tuple[str, Batch]:
-    """The Markdown table (also in comparison.md) and the flights as flown."""
+            rate_hz: float | None = None, link: LinkEmulation | None = None) -> tuple[str, Batch]:
+    """The Markdown table (also in comparison.md) and the flights as flown; `link`: the
+    companion's link impaired (emulated in lockstep)."""
     out_dir = Path(out_dir)
     pairs = [(s, c) for s in scenarios for c in CONTROLLERS]
-    jobs = [FlightJob(s, out_dir / f"{s}-{c}", FlightOptions(controller=c, rate_hz=rate_hz), figures=True)
+    jobs = [FlightJob(s, out_dir / f"{s}-{c}", FlightOptions(controller=c, rate_hz=rate_hz, link=link), figures=True)
             for s, c in pairs]
     batch = fly_all(jobs, workers, "compare")
     results = [{"scenario": s, "controller": c, **m} for (s, c), m in zip(pairs, batch.results)]
     table = markdown_table(results)
     rate_text = "the companion's default rate" if rate_hz is None else f"{rate_hz:g} Hz"
+    link_text = "" if link is None else f", link {link.describe()} (emulated in lockstep)"
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "comparison.md").write_text(
-        f"Posture manipulation (nmpc) against the fixed posture (fixed-posture), control at {rate_text}; "
+        f"Posture manipulation (nmpc) against the fixed posture (fixed-posture), control at {rate_text}{link_text}; "
         "regenerate with `m4-sitl compare`.\n\n" + table)
     (out_dir / "comparison.json").write_text(json.dumps(results, indent=2) + "\n")
     return table, batch

@@ -30,6 +30,7 @@ import numpy as np
 from m4.airframe import ROTOR_COUNT, load_airframe
 from sitl.campaign import Campaign
 from sitl.flight_run import FlightOptions
+from sitl.link_emulation import LinkEmulation, flights_note
 from sitl.parallel import FlightJob, fly_all
 from sitl.records import FaultStatusLog, read_fault_status
 
@@ -202,7 +203,7 @@ def _verdicts(rows: list[dict]) -> list[str]:
 
 def run_detection_campaign(out_dir: Path, kinds, speeds, escs, seed: int = 0, false_alarm_minutes: float = 0.0,
                            workers: int | None = None, rate_hz: float | None = None, engine: str = "local",
-                           scheduler: str | None = None) -> Campaign:
+                           scheduler: str | None = None, link: LinkEmulation | None = None) -> Campaign:
     from sitl.truth import load_truth
 
     out_dir = Path(out_dir).resolve()
@@ -212,7 +213,7 @@ def run_detection_campaign(out_dir: Path, kinds, speeds, escs, seed: int = 0, fa
     for k, case in enumerate(cases):
         path = out_dir / "scenarios" / f"{case.name}.toml"
         path.write_text(case.scenario_toml())
-        jobs.append(FlightJob(str(path), out_dir / "flights" / case.name, FlightOptions(seed=seed + k, rate_hz=rate_hz)))
+        jobs.append(FlightJob(str(path), out_dir / "flights" / case.name, FlightOptions(seed=seed + k, rate_hz=rate_hz, link=link)))
     af = load_airframe()
     rows = []
     batch = fly_all(jobs, workers, "detection", engine, scheduler)
@@ -226,6 +227,6 @@ def run_detection_campaign(out_dir: Path, kinds, speeds, escs, seed: int = 0, fa
         writer = csv.DictWriter(f, fieldnames=fields)
         writer.writeheader()
         writer.writerows(rows)
-    summary = summary_markdown(rows)
+    summary = flights_note(link) + summary_markdown(rows)
     (out_dir / "detection.md").write_text(summary)
     return Campaign(summary, rows, batch)

@@ -13,22 +13,14 @@ import sys
 from pathlib import Path
 
 from sitl import scenarios
-from sitl.cli_args import BadInput, positive_number, seed_number
+from sitl.cli_args import BadInput, add_link_arguments, link_of, number, positive_number, seed_number
 from sitl.flight_run import CONTROLLERS, FlightError, FlightOptions, make_output_dir
-from sitl.netem import Impairment
-
-
-def _number(text: str) -> float:
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
 
 EXIT_FLIGHTS_NOT_RUN = 1
 
 
 def _loss(text: str) -> float:
-    value = _number(text)
+    value = number(text)
     if not 0.0 < value <= 1.0:
         raise argparse.ArgumentTypeError(f"must be in (0, 1], got {text}")
     return value
@@ -53,10 +45,7 @@ def add_fly(sub) -> None:
                    help="then render the flight offscreen: flight.mp4 (chase camera, real time) and snapshots_render.png")
     p.add_argument("--video-size", type=_video_size, default=(640, 360), metavar="WxH",
                    help="with --video: frame size in pixels (default 640x360)")
-    p.add_argument("--link-delay-ms", type=_delay_ms, default=0.0, metavar="MS",
-                   help="delay added to the MAVLink link each way (a loopback proxy; implies --realtime)")
-    p.add_argument("--link-loss", type=_fraction, default=0.0, metavar="P",
-                   help="share of datagrams lost each way, 0..1 (a loopback proxy; implies --realtime)")
+    add_link_arguments(p, "with --realtime through a loopback proxy (sitl/netem.py) instead")
     p.set_defaults(func=_fly)
 
 
@@ -70,26 +59,11 @@ def _video_size(text: str) -> tuple[int, int]:
     return width, height
 
 
-def _delay_ms(text: str) -> float:
-    value = _number(text)
-    if not 0.0 <= value <= 1000.0:
-        raise argparse.ArgumentTypeError(f"must be within 0..1000 ms, got {text}")
-    return value
-
-
-def _fraction(text: str) -> float:
-    value = _number(text)
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"must be within 0..1, got {text}")
-    return value
-
-
 def _fly(args) -> int:
     from sitl.fly import default_out_dir, fly, summary_line
 
-    link = Impairment(delay_ms=args.link_delay_ms, loss=args.link_loss) if args.link_delay_ms or args.link_loss else None
     options = FlightOptions(controller=args.controller, seed=args.seed, realtime=args.realtime, viewer=args.viewer,
-                            port=args.port, rate_hz=args.rate_hz, link=link)
+                            port=args.port, rate_hz=args.rate_hz, link=link_of(args))
     out = args.out or default_out_dir(scenarios.resolve(args.scenario).name)
     try:
         metrics = fly(args.scenario, out, options)
@@ -114,6 +88,7 @@ def add_compare(sub) -> None:
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, metavar="DIR", help=f"output folder (default {DEFAULT_OUT})")
     p.add_argument("--jobs", type=int, metavar="N", help="flights at once (default: half the cores)")
     _rate(p)
+    add_link_arguments(p, "the same for every flight")
     p.set_defaults(func=_compare)
 
 
@@ -124,7 +99,7 @@ def _compare(args) -> int:
         make_output_dir(args.out)
     except FlightError as e:
         raise BadInput(str(e)) from None
-    table, batch = compare(args.out, workers=args.jobs, rate_hz=args.rate_hz)
+    table, batch = compare(args.out, workers=args.jobs, rate_hz=args.rate_hz, link=link_of(args))
     print(table, end="")
     return _report(batch)
 
@@ -154,6 +129,7 @@ def add_campaign(sub) -> None:
                    help="detection campaign: speeds at the fault in m/s (default 0,3)")
     p.add_argument("--false-alarm-minutes", type=float, default=0.0, metavar="MIN",
                    help="detection campaign: minutes of fault-free agile flight on a sagging battery (default 0)")
+    add_link_arguments(p, "the same for every flight")
     p.set_defaults(func=_campaign)
 
 
@@ -188,10 +164,10 @@ def _campaign(args) -> int:
         if args.kind:
             result = run_detection_campaign(out, args.kind, args.speed, tuple(e == "on" for e in args.esc), args.seed,
                                             args.false_alarm_minutes, args.jobs, args.rate_hz, args.engine,
-                                            args.scheduler)
+                                            args.scheduler, link_of(args))
         else:
             result = run_campaign(out, args.samples, args.seed, args.grid, args.jobs, args.rate_hz, losses,
-                                  args.engine, args.scheduler)
+                                  args.engine, args.scheduler, link_of(args))
     except FlightError as e:
         raise BadInput(str(e)) from None
     print(result.summary, end="")

@@ -3,15 +3,17 @@
 `run_flight` writes into the flight's folder:
 - scenario.toml: the scenario file flown, byte for byte;
 - companion.toml: the companion's configuration for this flight (controller variant, link,
-  feed); the companion reads the scenario's [mission] from scenario.toml;
+  feed; in lockstep no wall-clock time budget for the NMPC, so that the flight does not depend
+  on the machine's load); the companion reads the scenario's [mission] from scenario.toml;
 - flight.tlog (every packet both ways), truth.npz (the plant's true state, sitl.truth),
   feed.jsonl (the companion's Zenoh feed), sitl.log and companion.log (their stderr),
   companion-log/flight-*.tlog (the companion's own flight log: its side of the link and its
   decisions, companion/flight_log.py).
 
-With `link` (delay, loss: sitl.netem) the SITL's MAVLink goes through a loopback proxy that
-impairs it both ways, and the flight is paced by the wall clock (a delay means nothing in
-lockstep, where each side waits for the other).
+With `link` (delay, loss) the companion's link is impaired both ways: in lockstep by the SITL
+itself, in simulated time (`m4-sitl serve --link-delay-ms --link-loss`, sitl/link_emulation.py:
+deterministic, the losses drawn from the seed, whatever the machine's load); with `realtime`
+through a loopback proxy (sitl/netem.py) on the wall clock, as a real link would be.
 
 Order: the feed recorder listens, the companion starts, builds its NMPC, opens its link and
 says so on a pipe (`m4-companion run --ready-fd`), then the SITL starts, flies the scenario's duration and exits; the companion is then
@@ -38,6 +40,7 @@ from pathlib import Path
 
 from m4.airframe import load_airframe
 from sitl.feed_recorder import FeedRecorder
+from sitl.link_emulation import LinkEmulation
 from sitl.netem import Impairment, Netem
 from sitl.scenario import Scenario
 
@@ -62,9 +65,16 @@ class FlightOptions:
     port: int | None = None               # loopback UDP port of the companion's MAVLink link; None: a free one
     record_feed: bool = True
     rate_hz: float | None = None          # the companion's control rate; None: the companion's default
-    link: Impairment | None = None        # delay and loss between the SITL and the companion (real time)
+    link: LinkEmulation | None = None     # delay and loss between the SITL and the companion
     companion_priority: int = 0           # the companion's [control] realtime_priority (SCHED_FIFO; 0: normal)
     sitl_priority: int = 0                # the SITL's SCHED_FIFO priority (0: normal), the FC's own hardware standing in
+
+    def link_conditions(self) -> dict:
+        """The link's impairment and how it was made: "lockstep" (emulated in simulated time by
+        the SITL), "proxy" (sitl/netem.py, real time) or "none"."""
+        link = self.link or LinkEmulation()
+        mode = "none" if self.link is None else "proxy" if self.realtime else "lockstep"
+        return {"delay_ms": link.delay_ms, "loss": link.loss, "mode": mode}
 
 
 COMPANION_LOG_DIR = "companion-log"      # the companion's own flight log, in the flight's folder
@@ -119,10 +129,16 @@ def companion_config_text(options: FlightOptions, mavlink_port: int, feed_port: 
              "[control]", *rate, *priority, "", "[link]",
              f'fc_url = "udpin:127.0.0.1:{mavlink_port}"', "",
              "[log]", f'dir = "{COMPANION_LOG_DIR}"', ""]
+    nmpc = []
+    if not options.realtime:
+        nmpc += ["# lockstep: the FC waits for every answer, so a wall-clock time budget would only bring the",
+                 "# machine's load into the flight (max_iterations still bounds every solve)",
+                 "time_budget_share = 0.0"]
     if options.controller == "fixed-posture":
         nominal_deg = math.degrees(load_airframe().nominal_hip_rad)
-        lines += ["[nmpc]", "# the fixed-posture variant: every hip pinned at the nominal angle",
-                  f"fixed_hip_deg = {nominal_deg:.12g}", ""]
+        nmpc += ["# the fixed-posture variant: every hip pinned at the nominal angle", f"fixed_hip_deg = {nominal_deg:.12g}"]
+    if nmpc:
+        lines += ["[nmpc]", *nmpc, ""]
     if feed_port is not None:
         lines += ["[feed]", f'vehicle = "{VEHICLE}"', 'mode = "peer"', f'connect = "tcp/127.0.0.1:{feed_port}"',
                   "max_rate_hz = 0.0", ""]
@@ -176,16 +192,18 @@ def run_flight(scenario: Scenario, scenario_text: str, out_dir: Path, options: F
             os.close(ready_w)                    # the companion holds the only writing end now
         _await_ready(companion, ready_r, files.companion_log)
         sitl_port = port
-        if options.link is not None:
-            proxy = Netem(("127.0.0.1", 0), ("127.0.0.1", port), options.link, seed=options.seed,
+        if options.link is not None and options.realtime:
+            impairment = Impairment(delay_ms=options.link.delay_ms, loss=options.link.loss)
+            proxy = Netem(("127.0.0.1", 0), ("127.0.0.1", port), impairment, seed=options.seed,
                           duration_s=2 * scenario.duration_s + 60.0).start()
             stack.callback(proxy.close)
             sitl_port = proxy.listen_port
         cmd = [sys.executable, "-m", "sitl.cli", "serve", "--scenario", str(files.scenario),
                "--mavlink", f"udpout:127.0.0.1:{sitl_port}", "--duration", f"{scenario.duration_s:g}",
                "--tlog", str(files.tlog), "--truth-log", str(files.truth), "--seed", str(options.seed)]
-        realtime = options.realtime or options.link is not None
-        cmd += ["--realtime"] * realtime + ["--viewer"] * options.viewer
+        if options.link is not None and not options.realtime:
+            cmd += ["--link-delay-ms", f"{options.link.delay_ms:g}", "--link-loss", f"{options.link.loss:g}"]
+        cmd += ["--realtime"] * options.realtime + ["--viewer"] * options.viewer
         sitl = _start(stack, cmd, files.sitl_log)
         if options.sitl_priority:
             _real_time(sitl, options.sitl_priority)

@@ -19,7 +19,7 @@ from sitl.scenario import Scenario, load_scenario
 from sitl import scenarios
 from sitl.flight_run import FlightFiles, FlightOptions, run_flight
 from sitl.metrics import flight_metrics, reference_track
-from sitl.records import nmpc_log, read_fault_status, read_feed
+from sitl.records import nmpc_log, read_fault_status, read_feed, setpoint_lead_ms
 from sitl.truth import load_truth
 
 MODEL_MATCHING = "model-matching"
@@ -41,15 +41,19 @@ def fly(scenario_arg: str, out_dir: Path | None = None, options: FlightOptions =
     with tqdm(total=scenario.duration_s, desc=f"fly {scenario.name}", unit="s", disable=None if progress else True,
               bar_format="{desc}: {bar} {n:.1f}/{total:g} s simulated [{elapsed}]") as bar:
         files = run_flight(scenario, path.read_text(), out_dir, options, lambda t_s: bar.update(t_s - bar.n))
-    return evaluate(files, scenario, options.controller, load_airframe(), figures)
+    return evaluate(files, scenario, options.controller, load_airframe(), figures, options.link_conditions())
 
 
-def evaluate(files: FlightFiles, scenario: Scenario, controller: str, af: Airframe, figures: bool = True) -> dict:
-    """metrics.json and the figures of a flown flight's folder."""
+def evaluate(files: FlightFiles, scenario: Scenario, controller: str, af: Airframe, figures: bool = True,
+             link: dict | None = None) -> dict:
+    """metrics.json and the figures of a flown flight's folder; `link`: the link's conditions
+    (FlightOptions.link_conditions), recorded with the setpoint lead the companion measured."""
     truth = load_truth(files.truth)
     fault_status = read_fault_status(files.tlog)
     ref = reference_track(scenario, af, truth, fault_status)
-    metrics = flight_metrics(scenario, controller, af, truth, ref, fault_status, nmpc_log(read_feed(files.feed)))
+    feed = read_feed(files.feed)
+    metrics = flight_metrics(scenario, controller, af, truth, ref, fault_status, nmpc_log(feed))
+    metrics["link"] = {**(link or DEFAULT_OPTIONS.link_conditions()), "setpoint_lead_ms": setpoint_lead_ms(feed)}
     if scenario.name == MODEL_MATCHING:
         metrics["model_matching"] = _model_matching(files.out_dir, af, figures)
     files.metrics.write_text(json.dumps(metrics, indent=2) + "\n")
@@ -77,4 +81,13 @@ def summary_line(metrics: dict, out_dir: Path) -> str:
     loss = m["altitude_loss_m"]
     return (f"{m['scenario']} ({m['controller']}): {verdict}; altitude loss {loss:.2f} m, max tilt "
             f"{m['max_tilt_deg_after_fault']:.1f} deg, position RMSE {m['position_rmse_m']:.2f} m, "
-            f"{m['realtime_factor'] or 0:.1f}x real time -> {out_dir}")
+            f"{_link_text(m.get('link'))}{m['realtime_factor'] or 0:.1f}x real time -> {out_dir}")
+
+
+def _link_text(link: dict | None) -> str:
+    """The link's conditions and the measured lead, when the link was impaired."""
+    if not link or link["mode"] == "none":
+        return ""
+    lead = link["setpoint_lead_ms"]
+    return (f"link {link['delay_ms']:g} ms each way, loss {link['loss']:g} ({link['mode']}), setpoint lead "
+            f"{'unmeasured' if lead is None else f'{lead:.0f} ms'}, ")

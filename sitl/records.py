@@ -4,7 +4,8 @@
   are in it; the flight controller's own streams are not needed here, the truth log has the
   real state).
 - `read_feed`: the companion's Zenoh feed as recorded by `sitl.feed_recorder` (one JSON object
-  a line: {"key": ..., "payload": {...}}); the NMPC diagnostics as arrays.
+  a line: {"key": ..., "payload": {...}}); the NMPC diagnostics as arrays; the setpoint lead
+  the companion measured.
 - `load_truth` (sitl.truth): the plant's true state.
 """
 
@@ -93,3 +94,9 @@ def nmpc_log(feed: dict[str, list[dict]]) -> NmpcLog:
     return NmpcLog(time_s=np.array([p["t_s"] for p in rows], dtype=float),
                    solve_ms=np.array([p["solve_ms"] for p in rows], dtype=float),
                    ok=np.array([bool(p["ok"]) for p in rows], dtype=bool))
+
+
+def setpoint_lead_ms(feed: dict[str, list[dict]]) -> float | None:
+    """The median of the setpoint leads the companion published on its link topic (None: none)."""
+    leads = [p["setpoint_lead_ms"] for p in feed.get("link", []) if p.get("setpoint_lead_ms") is not None]
+    return float(np.median(leads)) if leads else None

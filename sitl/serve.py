@@ -7,8 +7,23 @@ sending the frame again every `RESEND_S` so a companion that starts late still g
 companion silent for `lockstep_timeout_s` is logged and the simulation goes on without
 waiting, in the FC's failsafe, until a setpoint comes again.
 
+Link delay and loss (`link`, sitl/link_emulation.py): the companion's link (the first URL)
+is impaired in simulated time, in lockstep and in real time alike. With delay D each way and
+loss p, in lockstep:
+- every datagram the FC sends on it at instant t is lost with probability p, else delivered
+  (at once in wall time: the companion cannot tell that from t + D);
+- every datagram that arrives from it while the FC's clock is at t (e.g. the answer to frame
+  t) is lost with probability p, else handled at t + 2 D on the FC's clock, in arrival order:
+  setpoints, commands, M4_FAULT_STATUS and TIMESYNC requests alike (so the FC's TIMESYNC
+  reply says tc1 = t + 2 D and the companion measures a lead of 2 D);
+- the FC still waits at frame t for the setpoint answering it, but not for the answer to a
+  frame it lost, and a setpoint lost on the way up counts as the answer (the FC knows what
+  its link dropped); an arrived answer ends the wait though it acts only at t + 2 D.
+The losses are drawn from `seed` (independently of the plant's noise): the same seed loses
+the same frames and setpoints. Other links (a ground station's) are not impaired.
+
 Real time (`realtime=True`): the simulated clock follows the wall clock; messages are handled
-as they arrive. Every packet in and out goes to the tlog when one is asked for. With several
+as they arrive (with `link`, 2 D later). Every packet in and out goes to the tlog when one is asked for. With several
 links, what arrives on one is routed to the others as an autopilot does (sitl/routing.py).
 
 A flood cannot stall the simulation: one poll reads at most `POLL_DATAGRAMS` datagrams per
@@ -30,6 +45,7 @@ from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID
 from m4.mavlink.link import UdpLink, wait_readable
 from m4.mavlink.signing import StreamTimestamps
 from m4.mavlink.tlog import TlogWriter
+from sitl.link_emulation import EmulatedLink, LinkEmulation
 from sitl.routing import Router
 from sitl.scenario import Scenario
 from sitl.truth import TruthRecorder
@@ -56,6 +72,7 @@ class ServeOptions:
     truth_log_path: Path | None = None         # the plant's true state (sitl.truth), written on close
     companion_ids: tuple[int, int] = (FC_SYSTEM_ID, COMPANION_COMPONENT_ID)   # the paired companion
     signing_state_path: Path | None = None     # signing timestamps kept across restarts (with a key)
+    link: LinkEmulation | None = None          # delay and loss on the first link (the companion's)
 
 
 class ServeError(RuntimeError):
@@ -77,6 +94,7 @@ class Server:
         if self.truth is not None:
             self.vehicle.observers.append(self.truth.observe)
         self.links: list[UdpLink] = []
+        self.emulated: EmulatedLink | None = None
         self.timestamps: StreamTimestamps | None = None
         try:
             self.tlog = TlogWriter(options.tlog_path) if options.tlog_path else None
@@ -84,8 +102,7 @@ class Server:
             raise ServeError(f"cannot write the tlog {options.tlog_path}: {e.strerror}") from None
         try:
             for i, url in enumerate(options.mavlink_urls):
-                self.links.append(UdpLink(url, FC_SYSTEM_ID, FC_COMPONENT_ID, tlog=self.tlog,
-                                          key=options.signing_key, link_id=i))
+                self.links.append(self._open_link(i, url))
                 self.links[-1].peer_filter = self.vehicle.fc.from_companion
             if options.signing_key is not None and options.signing_state_path is not None:
                 self.timestamps = StreamTimestamps([link.mav for link in self.links], options.signing_state_path)
@@ -93,6 +110,14 @@ class Server:
             self.close()
             raise
         self.router = Router(self.links)
+
+    def _open_link(self, i: int, url: str) -> UdpLink:
+        o = self.options
+        if i == 0 and o.link is not None:
+            self.emulated = EmulatedLink(url, FC_SYSTEM_ID, FC_COMPONENT_ID, emulation=o.link, seed=o.seed,
+                                         clock=lambda: self.vehicle.now_ms, tlog=self.tlog, key=o.signing_key)
+            return self.emulated
+        return UdpLink(url, FC_SYSTEM_ID, FC_COMPONENT_ID, tlog=self.tlog, key=o.signing_key, link_id=i)
 
     # -- plumbing --------------------------------------------------------------------------------
     def send(self, msgs) -> None:
@@ -104,12 +129,41 @@ class Server:
     def poll(self) -> None:
         """Handle everything that has arrived, at the current simulated instant."""
         for i, link in enumerate(self.links):
-            msgs = [msg for _, batch in link.receive_from(POLL_DATAGRAMS) for msg in batch]
-            if msgs:
-                self.router.forward(i, msgs)
-                self.vehicle.handle(msgs, self.send)
+            self._handle(i, link.receive_from(POLL_DATAGRAMS))
         if self.timestamps is not None:
             self.timestamps.save()
+
+    def _handle(self, i: int, datagrams) -> None:
+        msgs = [msg for _, batch in datagrams for msg in batch]
+        if msgs:
+            self.router.forward(i, msgs)
+            self.vehicle.handle(msgs, self.send)
+
+    def _advance(self, t_ms: int, frame: bool = False) -> None:
+        """Simulate up to `t_ms` (with `frame`: the lockstep frame there), handing the emulated
+        link's held messages to the FC at their instants (after that instant's own work, as
+        any message received at an instant)."""
+        e, v = self.emulated, self.vehicle
+        if e is not None:
+            while (due := e.next_delivery_ms()) is not None and due < t_ms:
+                v.advance_to(due, self.send)
+                self._handle(0, e.deliver())
+        v.advance_to(t_ms, self.send, frame=frame)
+        if e is not None:
+            self._handle(0, e.deliver())
+
+    def _answered(self, t_ms: int) -> bool:
+        """Lockstep: the FC need not wait any longer at instant t_ms."""
+        if self.emulated is not None:
+            return self.emulated.answered(t_ms)
+        sp = self.vehicle.fc.setpoint
+        return sp is not None and sp.time_ms == t_ms
+
+    def _answers(self) -> int:
+        """How many setpoints have come so far (arrived on an emulated link, else accepted)."""
+        if self.emulated is not None:
+            return self.emulated.counters.setpoints
+        return self.vehicle.fc.counters.setpoints_accepted
 
     def stop(self) -> None:
         """Ask the loop to end (from another thread) at its next instant."""
@@ -162,6 +216,9 @@ class Server:
                  f"{f' ({reasons})' if reasons else ''}; commands {c.commands_acked}; "
                  f"refused from others {c.refused_foreign}; unsigned/bad-signature packets rejected {rejected}; "
                  f"garbled {sum(link.bad_packets for link in self.links) - rejected}")
+            if self.emulated is not None:
+                link = self.options.link
+                log(f"link emulated ({self.options.link.describe()}): {self.emulated.counters.summary()}")
 
     def _run_realtime(self) -> None:
         v = self.vehicle
@@ -175,7 +232,7 @@ class Server:
                 if ahead_s <= 0.0:
                     break
                 wait_readable(self.links, ahead_s)
-            v.advance_to(target_ms, self.send)
+            self._advance(target_ms)
             self._sync_viewer()
 
     def _run_lockstep(self) -> None:
@@ -191,22 +248,21 @@ class Server:
                          "(wall clock); going on without waiting, in the FC's failsafe")
                     waiting = False
             else:
-                accepted = fc.counters.setpoints_accepted
+                answers = self._answers()
                 self.poll()
-                waiting = fc.counters.setpoints_accepted > accepted
+                waiting = self._answers() > answers
             period_ms = fc.setpoint.period_ms if fc.setpoint is not None else IDLE_PERIOD_MS
-            v.advance_to(v.now_ms + period_ms, self.send, frame=True)
+            self._advance(v.now_ms + period_ms, frame=True)
             self._sync_viewer()
 
     def _await_setpoint(self, t_ms: int) -> bool:
         """Wait for the setpoint answering instant `t_ms`; False after the lockstep timeout."""
-        fc = self.vehicle.fc
         start = time.monotonic()
         deadline = start + self.options.lockstep_timeout_s
         resend_at = start + RESEND_S
         while True:
             self.poll()
-            if fc.setpoint is not None and fc.setpoint.time_ms == t_ms:
+            if self._answered(t_ms):
                 return True
             now = time.monotonic()
             if now >= deadline or self._stop:

@@ -107,11 +107,14 @@ class StandInCompanion:
 
 
 @contextlib.contextmanager
-def served(companion: StandInCompanion, options, more_urls: tuple[str, ...] = ()):
+def served(companion: StandInCompanion, options, more_urls: tuple[str, ...] = (),
+           prepare: Callable[[Server], None] = lambda server: None):
     """`sitl.serve.Server` with `options` (its links: the companion's URL, then `more_urls`) in
     a thread of this process, the companion answering in another; both stopped on exit.
-    Entered once the companion has heard the FC (so it knows where to send)."""
+    `prepare(server)` is called before it runs. Entered once the companion has heard the FC
+    (so it knows where to send)."""
     server = Server(replace(options, mavlink_urls=(companion.url, *more_urls)))
+    prepare(server)
     thread = threading.Thread(target=server.run, daemon=True)
     companion.start()
     thread.start()

@@ -124,9 +124,11 @@ class UdpLink(MavlinkLink):
         if self._batch is not None:
             self._batch.append(bytes(packet))
         else:
-            self._send_datagram([packet])
+            self.send_datagram([packet])
 
-    def _send_datagram(self, packets: list[bytes]) -> None:
+    def send_datagram(self, packets: list[bytes]) -> None:
+        """Put packed packets on the wire as one datagram (a subclass may impair the wire:
+        sitl/link_emulation.py)."""
         if self.peer is None:
             return
         try:
@@ -149,11 +151,11 @@ class UdpLink(MavlinkLink):
         datagram: list[bytes] = []
         for packet in batch:
             if datagram and sum(map(len, datagram)) + len(packet) > DATAGRAM_PAYLOAD_MAX:
-                self._send_datagram(datagram)
+                self.send_datagram(datagram)
                 datagram = []
             datagram.append(packet)
         if datagram:
-            self._send_datagram(datagram)
+            self.send_datagram(datagram)
 
     def receive_from(self, max_datagrams: int | None = None
                      ) -> list[tuple[tuple[str, int], list[mavlink.MAVLink_message]]]:
@@ -161,14 +163,21 @@ class UdpLink(MavlinkLink):
         `max_datagrams` datagrams (None: all that have arrived), the rest stays queued."""
         out = []
         while max_datagrams is None or len(out) < max_datagrams:
-            try:
-                data, sender = self.sock.recvfrom(_DATAGRAM_MAX)
-            except (BlockingIOError, InterruptedError):
+            datagram = self.read_datagram()
+            if datagram is None:
                 return out
+            out.append((datagram[1], self.ingest(*datagram)))
+        return out
+
+    def read_datagram(self) -> tuple[bytes, tuple[str, int]] | None:
+        """The next datagram off the wire and its sender, unparsed (None: nothing waiting)."""
+        while True:
+            try:
+                return self.sock.recvfrom(_DATAGRAM_MAX)
+            except (BlockingIOError, InterruptedError):
+                return None
             except OSError:
                 continue
-            out.append((sender, self.ingest(data, sender)))
-        return out
 
     def ingest(self, data: bytes, sender: tuple[str, int]) -> list[mavlink.MAVLink_message]:
         """The messages of one datagram from `sender` (what `receive()` does with each)."""

@@ -1,4 +1,5 @@
-"""The same noisy scenario and seed give the same flight, companion and plant as two processes."""
+"""The same noisy scenario and seed give the same flight, companion and plant as two processes,
+also through a delayed and lossy link (emulated in lockstep by the SITL)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import pytest
 
 from sitl.flight_run import FlightOptions
 from sitl.fly import fly
+from sitl.link_emulation import LinkEmulation
 from sitl.truth import load_truth
 
 pytestmark = pytest.mark.flight
@@ -26,15 +28,34 @@ sensor_noise = true
 """
 
 
-def _flight(tmp_path, name, seed):
-    scenario = tmp_path / "noisy.toml"
-    scenario.write_text(NOISY)
-    fly(str(scenario), tmp_path / name, FlightOptions(seed=seed), figures=False, progress=False)
+HOVER = """name = "noisy-hover"
+duration_s = 2.0
+[start]
+ned_m = [0.0, 0.0, -2.0]
+[plant]
+sensor_noise = true
+"""
+
+
+def _flight(tmp_path, name, seed, text=NOISY, link=None):
+    scenario = tmp_path / "scenario.toml"
+    scenario.write_text(text)
+    metrics = fly(str(scenario), tmp_path / name, FlightOptions(seed=seed, link=link), figures=False, progress=False)
     truth = load_truth(tmp_path / name / "truth.npz")
-    return np.hstack([truth.pos_ned_m, truth.euler_rad, truth.thrust_cmd_n, truth.hip_rad])
+    return np.hstack([truth.pos_ned_m, truth.euler_rad, truth.thrust_cmd_n, truth.hip_rad]), metrics
 
 
 def test_the_same_seed_gives_the_same_noisy_flight(tmp_path):
     """(Another seed giving other noise: tests/sitl/test_serve.py and test_plant.py.)"""
-    first, second = _flight(tmp_path, "a", 5), _flight(tmp_path, "b", 5)
+    (first, _), (second, _) = _flight(tmp_path, "a", 5), _flight(tmp_path, "b", 5)
     assert first.shape == second.shape and np.array_equal(first, second)
+
+
+def test_a_delayed_lossy_link_in_lockstep_flies_to_the_end_measured_and_the_same_for_a_seed(tmp_path):
+    link = LinkEmulation(delay_ms=20.0, loss=0.2)
+    (first, metrics), (second, _) = (_flight(tmp_path, name, 5, HOVER, link) for name in ("a", "b"))
+    assert metrics["completed"] and not metrics["crashed"]
+    assert metrics["link"] == {"delay_ms": 20.0, "loss": 0.2, "mode": "lockstep", "setpoint_lead_ms": 40.0}
+    assert first.shape == second.shape and np.array_equal(first, second)
+    sitl_log = (tmp_path / "a" / "sitl.log").read_text()
+    assert "link emulated (20 ms each way, loss 0.2)" in sitl_log and "no setpoint for" not in sitl_log

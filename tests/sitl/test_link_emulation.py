@@ -1,0 +1,121 @@
+"""Link delay and loss emulated in simulated time by `m4-sitl serve` (sitl/link_emulation.py):
+real sockets on loopback, the real plant, a stand-in companion answering every frame."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from m4.mavlink import mavlink
+from sitl.cli import main
+from sitl.link_emulation import EmulationError, LinkEmulation, LossDraw
+from sitl.scenario import Scenario
+from sitl.serve import ServeOptions
+from sitl.standin import StandInCompanion, served
+
+HOVER = Scenario(name="hover", duration_s=60.0)
+PERIOD_MS = 20
+
+
+class TimesyncCompanion(StandInCompanion):
+    """Sends a TIMESYNC request (ts1: the answered instant in ns) with every setpoint, in the
+    same datagram, as companion/fc_link.py does."""
+
+    def send(self, msg) -> None:
+        if msg.get_msgId() != mavlink.MAVLINK_MSG_ID_M4_SETPOINT:
+            super().send(msg)
+            return
+        with self._send_lock:
+            self.link.send_all([msg, mavlink.MAVLink_timesync_message(0, msg.time_boot_ms * 1_000_000)])
+
+
+def _fly(link: LinkEmulation, seconds: float = 1.0, seed: int = 0, companion: StandInCompanion | None = None):
+    """(the companion, the server, [(message type, FC instant handled, message)] for everything
+    the FC handled); a deadlock would leave the end unreached."""
+    companion = companion or StandInCompanion(period_ms=PERIOD_MS)
+    handled = []
+
+    def record(server):
+        fc = server.vehicle.fc
+        handle = fc.handle
+
+        def recording(msg, now_ms):
+            handled.append((msg.get_type(), now_ms, msg))
+            return handle(msg, now_ms)
+        fc.handle = recording
+
+    options = ServeOptions(scenario=HOVER, duration_s=seconds, link=link, seed=seed, lockstep_timeout_s=30.0)
+    end_ms = round(seconds * 1000)
+    with served(companion, options, prepare=record) as server:
+        deadline = time.monotonic() + 25.0
+        while server.vehicle.now_ms < end_ms and time.monotonic() < deadline:
+            time.sleep(0.01)
+    assert server.vehicle.now_ms == end_ms, "the lockstep flight did not reach its end"
+    return companion, server, handled
+
+
+def test_an_answer_acts_exactly_two_delays_later_and_timesync_measures_that_lead():
+    delay_ms = 7                                   # 2 D = 14 ms: between the FC's own instants
+    companion, server, handled = _fly(LinkEmulation(delay_ms=delay_ms), companion=TimesyncCompanion())
+    setpoints = [(now, m.time_boot_ms) for kind, now, m in handled if kind == "M4_SETPOINT"]
+    assert len(setpoints) >= 40
+    assert all(now == t + 2 * delay_ms for now, t in setpoints)
+    assert server.vehicle.fc.counters.setpoints_accepted == len(setpoints)
+    replies = [m for m in companion.of_type("TIMESYNC") if m.tc1 != 0]
+    assert len(replies) >= 40
+    assert {m.tc1 - m.ts1 for m in replies} == {2 * delay_ms * 1_000_000}
+
+
+def _losses(seed: int):
+    companion, server, handled = _fly(LinkEmulation(delay_ms=5, loss=0.3), seed=seed)
+    frames = {m.time_boot_ms for m in companion.of_type("M4_THRUSTER_STATUS")}
+    applied = {m.time_boot_ms for kind, _, m in handled if kind == "M4_SETPOINT"}
+    return frames, applied, server.emulated.counters
+
+
+def test_loss_drops_the_same_frames_and_setpoints_for_a_seed_and_the_fc_never_waits_for_them():
+    frames, applied, counters = _losses(seed=3)
+    again_frames, again_applied, _ = _losses(seed=3)
+    other_frames, other_applied, _ = _losses(seed=4)
+    instants = set(range(0, 1000, PERIOD_MS))
+    lost_frames = instants - frames
+    assert 0.15 < len(lost_frames) / len(instants) < 0.45
+    assert counters.lost_up > 0 and counters.lost_down > 0
+    answered = {t for t in frames if t < 1000}
+    assert applied < answered and 0.55 < len(applied) / len(answered) < 0.85      # some answers lost on the way up
+    assert (frames, applied) == (again_frames, again_applied)
+    assert (frames, applied) != (other_frames, other_applied)
+
+
+def test_without_loss_every_frame_is_answered_and_applied():
+    companion, server, handled = _fly(LinkEmulation(delay_ms=20))
+    frames = {m.time_boot_ms for m in companion.of_type("M4_THRUSTER_STATUS") if m.time_boot_ms < 960}
+    applied = {m.time_boot_ms for kind, _, m in handled if kind == "M4_SETPOINT"}
+    assert frames == set(range(0, 960, PERIOD_MS)) and frames <= applied
+    assert server.emulated.counters.lost_up == server.emulated.counters.lost_down == 0
+
+
+def test_a_loss_draw_depends_on_what_is_sent_when_not_on_what_came_before():
+    draw, other = LossDraw(seed=1, loss=0.5), LossDraw(seed=1, loss=0.5)
+    for t in range(0, 2000, 20):
+        other.lost("down", t, mavlink.MAVLINK_MSG_ID_HEARTBEAT)          # extra datagrams at each instant
+    first = [draw.lost("down", t, mavlink.MAVLINK_MSG_ID_ATTITUDE) for t in range(0, 2000, 20)]
+    second = [other.lost("down", t, mavlink.MAVLINK_MSG_ID_ATTITUDE) for t in range(0, 2000, 20)]
+    assert first == second and 30 < sum(first) < 70
+
+
+@pytest.mark.parametrize("delay_ms, loss", [(-1.0, 0.0), (2000.5, 0.0), (0.0, 1.0), (0.0, -0.1)])
+def test_out_of_range_impairments_are_refused(delay_ms, loss):
+    with pytest.raises(EmulationError):
+        LinkEmulation(delay_ms=delay_ms, loss=loss)
+
+
+@pytest.mark.parametrize("args, named", [(["--link-delay-ms", "2500"], "0..2000 ms"),
+                                         (["--link-delay-ms", "soon"], "not a number"),
+                                         (["--link-loss", "1"], "1 excluded")])
+def test_the_cli_refuses_bad_impairments_in_one_line(capsys, args, named):
+    for command in (["serve"], ["fly", "hover-rotor-loss"], ["compare"], ["campaign"]):
+        assert main([*command, *args]) == 2
+        err = capsys.readouterr().err
+        assert named in err and err.count("\n") == 1
