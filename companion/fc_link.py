@@ -250,7 +250,7 @@ class FcLink:
             _floats(sp.hip_rate_rad_s), flags)]
         if fault is not None:
             msgs.append(_fault_status_message(time_ms, fault))
-        if self.delay.request_due(now_s):
+        if self.delay.request_due(time_ms):
             msgs.append(mavlink.MAVLink_timesync_message(0, self.delay.requested(time_ms, now_s)))
         self.link.send_all(msgs)
 

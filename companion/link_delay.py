@@ -1,7 +1,8 @@
 """How late our setpoints act at the flight controller, measured with TIMESYNC.
 
-With a setpoint (at most every TIMESYNC_PERIOD_S) goes a TIMESYNC request in the same
-datagram, its ts1 the FC instant the setpoint answers (time_boot_ms, in ns). The FC answers
+With a setpoint (at most every TIMESYNC_PERIOD_MS of the FC's clock, so that a lockstep
+flight sends the same requests however fast the machine runs) goes a TIMESYNC request in the
+same datagram, its ts1 the FC instant the setpoint answers (time_boot_ms, in ns). The FC answers
 with tc1 = its own clock in ns since boot when it handled the request (ArduPilot and PX4 do
 so, echoing ts1), which is when the setpoint reached it: tc1 - ts1 is the setpoint's lead,
 the age of the answered telemetry instant when our answer acts (the telemetry's way down,
@@ -16,9 +17,9 @@ from __future__ import annotations
 import statistics
 from collections import deque
 
-TIMESYNC_PERIOD_S = 0.1
+TIMESYNC_PERIOD_MS = 100
 WINDOW = 15
-PENDING_MAX_S = 2.0              # a request unanswered this long is forgotten
+PENDING_MAX_MS = 5000            # a request unanswered this long on the FC's clock is forgotten
 _NS_PER_MS = 1_000_000
 
 
@@ -27,18 +28,20 @@ class LinkDelay:
         self._pending: dict[int, float] = {}            # ts1 (ns) -> our clock when sent
         self._leads_s: deque[float] = deque(maxlen=WINDOW)
         self._rtts_s: deque[float] = deque(maxlen=WINDOW)
-        self._last_request_s = -float("inf")
+        self._last_request_ms: int | None = None        # the FC instant of our last request
         self.samples = 0
 
-    def request_due(self, now_s: float) -> bool:
-        return now_s - self._last_request_s >= TIMESYNC_PERIOD_S
+    def request_due(self, time_ms: int) -> bool:
+        """Whether the setpoint answering FC instant time_ms should carry a request."""
+        last = self._last_request_ms
+        return last is None or not 0 <= time_ms - last < TIMESYNC_PERIOD_MS
 
     def requested(self, time_ms: int, now_s: float) -> int:
         """Note a request for the setpoint answering FC instant time_ms; its ts1 (ns)."""
         ts1 = int(time_ms) * _NS_PER_MS
-        self._pending = {k: t for k, t in self._pending.items() if now_s - t < PENDING_MAX_S}
+        self._pending = {k: t for k, t in self._pending.items() if ts1 - k < PENDING_MAX_MS * _NS_PER_MS}
         self._pending[ts1] = now_s
-        self._last_request_s = now_s
+        self._last_request_ms = int(time_ms)
         return ts1
 
     def answered(self, tc1_ns: int, ts1_ns: int, now_s: float) -> bool:

@@ -12,13 +12,16 @@ of the machine. With the FC's simulated clock at t:
   to the FC (parsed, routed, handled, in its tlog) at t + 2 D on its clock, in arrival order.
   D covers the way down as well: the answer to the frame of instant t acts at t + 2 D, a
   TIMESYNC request sent with it is answered with tc1 = t + 2 D, so the companion measures a
-  setpoint lead of 2 D as it would over a real link.
+  setpoint lead of 2 D as it would over a real link. A datagram that answers frame t (an
+  M4_SETPOINT or M4_FAULT_STATUS first in it, time_boot_ms t) counts as arrived at t even
+  when the FC had moved on before it came (lockstep waits for the setpoint only).
 
 The delays are on the FC's 1 ms clock (2 D rounded to whole milliseconds). A loss is decided
-by a keyed hash of (seed, direction, instant, the datagram's first message id, how many
-such datagrams came at that instant before it): a counter-based generator of its own, apart
-from the plant's noise, and independent of messages whose number follows the wall clock
-(heartbeats, resent commands), so the same seed loses the same frames and setpoints.
+by a keyed hash of (seed, direction, instant, a message id of the datagram (the last one
+going down: a frame's M4_THRUSTER_STATUS; the first one coming up), how many such datagrams
+came at that instant before it): a counter-based generator of its own, apart from the
+plant's noise, and independent of messages whose number follows the wall clock (heartbeats,
+resent commands), so the same seed loses the same frames and setpoints.
 
 For lockstep (sitl/serve.py) the link knows which frames it lost and which instants the
 companion has answered (`answered_ms`, on arrival: delivered later or lost), so the FC
@@ -31,6 +34,7 @@ from __future__ import annotations
 
 import collections
 import hashlib
+import heapq
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -39,6 +43,9 @@ from m4.mavlink.link import UdpLink
 from m4.mavlink.signing import setup_signing
 
 DELAY_MAX_MS = 2000.0
+SEEN_MAX = 4096                  # draws remembered (to number repeats) before the old ones are let go ...
+SEEN_KEEP_MS = 5000              # ... all but the last 5 s of them
+_ANSWERS = (mavlink.MAVLINK_MSG_ID_M4_SETPOINT, mavlink.MAVLINK_MSG_ID_M4_FAULT_STATUS)
 _MAVLINK2_STX = 0xFD
 _MAVLINK1_STX = 0xFE
 
@@ -85,8 +92,8 @@ class EmulationCounters:
                 f"from it {self.lost_up} of {self.received}")
 
 
-def first_message_id(data: bytes) -> int:
-    """The message id of the first packet in a datagram, from its header (-1: not MAVLink)."""
+def message_id(data: bytes) -> int:
+    """The message id of the (first) packet in `data`, from its header (-1: not MAVLink)."""
     if len(data) >= 10 and data[0] == _MAVLINK2_STX:
         return data[7] | data[8] << 8 | data[9] << 16
     if len(data) >= 6 and data[0] == _MAVLINK1_STX:
@@ -95,21 +102,21 @@ def first_message_id(data: bytes) -> int:
 
 
 class LossDraw:
-    """Whether a datagram is lost: a keyed hash, so the draw depends on what is sent when and
-    not on how many other draws came before it."""
+    """Whether a datagram is lost: a keyed hash of (seed, direction, instant, message id, how
+    many such datagrams came before it), so the draw depends on what is sent when and not on
+    how many other draws came before it."""
 
     def __init__(self, seed: int, loss: float):
         self.seed = seed
         self.loss = loss
-        self._seen: dict[str, tuple[int, collections.Counter]] = {}
+        self._seen: collections.Counter = collections.Counter()
 
     def lost(self, direction: str, t_ms: int, msg_id: int) -> bool:
-        at, seen = self._seen.get(direction, (None, None))
-        if at != t_ms:
-            seen = collections.Counter()
-            self._seen[direction] = (t_ms, seen)
-        n = seen[msg_id]
-        seen[msg_id] += 1
+        key = (direction, t_ms, msg_id)
+        n = self._seen[key]
+        self._seen[key] += 1
+        if len(self._seen) > SEEN_MAX:
+            self._seen = collections.Counter({k: v for k, v in self._seen.items() if k[1] >= t_ms - SEEN_KEEP_MS})
         if self.loss == 0.0:
             return False
         digest = hashlib.blake2b(f"{self.seed}/{direction}/{t_ms}/{msg_id}/{n}".encode(), digest_size=8).digest()
@@ -131,7 +138,7 @@ class EmulatedLink(UdpLink):
         self._frame_sent_ms: int | None = None   # the newest instant whose M4_THRUSTER_STATUS got through
         self._frame_lost_ms: int | None = None   # ... was lost
         self._draw = LossDraw(seed, emulation.loss)
-        self._held: collections.deque[tuple[int, bytes, tuple[str, int]]] = collections.deque()
+        self._held: list[tuple[int, int, bytes, tuple[str, int]]] = []     # heap: (due, arrival count, datagram, sender)
         self._reader = new_mav(None, source_system, source_component)    # reads arrivals (the link parses them later)
         if key is not None:
             setup_signing(self._reader, key, link_id)
@@ -142,8 +149,8 @@ class EmulatedLink(UdpLink):
             return
         now_ms = self.clock()
         self.counters.sent += 1
-        lost = self._draw.lost("down", now_ms, first_message_id(packets[0]))
-        if any(first_message_id(p) == mavlink.MAVLINK_MSG_ID_M4_THRUSTER_STATUS for p in packets):
+        lost = self._draw.lost("down", now_ms, message_id(packets[-1]))       # a frame: its M4_THRUSTER_STATUS
+        if any(message_id(p) == mavlink.MAVLINK_MSG_ID_M4_THRUSTER_STATUS for p in packets):
             if lost:
                 self._frame_lost_ms = now_ms
             else:
@@ -171,25 +178,34 @@ class EmulatedLink(UdpLink):
         return self.deliver()
 
     def _arrived(self, now_ms: int, data: bytes, sender: tuple[str, int]) -> None:
+        """Lose or hold one datagram. The answer to frame t (the setpoint, and M4_FAULT_STATUS in
+        a datagram of its own, which may come in after the FC has moved on) is drawn and held by
+        its instant t; anything else by the instant it came."""
         self.counters.received += 1
-        for msg in self._reader.parse_buffer(data) or ():
+        msgs = [m for m in self._reader.parse_buffer(data) or () if m.get_type() != "BAD_DATA"]
+        at_ms = now_ms
+        if msgs and msgs[0].get_msgId() in _ANSWERS and self.peer_filter(msgs[0]):
+            at_ms = min(int(msgs[0].time_boot_ms), now_ms)
+        for msg in msgs:
             if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_M4_SETPOINT and self.peer_filter(msg):
                 self.answered_ms = max(self.answered_ms or 0, int(msg.time_boot_ms))
                 self.counters.setpoints += 1
-        if self._draw.lost("up", now_ms, first_message_id(data)):
+        if self._draw.lost("up", at_ms, msgs[0].get_msgId() if msgs else -1):
             self.counters.lost_up += 1
             return
-        self._held.append((now_ms + self.emulation.round_trip_ms, data, sender))
+        due_ms = max(now_ms, at_ms + self.emulation.round_trip_ms)
+        heapq.heappush(self._held, (due_ms, self.counters.received, data, sender))
 
     def next_delivery_ms(self) -> int | None:
         return self._held[0][0] if self._held else None
 
     def deliver(self) -> list[tuple[tuple[str, int], list[mavlink.MAVLink_message]]]:
-        """The held datagrams due at the current instant, parsed (into the tlog), in arrival order."""
+        """The held datagrams due at the current instant, parsed (into the tlog), in order of due
+        instant, then of arrival."""
         now_ms = self.clock()
         out = []
         while self._held and self._held[0][0] <= now_ms:
-            _, data, sender = self._held.popleft()
+            _, _, data, sender = heapq.heappop(self._held)
             out.append((sender, self.ingest(data, sender)))
         return out
 

@@ -13,9 +13,10 @@ loss p, in lockstep:
 - every datagram the FC sends on it at instant t is lost with probability p, else delivered
   (at once in wall time: the companion cannot tell that from t + D);
 - every datagram that arrives from it while the FC's clock is at t (e.g. the answer to frame
-  t) is lost with probability p, else handled at t + 2 D on the FC's clock, in arrival order:
-  setpoints, commands, M4_FAULT_STATUS and TIMESYNC requests alike (so the FC's TIMESYNC
-  reply says tc1 = t + 2 D and the companion measures a lead of 2 D);
+  t) is lost with probability p, else handled at t + 2 D on the FC's clock, in arrival order,
+  first thing at that instant (so the FC's replies precede that instant's frame): setpoints,
+  commands, M4_FAULT_STATUS and TIMESYNC requests alike (so the FC's TIMESYNC reply says
+  tc1 = t + 2 D and the companion measures a lead of 2 D);
 - the FC still waits at frame t for the setpoint answering it, but not for the answer to a
   frame it lost, and a setpoint lost on the way up counts as the answer (the FC knows what
   its link dropped); an arrived answer ends the wait though it acts only at t + 2 D.
@@ -110,6 +111,8 @@ class Server:
             self.close()
             raise
         self.router = Router(self.links)
+        if self.emulated is not None:
+            self.vehicle.inbox = self
 
     def _open_link(self, i: int, url: str) -> UdpLink:
         o = self.options
@@ -139,18 +142,12 @@ class Server:
             self.router.forward(i, msgs)
             self.vehicle.handle(msgs, self.send)
 
-    def _advance(self, t_ms: int, frame: bool = False) -> None:
-        """Simulate up to `t_ms` (with `frame`: the lockstep frame there), handing the emulated
-        link's held messages to the FC at their instants (after that instant's own work, as
-        any message received at an instant)."""
-        e, v = self.emulated, self.vehicle
-        if e is not None:
-            while (due := e.next_delivery_ms()) is not None and due < t_ms:
-                v.advance_to(due, self.send)
-                self._handle(0, e.deliver())
-        v.advance_to(t_ms, self.send, frame=frame)
-        if e is not None:
-            self._handle(0, e.deliver())
+    # -- the emulated link's messages, as the vehicle's inbox (sitl/vehicle.py) -------------------
+    def next_delivery_ms(self) -> int | None:
+        return self.emulated.next_delivery_ms()
+
+    def deliver_held(self) -> None:
+        self._handle(0, self.emulated.deliver())
 
     def _answered(self, t_ms: int) -> bool:
         """Lockstep: the FC need not wait any longer at instant t_ms."""
@@ -232,7 +229,7 @@ class Server:
                 if ahead_s <= 0.0:
                     break
                 wait_readable(self.links, ahead_s)
-            self._advance(target_ms)
+            v.advance_to(target_ms, self.send)
             self._sync_viewer()
 
     def _run_lockstep(self) -> None:
@@ -252,7 +249,7 @@ class Server:
                 self.poll()
                 waiting = self._answers() > answers
             period_ms = fc.setpoint.period_ms if fc.setpoint is not None else IDLE_PERIOD_MS
-            self._advance(v.now_ms + period_ms, frame=True)
+            v.advance_to(v.now_ms + period_ms, self.send, frame=True)
             self._sync_viewer()
 
     def _await_setpoint(self, t_ms: int) -> bool:

@@ -8,8 +8,6 @@ LOCAL_POSITION_NED carry the same time_boot_ms). Messages due at one instant go 
 
 from __future__ import annotations
 
-import math
-
 from m4.mavlink import mavlink
 
 m = mavlink
@@ -54,7 +52,9 @@ class StreamSchedule:
 
     def set_interval_us(self, msg_id: int, interval_us: float, now_ms: int) -> None:
         """MAV_CMD_SET_MESSAGE_INTERVAL semantics: -1 stops, 0 restores the default, else the
-        interval in microseconds (rounded to the 1 ms clock, at least 1 ms)."""
+        interval in microseconds (rounded to the 1 ms clock, at least 1 ms). Handled after the
+        instant's own streams went out: the stream goes on at its next multiple after `now_ms`
+        (never off its grid, whatever instant a resent command lands on)."""
         if interval_us < 0:
             self._interval_ms.pop(msg_id, None)
             self._next_ms.pop(msg_id, None)
@@ -67,7 +67,7 @@ class StreamSchedule:
         else:
             interval = max(1, round(interval_us / 1000.0))
         self._interval_ms[msg_id] = interval
-        self._next_ms[msg_id] = math.ceil(now_ms / interval) * interval
+        self._next_ms[msg_id] = (now_ms // interval + 1) * interval
 
     def next_due_ms(self) -> int | None:
         return min(self._next_ms.values(), default=None)

@@ -4,13 +4,16 @@ on one simulated clock (integer milliseconds since the scenario's t = 0).
 No sockets and no wall clock here: `advance_to()` steps the physics from event to event (FC
 ticks, telemetry streams, scheduled faults) and hands every message the FC emits on the way
 to `send`; `handle()` feeds it received messages at the current instant. sitl/serve.py
-paces it (lockstep or real time) and moves the bytes.
+paces it (lockstep or real time) and moves the bytes. An `inbox` (a delayed link) is stepped
+to as well: what it holds for an instant is handed over first thing at that instant, so its
+replies go out before that instant's telemetry.
 """
 
 from __future__ import annotations
 
 import sys
 from collections.abc import Callable, Iterable
+from typing import Protocol
 
 from m4.airframe import Airframe
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
@@ -22,6 +25,14 @@ from sitl.streams import FRAME
 from sitl.truth import DEFAULT_PERIOD_MS as OBSERVED_GRID_MS
 
 Send = Callable[[Iterable[mavlink.MAVLink_message]], None]
+
+
+class Inbox(Protocol):
+    """Messages held for later instants (sitl/link_emulation.py through sitl/serve.py)."""
+
+    def next_delivery_ms(self) -> int | None: ...      # when the next is due (None: none held)
+
+    def deliver_held(self) -> None: ...                # hand the FC what is due now
 
 
 def log(text: str) -> None:
@@ -42,6 +53,7 @@ class Vehicle:
         self.now_ms = 0
         self._faults = sorted(_fault_events(scenario.faults), key=lambda x: x[0])
         self.observers: list[Callable[[int, Plant], None]] = []     # called at every simulated instant
+        self.inbox: Inbox | None = None
 
     def start(self, send: Send) -> None:
         """The FC wakes up at t = 0 (failsafe HOLD until setpoints come) and sends its first frame."""
@@ -57,6 +69,8 @@ class Vehicle:
             nxt = min(self.fc.next_event_ms(self.now_ms), t_ms, grid)
             if self._faults:
                 nxt = min(nxt, max(self._faults[0][0], self.now_ms + 1))
+            if self.inbox is not None and (due := self.inbox.next_delivery_ms()) is not None:
+                nxt = min(nxt, max(due, self.now_ms + 1))
             self.plant.step((nxt - self.now_ms) / 1000.0)
             self.now_ms = nxt
             self._at_instant(send, frame=frame and nxt == t_ms)
@@ -71,6 +85,8 @@ class Vehicle:
                 self.fc.set_rotor_loss(fault.rotor, fault.loss, fault.kind)
                 log(f"t={self.now_ms / 1000:.3f} s: scenario fault, rotor {fault.rotor} "
                     f"{fault.kind.label} loss {fault.loss:g}")
+        if self.inbox is not None:
+            self.inbox.deliver_held()
         if self.now_ms % TICK_MS == 0:
             self.fc.tick(self.now_ms)
         send(self.fc.take_outbox())
