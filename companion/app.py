@@ -153,7 +153,7 @@ class CompanionApp:
             if not self.controller.started and self.controller.start(t_s, x):
                 log.info("t=%.3f s: mission anchored at the centre of mass (%.2f, %.2f, %.2f) m NED", t_s, *x[rom.P])
             step = self.controller.step(t_s, x, snap.esc, snap.thrust_limit_n,
-                                        lead_s=self.fc.delay.lead_s or 0.0)
+                                        lead_s=self.fc.delay.lead_s or 0.0, thrust_cmd_n=self._frame_thrust_cmd(snap, t_ms))
         except Exception:           # a defect, not bad input: say it, send nothing, let the FC's failsafe fly
             self.counters.control_errors += 1
             log.exception("control step at t=%.3f s failed; no setpoint for this instant", t_ms / 1000.0)
@@ -176,6 +176,11 @@ class CompanionApp:
             self.fc.statustext(mavlink.MAV_SEVERITY_EMERGENCY, f"companion: crash ({step.crash}), thrust cut")
         self._watch_delay(t_s)
         self._publish(step, snap, x)
+
+    @staticmethod
+    def _frame_thrust_cmd(snap: VehicleSnapshot, t_ms: int) -> np.ndarray | None:
+        """What the FC reports it commands at the frame's instant (None: no report of that instant)."""
+        return snap.thrust_cmd_n if snap.times_ms.get(THRUSTER_STATUS) == t_ms else None
 
     def _esc_thrust_n(self, snap: VehicleSnapshot) -> np.ndarray:
         """The thrust each ESC's reported speed implies (NaN without ESC telemetry): for the feed."""

@@ -40,6 +40,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from companion.core import rom
+from companion.core.applied_thrust import AppliedThrust
 from companion.core.control_types import FaultState, FaultStatus, plausible_state, safe_setpoint, thrust_bounds
 from companion.core.disturbance import DisturbanceEstimator
 from companion.core.esc_evidence import EscSample, PropellerModel
@@ -141,6 +142,7 @@ class Controller:
         self.detector = self._new_detector()
         self.flight: Flight | None = None
         self.sent = CommandHistory()
+        self.applied = AppliedThrust(self.period_s)
         self._hip_goal: HipGoal | None = None
 
     @property
@@ -164,6 +166,7 @@ class Controller:
         stale. The disturbance estimate is kept (it describes the robot, not the moment)."""
         self.nmpc.reset()
         self.sent.clear()
+        self.applied.clear()
         self._hip_goal = None
 
     def restart(self) -> None:
@@ -180,13 +183,15 @@ class Controller:
         self.detector.restore(rotor, thrust_max_estimate_n, detected_at_s)
 
     def step(self, time_s: float, x_measured, esc: EscSample | None = None, thrust_limit_n=None,
-             lead_s: float = 0.0) -> ControlStep:
+             lead_s: float = 0.0, thrust_cmd_n=None) -> ControlStep:
         """The setpoint answering the telemetry instant time_s for the measured ROM state, to act
-        lead_s later."""
+        lead_s later; thrust_cmd_n is what the FC reports it commands at time_s (None: it does
+        not say)."""
         af = self.af
         lead_s = max(float(lead_s), 0.0) if np.isfinite(lead_s) else 0.0
         x = np.asarray(x_measured, dtype=float).reshape(rom.NX)
         thrust_limit_n = self._thrust_telemetry(thrust_limit_n)
+        self.applied.report(time_s, self._thrust_telemetry(thrust_cmd_n))
         usable = plausible_state(af, x)
         if usable:
             x = self._with_hip_goal(x)
@@ -195,7 +200,7 @@ class Controller:
         if confirmed_now:
             self.disturbance.reset()      # it held the lost rotor's effect, which the bound now models
             self.flight.reference.fault_detected(time_s, x[rom.P])
-        d = self._estimate_disturbance(time_s, x, usable, in_force, fault.thrust_bound_n)
+        d = self._estimate_disturbance(time_s, x, usable, in_force, fault.thrust_bound_n, lead_s)
         if self.flight is None or not usable:
             return self._fallback(time_s, x, fault, confirmed_now, d)
         upset, crashed_before = self.flight.upset, self.flight.upset.crash is not None
@@ -228,8 +233,16 @@ class Controller:
         return abs(time_s - newest.time_s - self.period_s) <= _CONSECUTIVE_TOLERANCE * self.period_s
 
     def _in_force_last_period(self, time_s: float, lead_s: float) -> SentCommand | None:
-        """The command the FC flew over the period that ends at time_s (None: none of ours)."""
-        return self.sent.in_force(time_s - 0.5 * self.period_s, lead_s)
+        """The command the FC flew over the period that ends at time_s (None: none of ours):
+        the thrusts as the FC reports them when it does (companion.core.applied_thrust), the
+        hips as we planned them."""
+        ours = self.sent.in_force(time_s - 0.5 * self.period_s, lead_s)
+        reported = self.applied.over_period(time_s, lead_s)
+        if ours is None or reported is None:
+            return ours
+        u = ours.input.copy()
+        u[rom.THRUST] = reported
+        return SentCommand(ours.time_s, ours.state, u)
 
     def _detect(self, time_s, x, usable, in_force, esc, limit_n) -> tuple[FaultStatus, bool]:
         """The detector's status after this frame; True at each new confirmation in a flight."""
@@ -247,17 +260,19 @@ class Controller:
             flight.fault_announced = True
         return status, confirmed_now
 
-    def _estimate_disturbance(self, time_s, x, usable, in_force, thrust_max_n) -> np.ndarray:
+    def _estimate_disturbance(self, time_s, x, usable, in_force, thrust_max_n, lead_s) -> np.ndarray:
         """Updated over the last period with our command within the current bounds. A rotor lost
         but not yet confirmed shows up here as a disturbance within a few periods, so the NMPC
         compensates it before the detector confirms it (measured on the SITL at 50 Hz: altitude
         loss 0.14 m against 0.43 m when the update used the FC's delivered thrust, which hides
-        the loss); at confirmation the estimate restarts, the bound taking over."""
+        the loss); at confirmation the estimate restarts, the bound taking over. Its gain is
+        scaled by period / (period + lead_s): behind a link delay the estimate moves slower
+        (companion.core.disturbance)."""
         if not (usable and in_force is not None and self._consecutive(time_s)):
             return self.disturbance.estimate.copy()
         u = in_force.input.copy()
         u[rom.THRUST] = np.minimum(u[rom.THRUST], thrust_bounds(self.af, thrust_max_n))
-        return self.disturbance.update(self.sent.newest.state, u, x)
+        return self.disturbance.update(self.sent.newest.state, u, x, gain_scale=self.period_s / (self.period_s + lead_s))
 
     def _touched_down(self, time_s: float, x: np.ndarray) -> bool:
         if not self.flight.reference.landing_started(time_s):

@@ -286,3 +286,18 @@ def test_with_a_lead_the_nmpc_plans_from_the_state_predicted_to_when_the_setpoin
     assert out.lead_s == pytest.approx(0.1)
     assert out.state[rom.P.start] - measured[rom.P.start] == pytest.approx(0.1, abs=0.01)
     assert np.array_equal(c.step(8 * PERIOD, measured).state[rom.P], measured[rom.P])
+
+
+@pytest.mark.parametrize("fc_says_rotor_4_n, torque_expected", [(HOVER_N, False), (0.0, True)])
+def test_the_disturbance_estimate_compares_the_robot_with_what_the_fc_reports_it_commanded(fc_says_rotor_4_n,
+                                                                                         torque_expected):
+    """Our setpoints say hover; the FC reports what it actually commanded (a lost setpoint, a
+    held one): a robot that stays level under a reported rotor 4 at 0 N needs a torque the
+    model does not know, under the reported hover thrust it needs none."""
+    c = controller()
+    x = rom.hover_state(AF)
+    reported = np.r_[np.full(3, HOVER_N), fc_says_rotor_4_n]
+    for k in range(4):
+        s = step(c, k * PERIOD, x, None, None, 0.0, reported)
+    torque = np.abs(s.disturbance[3:5]).max()
+    assert (torque > 0.05) == torque_expected, s.disturbance

@@ -69,6 +69,15 @@ def test_gain_sets_how_fast_it_follows():
     assert slow[0] == pytest.approx(3.0 * (1 - 0.95 ** 5), rel=0.05)    # first-order filter
 
 
+def test_gain_scale_slows_the_estimate_as_a_lower_gain_would():
+    d_true = np.array([3.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    x, u = rom.hover_state(AF), rom.hover_input(AF)
+    x_next = np.asarray(PLANT(x, u, d_true)).ravel()
+    scaled = DisturbanceEstimator(AF, PERIOD, gain=0.3).update(x, u, x_next, gain_scale=1 / 6)
+    low = DisturbanceEstimator(AF, PERIOD, gain=0.05).update(x, u, x_next)
+    assert scaled == pytest.approx(low) and 0 < scaled[0] < 0.3 * 3.0
+
+
 def test_non_finite_measurements_leave_the_estimate_unchanged():
     est = DisturbanceEstimator(AF, PERIOD)
     before = run(est, np.array([1.0, 0, 0, 0, 0, 0]), steps=10)
