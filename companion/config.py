@@ -42,6 +42,10 @@ HORIZON_MAX = 40
 # but tilts about 40 deg, and fails the 24 N cap and the landing after a total loss; at 50 Hz
 # every built-in scenario passes with about 11 deg of tilt (README, "Measured results").
 DEFAULT_RATE_HZ = 50.0
+# The rate feedback the FC closes around the plan (m4.setpoint, companion.core.rate_feedback):
+# its bandwidth. Above ~1/(4 x the FC's 4 ms loop) it would ring on the FC's own loop delay.
+DEFAULT_RATE_FEEDBACK_BANDWIDTH_RAD_S = 20.0
+RATE_FEEDBACK_BANDWIDTH_MAX_RAD_S = 60.0
 # The companion's solves stop iterating at half the control period (the research tools' NMPC,
 # NmpcConfig's default, iterates until it converges).
 COMPANION_TIME_BUDGET_SHARE = 0.5
@@ -79,6 +83,7 @@ class LogSettings:
 class CompanionConfig:
     rate_hz: float = DEFAULT_RATE_HZ
     realtime_priority: int = 0              # SCHED_FIFO priority of the control loop, 1..99; 0: normal (companion/realtime.py)
+    rate_feedback_bandwidth_rad_s: float = DEFAULT_RATE_FEEDBACK_BANDWIDTH_RAD_S   # 0: the FC flies thrust_n alone
     nmpc: NmpcConfig = field(default_factory=lambda: NmpcConfig(control_period_s=1.0 / DEFAULT_RATE_HZ,
                                                                 time_budget_share=COMPANION_TIME_BUDGET_SHARE))
     disturbance_gain: float = DEFAULT_DISTURBANCE_GAIN
@@ -114,6 +119,8 @@ def parse_config(data: dict, where: str, base_dir: Path | None = None) -> Compan
     control = top.table("control")
     rate_hz = control.number("rate_hz", DEFAULT_RATE_HZ, lo=0.0, lo_open=True, hi=RATE_MAX_HZ)
     realtime_priority = control.integer("realtime_priority", 0, lo=0, hi=PRIORITY_MAX)
+    rate_feedback = control.number("rate_feedback_bandwidth_rad_s", DEFAULT_RATE_FEEDBACK_BANDWIDTH_RAD_S, lo=0.0,
+                                   hi=RATE_FEEDBACK_BANDWIDTH_MAX_RAD_S)
     control.finish()
     nmpc_table = top.table("nmpc")
     disturbance_gain = nmpc_table.number("disturbance_gain", DEFAULT_DISTURBANCE_GAIN, lo=0.0, lo_open=True, hi=1.0)
@@ -121,6 +128,7 @@ def parse_config(data: dict, where: str, base_dir: Path | None = None) -> Compan
     config = CompanionConfig(
         rate_hz=rate_hz,
         realtime_priority=realtime_priority,
+        rate_feedback_bandwidth_rad_s=rate_feedback,
         nmpc=nmpc,
         disturbance_gain=disturbance_gain,
         reference=_settings(top.table("reference"), ReferenceConfig),

@@ -34,7 +34,7 @@ NMPC's bounds are the detector's (thrust_bound_n); a fault is announced at each 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -48,6 +48,7 @@ from companion.core.fault_detector import FaultDetector, FaultDetectorConfig
 from companion.core.nmpc import Nmpc, NmpcResult
 from companion.core.nmpc_config import NmpcConfig
 from companion.core.prediction import CommandHistory, Predictor, SentCommand
+from companion.core.rate_feedback import RateFeedbackDesign
 from companion.core.reference import MissionReference, ReferenceConfig
 from companion.core.touchdown import TouchdownConfig, TouchdownDetector
 from companion.core.upset import UpsetConfig, UpsetDetector
@@ -78,12 +79,14 @@ class ControllerSettings:
     touchdown: TouchdownConfig = field(default_factory=TouchdownConfig)
     fault_detector: FaultDetectorConfig = field(default_factory=FaultDetectorConfig)
     upset: UpsetConfig = field(default_factory=UpsetConfig)
+    rate_feedback_bandwidth_rad_s: float = 0.0      # the FC's rate feedback around the plan (0: none)
 
     @classmethod
     def of(cls, config: CompanionConfig) -> ControllerSettings:
         return cls(airframe=config.airframe, control_period_s=config.control_period_s, nmpc=config.nmpc,
                    disturbance_gain=config.disturbance_gain, mission=config.mission, reference=config.reference,
-                   touchdown=config.touchdown, fault_detector=config.fault_detector, upset=config.upset)
+                   touchdown=config.touchdown, fault_detector=config.fault_detector, upset=config.upset,
+                   rate_feedback_bandwidth_rad_s=config.rate_feedback_bandwidth_rad_s)
 
 
 @dataclass(frozen=True)
@@ -139,6 +142,7 @@ class Controller:
             lambda t0_s, start_ned_m: MissionReference(s.mission, start_ned_m, af, s.reference, t0_s=t0_s))
         self.disturbance = DisturbanceEstimator(af, self.period_s, s.disturbance_gain)
         self.predictor = Predictor(af, self.nmpc.rom.f)
+        self.rate_feedback = RateFeedbackDesign(af, s.rate_feedback_bandwidth_rad_s)
         self.detector = self._new_detector()
         self.flight: Flight | None = None
         self.sent = CommandHistory()
@@ -214,6 +218,8 @@ class Controller:
         x_ref = self.flight.reference.reference(time_s + lead_s, c.horizon, c.dt_s)
         res = self.nmpc.solve(x_plan, x_ref, fault.thrust_bound_n, d)
         sp = self._setpoint(x_plan, res, fault.thrust_bound_n)
+        x_next = res.x_pred[1] if res.ok else x_plan          # a failed solve plans no change of the rates
+        sp = replace(sp, rate_feedback=self.rate_feedback.feedback(x_plan, x_next, c.dt_s, fault.thrust_bound_n))
         self.sent.add(SentCommand(time_s, x, np.r_[sp.thrust_n, res.u[rom.HIP_ACCEL]]))
         return ControlStep(time_s, sp, x_plan, lead_s, x_ref, res, fault, confirmed_now, d)
 

@@ -1,11 +1,50 @@
 """What an M4_SETPOINT commands, as both ends hold it: the companion builds one, the flight
-controller applies one. The message adds the instant it answers and its period."""
+controller applies one. The message adds the instant it answers and its period.
+
+Rate feedback (M4_SETPOINT's extension fields): the companion's plan reaches the flight
+controller a link delay after the telemetry it answers, and a rotor lost in between tips the
+robot for that long before the plan can react. So the setpoint also carries the body rates
+the plan expects while it is in force and a gain, and the FC closes that fast loop on its
+own gyro at its own rate: thrust_n + gain x (planned rates - measured rates). When the robot
+moves as planned the feedback adds nothing; the plan stays the companion's.
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+
+RATE_GAIN_MAX_N_PER_RAD_S = 50.0     # the FC refuses larger entries: no sane posture needs them
+
+
+@dataclass(frozen=True)
+class RateFeedback:
+    rates_ref_frd_rad_s: np.ndarray          # (3,) planned body rates when the setpoint takes effect ...
+    rates_ref_change_frd_rad_s2: np.ndarray  # (3,) ... and their planned change per second (held after the period)
+    gain_n_per_rad_s: np.ndarray             # (4, 3) thrust change per rotor per unit rate error about x, y, z
+
+    @classmethod
+    def from_fields(cls, rates_ref, change, gain_flat) -> RateFeedback | None:
+        """From M4_SETPOINT's fields; None when they ask for no feedback (all gains zero, the
+        default of a sender that does not know them) or cannot be used (not finite, a gain
+        beyond RATE_GAIN_MAX_N_PER_RAD_S)."""
+        ref, chg = np.asarray(rates_ref, dtype=float), np.asarray(change, dtype=float)
+        gain = np.asarray(gain_flat, dtype=float).reshape(4, 3)
+        if not (np.all(np.isfinite(ref)) and np.all(np.isfinite(chg)) and np.all(np.isfinite(gain))):
+            return None
+        if not np.any(gain) or np.max(np.abs(gain)) > RATE_GAIN_MAX_N_PER_RAD_S:
+            return None
+        return cls(ref, chg, gain)
+
+    def thrust_change_n(self, rates_frd_rad_s, in_force_s: float, period_s: float) -> np.ndarray:
+        """(4,) the feedback after the setpoint has been in force in_force_s (planned rates
+        held after period_s), for the measured body rates; zeros when they are not finite."""
+        rates = np.asarray(rates_frd_rad_s, dtype=float)
+        if not np.all(np.isfinite(rates)):
+            return np.zeros(4)
+        ref = self.rates_ref_frd_rad_s + self.rates_ref_change_frd_rad_s2 * min(max(in_force_s, 0.0), period_s)
+        return self.gain_n_per_rad_s @ (ref - rates)
 
 
 @dataclass(frozen=True)
@@ -14,3 +53,4 @@ class Setpoint:
     hip_rad: np.ndarray           # (4,) servo goal at the answered instant ...
     hip_rate_rad_s: np.ndarray    # (4,) ... moving at this rate (M4_SETPOINT hip_angle_rad, hip_rate_rad_s)
     thrust_cut: bool = False      # M4_SETPOINT_FLAG_THRUST_CUT: every motor stops
+    rate_feedback: RateFeedback | None = None   # None: thrust_n alone

@@ -37,7 +37,7 @@ import numpy as np
 from m4.airframe import ROTOR_COUNT, Airframe
 from m4.log_limit import RepeatLimiter
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
-from m4.setpoint import Setpoint
+from m4.setpoint import RateFeedback, Setpoint
 from sitl.commands import CommandHandler
 from sitl.esc_telemetry import EscTelemetry
 from sitl.failsafe import Failsafe, FailsafeMode
@@ -114,6 +114,7 @@ class FlightController:
         self.setpoint: ReceivedSetpoint | None = None
         self.mode: FcMode | None = None
         self._applied: ReceivedSetpoint | None = None
+        self._applied_at_ms = 0
         self._outbox: list[mavlink.MAVLink_message] = []
         self._measured: tuple[int, PlantState] | None = None
         self._commands = CommandHandler(self)
@@ -126,6 +127,15 @@ class FlightController:
 
     def _command_plant(self, thrust_n, hip_rad, hip_rate_rad_s=None) -> None:
         self.plant.command(thrust_n, hip_rad, hip_rate_rad_s)
+        self._measured = None
+
+    def _rate_feedback(self, sp: Setpoint, now_ms: int) -> None:
+        """The companion's thrusts plus its rate feedback on our gyro (m4.setpoint), every tick."""
+        rates = self.measured_state(now_ms).rates_frd_rad_s
+        change = sp.rate_feedback.thrust_change_n(rates, (now_ms - self._applied_at_ms) / 1000.0,
+                                                  self.setpoint.period_ms / 1000.0)
+        af = self.airframe
+        self.plant.command_thrust(np.clip(sp.thrust_n + change, af.thrust_min_n, af.thrust_max_n))
         self._measured = None
 
     def set_rotor_loss(self, rotor: int, loss: float, kind: FailureKind = FailureKind.DEGRADED) -> None:
@@ -177,7 +187,9 @@ class FlightController:
             self._set_mode(FcMode.COMPANION)
             if self.setpoint is not self._applied:
                 self._command_plant(sp.thrust_n, sp.hip_rad, sp.hip_rate_rad_s)
-                self._applied = self.setpoint
+                self._applied, self._applied_at_ms = self.setpoint, now_ms
+            if sp.rate_feedback is not None:
+                self._rate_feedback(sp, now_ms)
             return
         state = self.measured_state(now_ms)
         self.failsafe.set_lost_rotor(self.lost_rotor())
@@ -271,7 +283,9 @@ class FlightController:
             thrust_n=np.clip(thrust, af.thrust_min_n, af.thrust_max_n),
             hip_rad=np.clip(hip, af.hip_min_rad, af.hip_max_rad),
             hip_rate_rad_s=np.clip(rate, -af.hip_rate_max_rad_s, af.hip_rate_max_rad_s),
-            thrust_cut=bool(msg.flags & mavlink.M4_SETPOINT_FLAG_THRUST_CUT)))
+            thrust_cut=bool(msg.flags & mavlink.M4_SETPOINT_FLAG_THRUST_CUT),
+            rate_feedback=RateFeedback.from_fields(msg.rates_ref_frd_rad_s, msg.rates_ref_change_frd_rad_s2,
+                                                   msg.rate_gain)))
         self.counters.setpoints_accepted += 1
         self.tick(now_ms)
 

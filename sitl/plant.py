@@ -126,17 +126,22 @@ class Plant:
         d.ctrl[self._thrust_sq] = 0.0
         d.act[self._thrust_sq_act] = k_t * gap ** 2
 
+    def command_thrust(self, thrust_n) -> None:
+        """Thrusts alone (N, rotors 1..4), the hips' targets kept: the FC's rate feedback
+        between setpoints. Clamped as in command(); a non-finite entry keeps its value."""
+        thrust = _vector("thrust_n", thrust_n, ROTOR_COUNT)
+        self._thrust_request_n = np.where(np.isfinite(thrust), thrust, self._thrust_request_n)
+        self._apply_thrust()
+
     def command(self, thrust_n, hip_rad, hip_rate_rad_s=None) -> None:
         """Thrusts (N, rotors 1..4) and hip targets (rad) with their rates (rad/s, default 0).
         Thrusts are clamped to [thrust_min, current limit], hip angles to the joint range and
         rates to the servo's rate limit; a non-finite entry keeps that entry's previous value
         (a rate: 0)."""
-        thrust = _vector("thrust_n", thrust_n, ROTOR_COUNT)
+        self.command_thrust(thrust_n)
         hip = _vector("hip_rad", hip_rad, ROTOR_COUNT)
         rate = np.zeros(ROTOR_COUNT) if hip_rate_rad_s is None else _vector("hip_rate_rad_s", hip_rate_rad_s,
                                                                              ROTOR_COUNT)
-        self._thrust_request_n = np.where(np.isfinite(thrust), thrust, self._thrust_request_n)
-        self._apply_thrust()
         self._hip_target = np.where(np.isfinite(hip), hip, self._hip_target)
         self._hips.set_target(self._hip_target.tolist(), np.where(np.isfinite(rate), rate, 0.0).tolist())
         self._servo_countdown = 0           # the servo controller (and drag, gate) react at the next step

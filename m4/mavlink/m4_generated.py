@@ -8492,22 +8492,22 @@ class MAVLink_m4_setpoint_message(MAVLink_message):
 
     id = MAVLINK_MSG_ID_M4_SETPOINT
     msgname = "M4_SETPOINT"
-    fieldnames = ["target_system", "target_component", "time_boot_ms", "period_ms", "thrust_n", "hip_angle_rad", "hip_rate_rad_s", "flags"]
-    ordered_fieldnames = ["time_boot_ms", "thrust_n", "hip_angle_rad", "hip_rate_rad_s", "period_ms", "target_system", "target_component", "flags"]
-    fieldtypes = ["uint8_t", "uint8_t", "uint32_t", "uint16_t", "float", "float", "float", "uint8_t"]
+    fieldnames = ["target_system", "target_component", "time_boot_ms", "period_ms", "thrust_n", "hip_angle_rad", "hip_rate_rad_s", "flags", "rates_ref_frd_rad_s", "rates_ref_change_frd_rad_s2", "rate_gain"]
+    ordered_fieldnames = ["time_boot_ms", "thrust_n", "hip_angle_rad", "hip_rate_rad_s", "period_ms", "target_system", "target_component", "flags", "rates_ref_frd_rad_s", "rates_ref_change_frd_rad_s2", "rate_gain"]
+    fieldtypes = ["uint8_t", "uint8_t", "uint32_t", "uint16_t", "float", "float", "float", "uint8_t", "float", "float", "float"]
     fielddisplays_by_name: Dict[str, str] = {"flags": "bitmask"}
     fieldenums_by_name: Dict[str, str] = {"flags": "M4_SETPOINT_FLAGS"}
-    fieldunits_by_name: Dict[str, str] = {"time_boot_ms": "ms", "period_ms": "ms", "thrust_n": "N", "hip_angle_rad": "rad", "hip_rate_rad_s": "rad/s"}
-    native_format = bytearray(b"<IfffHBBB")
-    orders = [5, 6, 0, 4, 1, 2, 3, 7]
-    lengths = [1, 4, 4, 4, 1, 1, 1, 1]
-    array_lengths = [0, 4, 4, 4, 0, 0, 0, 0]
+    fieldunits_by_name: Dict[str, str] = {"time_boot_ms": "ms", "period_ms": "ms", "thrust_n": "N", "hip_angle_rad": "rad", "hip_rate_rad_s": "rad/s", "rates_ref_frd_rad_s": "rad/s", "rates_ref_change_frd_rad_s2": "rad/s/s"}
+    native_format = bytearray(b"<IfffHBBBfff")
+    orders = [5, 6, 0, 4, 1, 2, 3, 7, 8, 9, 10]
+    lengths = [1, 4, 4, 4, 1, 1, 1, 1, 3, 3, 12]
+    array_lengths = [0, 4, 4, 4, 0, 0, 0, 0, 3, 3, 12]
     crc_extra = 204
-    unpacker = struct.Struct("<I4f4f4fHBBB")
+    unpacker = struct.Struct("<I4f4f4fHBBB3f3f12f")
     instance_field = None
     instance_offset = -1
 
-    def __init__(self, target_system: int, target_component: int, time_boot_ms: int, period_ms: int, thrust_n: Sequence[float], hip_angle_rad: Sequence[float], hip_rate_rad_s: Sequence[float], flags: int):
+    def __init__(self, target_system: int, target_component: int, time_boot_ms: int, period_ms: int, thrust_n: Sequence[float], hip_angle_rad: Sequence[float], hip_rate_rad_s: Sequence[float], flags: int, rates_ref_frd_rad_s: Sequence[float] = (0, 0, 0), rates_ref_change_frd_rad_s2: Sequence[float] = (0, 0, 0), rate_gain: Sequence[float] = (0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)):
         MAVLink_message.__init__(self, MAVLink_m4_setpoint_message.id, MAVLink_m4_setpoint_message.msgname)
         self._fieldnames = MAVLink_m4_setpoint_message.fieldnames
         self._instance_field = MAVLink_m4_setpoint_message.instance_field
@@ -8520,9 +8520,12 @@ class MAVLink_m4_setpoint_message(MAVLink_message):
         self.hip_angle_rad = hip_angle_rad
         self.hip_rate_rad_s = hip_rate_rad_s
         self.flags = flags
+        self.rates_ref_frd_rad_s = rates_ref_frd_rad_s
+        self.rates_ref_change_frd_rad_s2 = rates_ref_change_frd_rad_s2
+        self.rate_gain = rate_gain
 
     def pack(self, mav: "MAVLink", force_mavlink1: bool = False) -> bytes:
-        return self._pack(mav, self.crc_extra, self.unpacker.pack(self.time_boot_ms, self.thrust_n[0], self.thrust_n[1], self.thrust_n[2], self.thrust_n[3], self.hip_angle_rad[0], self.hip_angle_rad[1], self.hip_angle_rad[2], self.hip_angle_rad[3], self.hip_rate_rad_s[0], self.hip_rate_rad_s[1], self.hip_rate_rad_s[2], self.hip_rate_rad_s[3], self.period_ms, self.target_system, self.target_component, self.flags), force_mavlink1=force_mavlink1)
+        return self._pack(mav, self.crc_extra, self.unpacker.pack(self.time_boot_ms, self.thrust_n[0], self.thrust_n[1], self.thrust_n[2], self.thrust_n[3], self.hip_angle_rad[0], self.hip_angle_rad[1], self.hip_angle_rad[2], self.hip_angle_rad[3], self.hip_rate_rad_s[0], self.hip_rate_rad_s[1], self.hip_rate_rad_s[2], self.hip_rate_rad_s[3], self.period_ms, self.target_system, self.target_component, self.flags, self.rates_ref_frd_rad_s[0], self.rates_ref_frd_rad_s[1], self.rates_ref_frd_rad_s[2], self.rates_ref_change_frd_rad_s2[0], self.rates_ref_change_frd_rad_s2[1], self.rates_ref_change_frd_rad_s2[2], self.rate_gain[0], self.rate_gain[1], self.rate_gain[2], self.rate_gain[3], self.rate_gain[4], self.rate_gain[5], self.rate_gain[6], self.rate_gain[7], self.rate_gain[8], self.rate_gain[9], self.rate_gain[10], self.rate_gain[11]), force_mavlink1=force_mavlink1)
 
 
 # Define name on the class for backwards compatibility (it is now msgname).
@@ -23780,7 +23783,7 @@ class MAVLink(object):
         m._header = MAVLink_header(msgId, incompat_flags, compat_flags, mlen, seq, srcSystem, srcComponent)
         return m
 
-    def m4_setpoint_encode(self, target_system: int, target_component: int, time_boot_ms: int, period_ms: int, thrust_n: Sequence[float], hip_angle_rad: Sequence[float], hip_rate_rad_s: Sequence[float], flags: int) -> MAVLink_m4_setpoint_message:
+    def m4_setpoint_encode(self, target_system: int, target_component: int, time_boot_ms: int, period_ms: int, thrust_n: Sequence[float], hip_angle_rad: Sequence[float], hip_rate_rad_s: Sequence[float], flags: int, rates_ref_frd_rad_s: Sequence[float] = (0, 0, 0), rates_ref_change_frd_rad_s2: Sequence[float] = (0, 0, 0), rate_gain: Sequence[float] = (0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)) -> MAVLink_m4_setpoint_message:
         """
         Actuator setpoint from the companion to the flight controller: four
         thrusts and four hip (sagittal) joint targets. Sent at the
@@ -23794,11 +23797,14 @@ class MAVLink(object):
         hip_angle_rad             : Hip sagittal angle targets of legs 1..4 (0 folded along the body, pi/2 straight out sideways). [rad] (type:float)
         hip_rate_rad_s            : Hip sagittal angle rates of legs 1..4 (feed-forward). [rad/s] (type:float)
         flags                     : Flags. (type:uint8_t, values:M4_SETPOINT_FLAGS)
+        rates_ref_frd_rad_s        : Body rates (FRD) the companion plans for the instant this setpoint takes effect at the flight controller. With rate_gain, the flight controller adds rate feedback around that plan at its own loop rate: thrust_n + rate_gain x (planned rates - measured rates), within the rotors' limits. NaN: no rate feedback. [rad/s] (type:float)
+        rates_ref_change_frd_rad_s2        : How the planned body rates change per second while this setpoint is in force (the planned rates are held after period_ms). [rad/s/s] (type:float)
+        rate_gain                 : Thrust change of rotors 1..4 per unit body-rate error (N per rad/s) about the FRD x, y and z axes, by rotor: rotor 1 x, y, z, rotor 2 x, y, z, ... All zero: no rate feedback (a flight controller that knows nothing of these fields flies thrust_n alone). (type:float)
 
         """
-        return MAVLink_m4_setpoint_message(target_system, target_component, time_boot_ms, period_ms, thrust_n, hip_angle_rad, hip_rate_rad_s, flags)
+        return MAVLink_m4_setpoint_message(target_system, target_component, time_boot_ms, period_ms, thrust_n, hip_angle_rad, hip_rate_rad_s, flags, rates_ref_frd_rad_s, rates_ref_change_frd_rad_s2, rate_gain)
 
-    def m4_setpoint_send(self, target_system: int, target_component: int, time_boot_ms: int, period_ms: int, thrust_n: Sequence[float], hip_angle_rad: Sequence[float], hip_rate_rad_s: Sequence[float], flags: int, force_mavlink1: bool = False) -> None:
+    def m4_setpoint_send(self, target_system: int, target_component: int, time_boot_ms: int, period_ms: int, thrust_n: Sequence[float], hip_angle_rad: Sequence[float], hip_rate_rad_s: Sequence[float], flags: int, rates_ref_frd_rad_s: Sequence[float] = (0, 0, 0), rates_ref_change_frd_rad_s2: Sequence[float] = (0, 0, 0), rate_gain: Sequence[float] = (0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0), force_mavlink1: bool = False) -> None:
         """
         Actuator setpoint from the companion to the flight controller: four
         thrusts and four hip (sagittal) joint targets. Sent at the
@@ -23812,9 +23818,12 @@ class MAVLink(object):
         hip_angle_rad             : Hip sagittal angle targets of legs 1..4 (0 folded along the body, pi/2 straight out sideways). [rad] (type:float)
         hip_rate_rad_s            : Hip sagittal angle rates of legs 1..4 (feed-forward). [rad/s] (type:float)
         flags                     : Flags. (type:uint8_t, values:M4_SETPOINT_FLAGS)
+        rates_ref_frd_rad_s        : Body rates (FRD) the companion plans for the instant this setpoint takes effect at the flight controller. With rate_gain, the flight controller adds rate feedback around that plan at its own loop rate: thrust_n + rate_gain x (planned rates - measured rates), within the rotors' limits. NaN: no rate feedback. [rad/s] (type:float)
+        rates_ref_change_frd_rad_s2        : How the planned body rates change per second while this setpoint is in force (the planned rates are held after period_ms). [rad/s/s] (type:float)
+        rate_gain                 : Thrust change of rotors 1..4 per unit body-rate error (N per rad/s) about the FRD x, y and z axes, by rotor: rotor 1 x, y, z, rotor 2 x, y, z, ... All zero: no rate feedback (a flight controller that knows nothing of these fields flies thrust_n alone). (type:float)
 
         """
-        self.send(self.m4_setpoint_encode(target_system, target_component, time_boot_ms, period_ms, thrust_n, hip_angle_rad, hip_rate_rad_s, flags), force_mavlink1=force_mavlink1)
+        self.send(self.m4_setpoint_encode(target_system, target_component, time_boot_ms, period_ms, thrust_n, hip_angle_rad, hip_rate_rad_s, flags, rates_ref_frd_rad_s, rates_ref_change_frd_rad_s2, rate_gain), force_mavlink1=force_mavlink1)
 
     def m4_thruster_status_encode(self, time_boot_ms: int, thrust_cmd_n: Sequence[float], thrust_limit_n: Sequence[float]) -> MAVLink_m4_thruster_status_message:
         """

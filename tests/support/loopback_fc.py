@@ -1,5 +1,6 @@
 """A scripted flight controller on a real loopback UDP socket: it sends the companion
-heartbeats and telemetry frames (as the SITL's FC does) and reads what comes back."""
+heartbeats and telemetry frames (as the SITL's FC does) and reads what comes back. Like a real
+FC it reports as commanded the thrusts of the last setpoint it read (hover before any)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ class LoopbackFc:
     def __init__(self, companion_port: int, af: Airframe, key: bytes | None = None):
         self.af = af
         self.link = UdpLink(f"udpout:127.0.0.1:{companion_port}", FC_SYSTEM_ID, FC_COMPONENT_ID, key=key)
+        self.commanded_n = [af.hover_thrust_per_rotor_n] * 4
 
     @property
     def port(self) -> int:
@@ -23,15 +25,19 @@ class LoopbackFc:
 
     def frame(self, t_ms: int, roll_rad: float = 0.0, z_ned_m: float = -2.0) -> None:
         """One telemetry frame at FC instant t_ms: a hover (rolled by roll_rad) at z_ned_m."""
-        af, hover = self.af, [self.af.hover_thrust_per_rotor_n] * 4
+        af = self.af
         self.link.send_all([
             mavlink.MAVLink_attitude_message(t_ms, roll_rad, 0.0, 0.0, 0.0, 0.0, 0.0),
             mavlink.MAVLink_local_position_ned_message(t_ms, 0.0, 0.0, z_ned_m, 0.0, 0.0, 0.0),
             mavlink.MAVLink_m4_joint_state_message(t_ms, [af.nominal_hip_rad] * 4, [0.0] * 4),
-            mavlink.MAVLink_m4_thruster_status_message(t_ms, hover, [af.thrust_max_n] * 4)])
+            mavlink.MAVLink_m4_thruster_status_message(t_ms, self.commanded_n, [af.thrust_max_n] * 4)])
 
     def received(self) -> list[mavlink.MAVLink_message]:
-        return self.link.receive()
+        msgs = self.link.receive()
+        for m in msgs:
+            if m.get_type() == "M4_SETPOINT":
+                self.commanded_n = list(m.thrust_n)
+        return msgs
 
     def close(self) -> None:
         self.link.close()

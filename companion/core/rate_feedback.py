@@ -1,0 +1,68 @@
+"""The rate feedback the flight controller closes around our plan (m4.setpoint.RateFeedback).
+
+Planned rates: the NMPC plans from the state predicted to the instant the setpoint takes
+effect, so that state's body rates are what the robot should have then, and the plan's next
+node (one NMPC step later, the first input held) gives their change per second.
+
+Gain: a rate error e (roll, pitch) asks for the torque bandwidth x inertia x e about the
+centre of mass, at the posture the plan starts from, made by the live rotors with no change
+of their sum (the altitude is the plan's). With thrust along -z at arm a from the centre of
+mass, a rotor's thrust f gives the torque (-a_y f, a_x f) about x and y, so the live rotors'
+changes solve [-a_y; a_x; 1] df = [tau_x; tau_y; 0] (least norm with four rotors, exact with
+three). Yaw is left to the plan: after a rotor loss the robot spins on purpose, and yaw
+torque comes only from the rotors' drag moments, which would spend the thrust the tilt needs.
+A rotor whose bound is below LIVE_SHARE of hover thrust takes no part; with fewer than three
+live rotors there is no feedback.
+
+Pure logic: no clock, no I/O.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from companion.core import rom
+from m4.airframe import ROTOR_COUNT, Airframe
+from m4.setpoint import RATE_GAIN_MAX_N_PER_RAD_S, RateFeedback
+
+LIVE_SHARE = 0.5
+
+
+class RateFeedbackDesign:
+    def __init__(self, af: Airframe, bandwidth_rad_s: float):
+        self.af = af
+        self.bandwidth_rad_s = float(bandwidth_rad_s)
+        hip = ca.SX.sym("hip", ROTOR_COUNT)
+        com, inertia = rom.mass_properties(af, hip)
+        arms = rom.thruster_positions(af, hip) - ca.repmat(com, 1, ROTOR_COUNT)
+        self._geometry = ca.Function("m4_rate_feedback_geometry", [hip], [arms, inertia])
+
+    def gain(self, hip_rad, thrust_bound_n) -> np.ndarray | None:
+        """(4, 3) thrust change per rotor per unit rate error (N per rad/s) at posture hip_rad;
+        None without feedback (bandwidth 0, fewer than three live rotors, a posture the model
+        cannot take)."""
+        live = np.asarray(thrust_bound_n, dtype=float) > LIVE_SHARE * self.af.hover_thrust_per_rotor_n
+        hip = np.asarray(hip_rad, dtype=float)
+        if self.bandwidth_rad_s <= 0 or live.sum() < 3 or not np.all(np.isfinite(hip)):
+            return None
+        arms, inertia = (np.asarray(v) for v in self._geometry(hip))
+        allocation = np.vstack([-arms[1, live], arms[0, live], np.ones(live.sum())])
+        torque_per_error = self.bandwidth_rad_s * inertia[:2, :2]
+        gain = np.zeros((ROTOR_COUNT, 3))
+        gain[live, :2] = np.linalg.pinv(allocation)[:, :2] @ torque_per_error
+        if not np.all(np.isfinite(gain)) or np.max(np.abs(gain)) > RATE_GAIN_MAX_N_PER_RAD_S:
+            return None
+        return gain
+
+    def feedback(self, x_start, x_next, dt_s: float, thrust_bound_n) -> RateFeedback | None:
+        """The feedback for a plan from ROM state x_start whose next node, dt_s later, is x_next."""
+        gain = self.gain(np.asarray(x_start)[rom.HIP], thrust_bound_n)
+        if gain is None:
+            return None
+        start, after = np.asarray(x_start)[rom.RATES], np.asarray(x_next)[rom.RATES]
+        change = (after - start) / dt_s
+        if not (np.all(np.isfinite(start)) and np.all(np.isfinite(change))):
+            return None
+        f32 = lambda v: np.asarray(v, dtype=np.float32).astype(float)     # as MAVLink carries them
+        return RateFeedback(f32(start), f32(change), f32(gain))

@@ -1,0 +1,71 @@
+"""The rate feedback the companion hands the FC: the torque it asks for, from the live rotors,
+without changing their sum; the planned rates from the plan."""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from companion.core import rom
+from companion.core.rate_feedback import RateFeedbackDesign
+from m4.airframe import load_airframe
+from m4.setpoint import RATE_GAIN_MAX_N_PER_RAD_S, RateFeedback
+
+AF = load_airframe()
+BW = 20.0
+ALL_LIVE = np.full(4, AF.thrust_max_n)
+DESIGN = RateFeedbackDesign(AF, BW)
+
+
+def torque_and_sum(hip, thrust_change):
+    com, _ = rom.mass_properties(AF, ca.DM(hip))
+    arms = np.asarray(rom.thruster_positions(AF, ca.DM(hip)) - ca.repmat(com, 1, 4))
+    return np.array([-(arms[1] * thrust_change).sum(), (arms[0] * thrust_change).sum()]), thrust_change.sum()
+
+
+@pytest.mark.parametrize("hip_deg", [[45, 45, 45, 45], [87, 2, 53, 23]])
+@pytest.mark.parametrize("lost", [None, 3])
+def test_a_rate_error_asks_for_bandwidth_times_inertia_from_the_live_rotors_at_constant_sum(hip_deg, lost):
+    hip = np.radians(hip_deg)
+    bound = ALL_LIVE.copy()
+    if lost is not None:
+        bound[lost] = AF.thrust_min_n
+    gain = DESIGN.gain(hip, bound)
+    _, inertia = rom.mass_properties(AF, ca.DM(hip))
+    for error in ([1.0, 0.0, 0.0], [0.0, -0.5, 0.0], [0.3, 0.2, 5.0]):
+        change = gain @ np.array(error)
+        torque, total = torque_and_sum(hip, change)
+        assert torque == pytest.approx(BW * np.asarray(inertia)[:2, :2] @ np.array(error[:2]), abs=1e-9)
+        assert total == pytest.approx(0.0, abs=1e-9)
+    assert np.all(gain[:, 2] == 0.0)                       # yaw is left to the plan
+    if lost is not None:
+        assert np.all(gain[lost] == 0.0)
+
+
+def test_no_feedback_with_fewer_than_three_live_rotors_or_no_bandwidth():
+    two_lost = ALL_LIVE.copy()
+    two_lost[[1, 3]] = 0.0
+    assert DESIGN.gain(np.full(4, AF.nominal_hip_rad), two_lost) is None
+    assert RateFeedbackDesign(AF, 0.0).gain(np.full(4, AF.nominal_hip_rad), ALL_LIVE) is None
+
+
+def test_planned_rates_are_the_plans_start_and_their_change_its_next_node():
+    x0, x1 = rom.hover_state(AF), rom.hover_state(AF)
+    x0[rom.RATES] = [0.5, -0.25, 3.0]
+    x1[rom.RATES] = [0.0, 0.25, 3.5]
+    fb = DESIGN.feedback(x0, x1, 0.1, ALL_LIVE)
+    assert fb.rates_ref_frd_rad_s == pytest.approx([0.5, -0.25, 3.0])
+    assert fb.rates_ref_change_frd_rad_s2 == pytest.approx([-5.0, 5.0, 5.0])
+    assert np.all(fb.gain_n_per_rad_s.astype(np.float32) == fb.gain_n_per_rad_s)   # as MAVLink carries it
+
+
+def test_the_fc_side_reads_no_feedback_from_zero_or_unusable_fields_and_holds_the_plan_after_the_period():
+    zeros, three = np.zeros(12), np.zeros(3)
+    assert RateFeedback.from_fields(three, three, zeros) is None
+    assert RateFeedback.from_fields([np.nan, 0, 0], three, np.ones(12)) is None
+    assert RateFeedback.from_fields(three, three, np.full(12, 2 * RATE_GAIN_MAX_N_PER_RAD_S)) is None
+    fb = RateFeedback.from_fields([1.0, 0, 0], [10.0, 0, 0], np.r_[1.0, np.zeros(11)])
+    assert fb.thrust_change_n(np.zeros(3), 0.01, 0.02)[0] == pytest.approx(1.1)
+    assert fb.thrust_change_n(np.zeros(3), 0.5, 0.02)[0] == pytest.approx(1.2)
+    assert np.all(fb.thrust_change_n([np.nan, 0, 0], 0.0, 0.02) == 0.0)
