@@ -9,11 +9,12 @@ LOSS_BY_KIND (thrust (1 - loss) at the same speed: ceiling (1 - loss) x the roto
 Fault-free endurance flights (`false_alarm_minutes`) fly an agile loop at 3 m/s with turns
 and climbs on a sagging battery, with noise and mismatch, half of them without ESC telemetry.
 
-Per flight, from the companion's M4_FAULT_STATUS in the tlog: the first confirmation after the
-fault (latency, rotor), the ceiling estimate of that rotor SIZING_AFTER_S later against the
-truth (truth.npz: what the rotor settles at on the largest command then, fault and pack
-voltage applied; as % of hover thrust), survival (sitl.metrics), a false alarm (any
-confirmation before the fault or naming another rotor). Outputs: detection.csv and
+Per flight: the detection as the flight's metrics have it (sitl.metrics: the first confirmed
+M4_FAULT_STATUS after the fault whose estimate reflects the fault's kind and loss; latency,
+rotor), and from the companion's M4_FAULT_STATUS in the tlog the ceiling estimate of that
+rotor SIZING_AFTER_S later against the truth (truth.npz: what the rotor settles at on the
+largest command then, fault and pack voltage applied; as % of hover thrust), survival
+(sitl.metrics), a false alarm (any confirmation before the fault or naming another rotor). Outputs: detection.csv and
 detection.md in the folder.
 """
 
@@ -120,17 +121,16 @@ def result_row(case: DetectionCase, metrics: dict, status: FaultStatusLog, truth
         return {**row, "survived": False, "error": metrics["error"]}
     confirmed = status.state == CONFIRMED
     at_s = FAULT_AT_S if case.kind else math.inf
-    early = confirmed & (status.time_s < at_s)
-    after = np.flatnonzero(confirmed & (status.time_s >= at_s))
-    row.update(survived=bool(metrics["survived"]), false_alarm=bool(np.any(early)), detected=after.size > 0,
+    wrong = confirmed & ((status.time_s < at_s) | (status.rotor != case.rotor))
+    detection = metrics["faults"][0] if case.kind else {"detected_at_s": None}
+    detected_s = detection["detected_at_s"]
+    row.update(survived=bool(metrics["survived"]), false_alarm=bool(np.any(wrong)), detected=detected_s is not None,
                latency_s=None, rotor_isolated=False, estimate_error_pct=None, error="")
-    if after.size:
-        k = after[0]
-        rotor = int(status.rotor[k])
-        row["latency_s"] = round(float(status.time_s[k]) - at_s, 3)
+    if detected_s is not None:
+        rotor = detection["detected_rotor"]
+        row["latency_s"] = round(detected_s - at_s, 3)
         row["rotor_isolated"] = rotor == case.rotor
-        row["false_alarm"] |= rotor != case.rotor
-        later = np.flatnonzero(status.time_s >= status.time_s[k] + SIZING_AFTER_S)
+        later = np.flatnonzero(status.time_s >= detected_s + SIZING_AFTER_S)
         j = later[0] if later.size else len(status.time_s) - 1
         if row["rotor_isolated"] and status.rotor[j] == rotor and truth is not None:
             estimate = status.thrust_max_estimate_n[j, rotor - 1]

@@ -19,8 +19,11 @@ Definitions (times in the scenario's clock, positions of the centre of mass, NED
   YAW_SATURATION_FRACTION of its final value
   (None when the final rate is below YAW_SPIN_MIN_RAD_S: the robot does not spin).
 - faults[i].detected_at_s: the first instant in [at_s, next fault's at_s) at which the
-  companion's fault status is confirmed with a thrust bound on the named rotor that reflects
-  this loss ((1 - loss) x hover thrust + DETECTION_MARGIN x hover thrust at most).
+  companion's fault status is confirmed with a thrust estimate on the named rotor that
+  reflects this fault: at most the ceiling the fault leaves the rotor (its kind and loss,
+  sitl.thruster.fault_ceiling_n: 0 for a stopped motor or a lost propeller, (1 - loss) x hover
+  thrust for a degraded motor, about (1 - loss) x the rotor's limit for a damaged propeller)
+  + DETECTION_MARGIN x hover thrust. The detection campaign takes its detections from here.
 - realtime_factor: simulated seconds per wall second of the plant process, from its first
   answered control instant to the end.
 """
@@ -37,6 +40,7 @@ from m4.mission_plan import MissionPlan
 from m4.mavlink import mavlink
 from sitl.scenario import Scenario
 from sitl.records import FaultStatusLog, NmpcLog
+from sitl.thruster import fault_ceiling_n
 from sitl.truth import Truth
 
 CONFIRMED = mavlink.M4_FAULT_STATE_CONFIRMED
@@ -90,12 +94,14 @@ def altitude_loss_m(time_s: np.ndarray, com_z_ned_m: np.ndarray, ref_z_ned_m: np
     return float(max(np.max(drop, initial=0.0), 0.0))
 
 
-def detections(scenario: Scenario, status: FaultStatusLog, hover_thrust_n: float) -> list[dict]:
+def detections(scenario: Scenario, status: FaultStatusLog, af: Airframe) -> list[dict]:
     out = []
     ends = [f.at_s for f in scenario.faults[1:]] + [math.inf]
+    thrust_max_n = scenario.plant.thrust_max_n
     for fault, end_s in zip(scenario.faults, ends):
         detected_at, detected_rotor = None, None
-        bound_n = (1.0 - fault.loss + DETECTION_MARGIN) * hover_thrust_n
+        bound_n = (fault_ceiling_n(af, fault.kind, fault.loss, thrust_max_n)
+                   + DETECTION_MARGIN * af.hover_thrust_per_rotor_n)
         for k in np.flatnonzero((status.state == CONFIRMED) & (status.time_s >= fault.at_s) & (status.time_s < end_s)):
             rotor = int(status.rotor[k])
             if 1 <= rotor <= status.thrust_max_estimate_n.shape[1] and status.thrust_max_estimate_n[k, rotor - 1] <= bound_n:
@@ -165,7 +171,7 @@ def flight_metrics(scenario: Scenario, controller: str, af: Airframe, truth: Tru
         "completed": bool(t[-1] >= scenario.duration_s - COMPLETE_TOLERANCE_S),
         "crashed": crashed(t, truth.on_ground, tilt, land_s, end),
         "duration_s": float(t[-1]),
-        "faults": detections(scenario, status, af.hover_thrust_per_rotor_n),
+        "faults": detections(scenario, status, af),
         "altitude_loss_m": altitude_loss_m(t, com[:, 2], ref[:, 2], fault_s, end),
         "max_tilt_deg_after_fault": float(np.max(tilt[after])),
         "tilt_recovered_s": tilt_recovered_s(t, tilt, fault_s, end),

@@ -173,6 +173,18 @@ class Thrusters:
         return self._ceiling[2].copy()
 
 
+def fault_ceiling_n(af: Airframe, kind: FailureKind, loss: float, thrust_max_n: float | None = None) -> float:
+    """The most a rotor with this fault gives, settled on the nominal pack when commanded
+    `thrust_max_n` (default: the airframe's): 0 for a stopped motor or a lost propeller,
+    (1 - loss) x hover thrust for a degraded motor, a little over (1 - loss) x its limit for a
+    damaged propeller (on the lighter load the motor turns faster)."""
+    v = af.battery_nominal_voltage_v
+    rotors = Thrusters(af, af.hover_thrust_per_rotor_n, v)
+    rotors.set_fault(0, kind, loss)
+    rotors.update(v)
+    return float(rotors.thrust_ceiling_n(af.thrust_max_n if thrust_max_n is None else thrust_max_n)[0])
+
+
 def figures(af: Airframe) -> list[str]:
     """The rotor's figures on the nominal pack, settled: `python -m sitl.thruster`."""
     v = af.battery_nominal_voltage_v

@@ -4,9 +4,15 @@ from __future__ import annotations
 
 import tomllib
 
+import numpy as np
+
+from m4.airframe import ROTOR_COUNT, load_airframe
 from sitl.scenario import parse_scenario
-from sitl import campaign
+from sitl import campaign, detection_campaign, metrics
+from sitl.records import FaultStatusLog
 from sitl.compare import markdown_table
+
+AF = load_airframe()
 
 
 def test_the_grid_covers_every_rotor_loss_level_speed_and_fault_time_once():
@@ -74,3 +80,23 @@ def test_every_flight_has_its_own_noise_seed_from_the_campaign_seed():
     assert seeds == [c.noise_seed for c in campaign.random_cases(20, seed=3)]
     assert seeds != [c.noise_seed for c in campaign.random_cases(20, seed=4)]
     assert [c.noise_seed for c in campaign.grid_cases(seed=3)][:20] == seeds
+
+
+def test_the_detection_campaign_takes_each_flights_detection_from_its_metrics():
+    """Half of rotor 3's propeller lost at 2 s: confirmed at 2.02 s while its estimate still
+    says healthy, sized at 2.06 s (the detection), rotor 1 confirmed later (a false alarm)."""
+    case = detection_campaign.DetectionCase("damage-r3", "damage", 3, 0.0, True, 1.0, 1.0, 6.0)
+    scenario = parse_scenario(tomllib.loads(case.scenario_toml()), "damage-r3.toml")
+    rows = [(2.02, 3, AF.thrust_max_n), (2.06, 3, 0.5 * AF.thrust_max_n), (4.0, 1, 0.5 * AF.thrust_max_n)]
+    estimate = np.full((len(rows), ROTOR_COUNT), AF.thrust_max_n)
+    for k, (_, rotor, e) in enumerate(rows):
+        estimate[k, rotor - 1] = e
+    t = np.array([r[0] for r in rows])
+    status = FaultStatusLog(t, np.array([r[1] for r in rows]), np.full(len(rows), 2), estimate, t,
+                            np.zeros(len(rows), int))
+    flight = {"survived": True, "faults": metrics.detections(scenario, status, AF)}
+    row = detection_campaign.result_row(case, flight, status, None, AF.hover_thrust_per_rotor_n)
+    assert (row["detected"], row["latency_s"], row["rotor_isolated"]) == (True, 0.06, True)
+    assert row["false_alarm"]
+    alone = FaultStatusLog(t[:2], status.rotor[:2], status.state[:2], estimate[:2], t[:2], status.kind[:2])
+    assert not detection_campaign.result_row(case, flight, alone, None, AF.hover_thrust_per_rotor_n)["false_alarm"]

@@ -10,6 +10,7 @@ from m4.mission import Landing, Mission, Waypoint
 from sitl.scenario import Fault, Scenario, Start
 from sitl import metrics
 from sitl.records import FaultStatusLog, NmpcLog
+from sitl.thruster import FailureKind
 from sitl.truth import Truth
 
 AF = load_airframe()
@@ -101,11 +102,26 @@ def test_each_loss_of_effectiveness_is_detected_when_the_bound_reflects_it():
                                                              Fault(21.0, 4, 1.0)))
     status = _status([(7.1, 4, 1, AF.thrust_max_n), (7.3, 4, 2, 0.67 * HOVER_N), (14.2, 4, 2, 0.67 * HOVER_N),
                       (14.6, 4, 2, 0.34 * HOVER_N), (21.4, 4, 2, 0.02)])
-    found = metrics.detections(scenario, status, HOVER_N)
+    found = metrics.detections(scenario, status, AF)
     assert [f["detected_at_s"] for f in found] == [7.3, 14.6, 21.4]
     assert {f["detected_rotor"] for f in found} == {4}
-    missed = metrics.detections(scenario, _status([(7.3, 2, 2, 0.67 * HOVER_N)]), HOVER_N)
+    missed = metrics.detections(scenario, _status([(7.3, 2, 2, 0.67 * HOVER_N)]), AF)
     assert missed[0]["detected_rotor"] == 2 and missed[1]["detected_at_s"] is None
+
+
+@pytest.mark.parametrize("kind, detected_at_s", [(FailureKind.DAMAGE, 2.1), (FailureKind.DEGRADED, 2.5),
+                                                 (FailureKind.MOTOR, 2.9), (FailureKind.PROPELLER, 2.9)])
+def test_a_detection_is_judged_against_the_ceiling_each_failure_kind_leaves(kind, detected_at_s):
+    """Half a propeller gone leaves the rotor about half its limit (some 15-19 N, hover is 14.7 N):
+    the detector's 15 N estimate sizes it, though it would not size a motor degraded to half
+    hover thrust, nor a stopped one."""
+    scenario = Scenario(name="kinds", duration_s=4.0, faults=(Fault(2.0, 3, 1.0 if kind in (
+        FailureKind.MOTOR, FailureKind.PROPELLER) else 0.5, kind),))
+    status = _status([(2.1, 3, 2, 0.5 * AF.thrust_max_n), (2.5, 3, 2, 0.5 * HOVER_N), (2.9, 3, 2, AF.thrust_min_n)])
+    (found,) = metrics.detections(scenario, status, AF)
+    assert (found["detected_at_s"], found["detected_rotor"]) == (detected_at_s, 3)
+    healthy_estimate = metrics.detections(scenario, _status([(2.1, 3, 2, AF.thrust_max_n)]), AF)
+    assert healthy_estimate[0]["detected_at_s"] is None
 
 
 def test_nmpc_summary_gives_rate_percentiles_and_failures():
