@@ -4,6 +4,11 @@ With a key, every outgoing packet is signed and an incoming one is accepted only
 signature; unsigned or badly signed packets are dropped and counted, except HEARTBEAT and
 RADIO_STATUS (harmless, and sent unsigned by radios and some ground stations).
 
+Checked as the MAVLink C library does, the signature first and then the timestamp:
+pymavlink's own check (2.4.x) records a stream's timestamp before it checks the signature,
+so one forged packet with a far-future timestamp would make every genuine packet of that
+stream look replayed. `setup_signing` puts our check in its place on the protocol object.
+
 Replay across a restart: pymavlink accepts a new stream (link id, system, component) whose
 timestamp is at most a minute behind its own clock, so a packet captured before a restart
 would pass again. `StreamTimestamps` keeps the last timestamp of each stream in a file (as
@@ -14,19 +19,29 @@ signed before the restart is accepted after it.
 
 from __future__ import annotations
 
+import hashlib
+import hmac
 import json
+import logging
 import os
 import time
+from functools import partial
 from dataclasses import dataclass
 from pathlib import Path
 
+from m4.log_limit import RepeatFilter
 from m4.mavlink.dialect import mavlink
 from m4.toml_fields import ConfigError
+
+log = logging.getLogger(__name__)
+log.addFilter(RepeatFilter())          # a peer with the wrong key must not flood the log
 
 KEY_BYTES = 32
 UNSIGNED_ALLOWED_IDS = frozenset({mavlink.MAVLINK_MSG_ID_HEARTBEAT, mavlink.MAVLINK_MSG_ID_RADIO_STATUS})
 _SIGNING_EPOCH_UNIX_S = 1420070400         # MAVLink signing timestamps count 10 us from 2015-01-01
 _TICKS_PER_S = 100_000
+NEW_STREAM_BEHIND_S = 60                   # a new stream may start this far behind our timestamp
+SIGNATURE_BYTES = 6
 SAVE_PERIOD_S = 1.0
 
 
@@ -56,8 +71,32 @@ def _allow_unsigned(_mav, msg_id: int) -> bool:
     return msg_id in UNSIGNED_ALLOWED_IDS
 
 
+def check_signature(mav: mavlink.MAVLink, msgbuf: bytearray, src_system: int, src_component: int) -> bool:
+    """pymavlink's MAVLink.check_signature with the checks in the C library's order: a packet
+    counts (and its timestamp is recorded) only when its signature is good and its timestamp
+    is newer than the last of its stream (link id, system, component), or, for a new stream,
+    at most NEW_STREAM_BEHIND_S behind our own timestamp."""
+    s = mav.signing
+    signature = hashlib.sha256(s.secret_key + bytes(msgbuf[:-SIGNATURE_BYTES])).digest()[:SIGNATURE_BYTES]
+    if not hmac.compare_digest(signature, bytes(msgbuf[-SIGNATURE_BYTES:])):
+        log.info("signature mismatch: packet dropped")
+        return False
+    low, high = mav.mav_sign_unpacker.unpack(msgbuf[-12:-6])
+    timestamp = low + (high << 32)
+    stream = (msgbuf[-13], src_system, src_component)
+    last = s.stream_timestamps.get(stream)
+    fresh = timestamp > last if last is not None else timestamp >= s.timestamp - NEW_STREAM_BEHIND_S * _TICKS_PER_S
+    if not fresh:
+        log.info("signed packet with an old timestamp (a replay?): dropped")
+        return False
+    s.stream_timestamps[stream] = timestamp
+    s.timestamp = max(s.timestamp, timestamp)
+    return True
+
+
 def setup_signing(mav: mavlink.MAVLink, key: bytes, link_id: int = 0) -> None:
-    """Sign everything `mav` sends and drop what it receives unsigned (but the allow-list)."""
+    """Sign everything `mav` sends and drop what it receives unsigned (but the allow-list) or
+    badly signed (check_signature)."""
     if len(key) != KEY_BYTES:
         raise ValueError(f"signing key must be {KEY_BYTES} bytes, got {len(key)}")
     s = mav.signing
@@ -66,6 +105,7 @@ def setup_signing(mav: mavlink.MAVLink, key: bytes, link_id: int = 0) -> None:
     s.allow_unsigned_callback = _allow_unsigned
     s.link_id = link_id
     s.timestamp = max(s.timestamp, _wall_timestamp())
+    mav.check_signature = partial(check_signature, mav)
 
 
 @dataclass(frozen=True)
@@ -103,20 +143,16 @@ class StreamTimestamps:
         self.save(force=True)
 
     def save(self, force: bool = False) -> None:
-        """Write the timestamps (at most every SAVE_PERIOD_S unless `force`), atomically. A
-        timestamp far ahead of the wall clock is not kept (pymavlink records a stream's
-        timestamp before it checks the signature: a forger must not lock a stream out for good)."""
+        """Write the timestamps (at most every SAVE_PERIOD_S unless `force`), atomically."""
         now = time.monotonic()
         if not force and now - self._saved_at < SAVE_PERIOD_S:
             return
         self._saved_at = now
-        ceiling = _wall_timestamp() + 60 * _TICKS_PER_S
         streams: dict[str, int] = {}
         for mav in self.mavs:
             for stream, timestamp in mav.signing.stream_timestamps.items():
                 key = ",".join(map(str, stream))
-                if timestamp <= ceiling:
-                    streams[key] = max(streams.get(key, 0), timestamp)
+                streams[key] = max(streams.get(key, 0), timestamp)
         tmp = self.path.with_name(self.path.name + ".tmp")
         try:
             tmp.write_text(json.dumps({"streams": streams}))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import struct
+
 import pytest
 
 from m4.mavlink import mavlink, new_mav
@@ -72,6 +74,19 @@ def test_replayed_signed_setpoint_is_dropped():
     rx = _receiver()
     (packet,) = _packets(KEY, _setpoint())
     assert _types(rx, [packet, packet]) == ["M4_SETPOINT", "BAD_DATA"]
+
+
+def test_a_forged_packet_with_a_far_future_timestamp_does_not_lock_the_stream_out():
+    """A genuine packet with its timestamp pushed to the latest there can be (the signature no
+    longer matches), then the genuine packets of that stream: they still count."""
+    rx = _receiver()
+    first, second = _packets(KEY, _setpoint(), _setpoint())
+    forged = bytearray(first)
+    forged[-12:-6] = struct.pack("<IH", 0xFFFFFFFF, 0xFFFF)
+    assert _types(rx, [bytes(forged), first, second]) == ["BAD_DATA", "M4_SETPOINT", "M4_SETPOINT"]
+    counters = SigningCounters.of(rx)
+    assert (counters.bad_signature, counters.signed_ok) == (1, 2)
+    assert _types(rx, [first]) == ["BAD_DATA"]                  # and a replay is still refused
 
 
 def test_unsigned_heartbeat_passes():
