@@ -13,8 +13,11 @@ published. When telemetry returns, control resumes; if the FC's clock moved on b
 than a couple of periods meanwhile, the controller drops its warm start and the stale
 previous state first.
 
-A confirmed fault is announced once: STATUSTEXT MAV_SEVERITY_CRITICAL "thrust loss rotor N"
-(that severity is used for nothing else), the same text on the feed's fault topic.
+A confirmed fault is announced: STATUSTEXT MAV_SEVERITY_CRITICAL "thrust loss rotor N (kind)"
+(that severity is used for nothing else), the same text on the feed's fault topic. When
+more evidence re-settles the kind (a damaged propeller turns out lost), the new text is
+announced once more, at most once per KIND_ANNOUNCE_MIN_S of the FC's clock (the latest
+kind when that time has passed).
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ from m4.mavlink.signing import load_key
 log = logging.getLogger("m4-companion")
 
 RESUME_GAP_PERIODS = 2            # FC clock moved more than this many periods during a loss: reset
+KIND_ANNOUNCE_MIN_S = 1.0         # a re-settled fault kind is announced at most this often
 
 
 @dataclass
@@ -74,6 +78,7 @@ class CompanionApp:
         self._rate_mark: tuple[float, int] | None = None
         self._msgs_per_s = 0.0
         self._delay_warned = False
+        self._announced: tuple[float, str] | None = None     # (FC time, text) of the last fault announcement
         self.timing = LoopTiming(config.control_period_s)
 
     # -- the loop ----------------------------------------------------------------------------------
@@ -169,7 +174,7 @@ class CompanionApp:
         self.counters.answered += 1
         if step.nmpc is not None:
             self.counters.solve_ms_max = max(self.counters.solve_ms_max, step.nmpc.solve_ms)
-        if step.fault_confirmed_now:
+        if step.fault_confirmed_now or self._kind_resettled(step):
             self._announce_fault(step)
         if step.crash_now:
             log.error("t=%.3f s: crash recognised (%s): thrust cut for good; no re-arm will be sent", t_s, step.crash)
@@ -188,8 +193,17 @@ class CompanionApp:
             return np.full(ROTOR_COUNT, np.nan)
         return self._propeller.thrust_n(snap.esc.rpm)
 
+    def _kind_resettled(self, step: ControlStep) -> bool:
+        """The announced fault's text changed (its kind: the same rotor stays confirmed) and the
+        last announcement is KIND_ANNOUNCE_MIN_S old."""
+        if step.fault.state is not FaultState.CONFIRMED or self._announced is None:
+            return False
+        at_s, text = self._announced
+        return step.fault.message != text and step.time_s - at_s >= KIND_ANNOUNCE_MIN_S - 1e-9
+
     def _announce_fault(self, step: ControlStep) -> None:
         text = step.fault.message
+        self._announced = (step.time_s, text)
         self.fc.statustext(mavlink.MAV_SEVERITY_CRITICAL, text)
         bounds = ", ".join(f"{b:.1f}" for b in step.fault.thrust_max_estimate_n)
         log.error("t=%.3f s: %s (thrust bounds now %s N)", step.time_s, text, bounds)

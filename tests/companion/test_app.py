@@ -17,6 +17,7 @@ from m4.airframe import load_airframe
 from companion.app import CompanionApp
 from companion.config import parse_config
 from companion.controller import Controller, ControllerSettings
+from companion.core.control_types import FaultKind, FaultState, FaultStatus
 from companion.fc_link import FcLink
 from companion.feed_publisher import Feed
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
@@ -170,6 +171,50 @@ def test_after_a_reboot_of_the_fc_the_mission_starts_over_on_its_new_clock(rig):
     fly(app, fc, clock, 0, 3)
     assert setpoint_times(link) == [5000, 5020, 5040, 0, 20, 40]
     assert app.controller.flight.reference is not first_reference
+
+
+class ScriptedDetector:
+    """A detector whose rotor 4 is confirmed from 0.1 s with the kind `kind_at(t_s)`."""
+
+    def __init__(self, kind_at):
+        self.kind_at = kind_at
+        self.status = self._status(0.0)
+
+    def _status(self, t_s: float) -> FaultStatus:
+        confirmed = t_s >= 0.1
+        limit = np.full(4, AF.thrust_max_n)
+        if confirmed:
+            limit[3] = AF.thrust_min_n
+        kind = self.kind_at(t_s) if confirmed else FaultKind.UNKNOWN
+        return FaultStatus(state=FaultState.CONFIRMED if confirmed else FaultState.HEALTHY,
+                           rotor=4 if confirmed else None, kind=kind, thrust_max_estimate_n=limit,
+                           thrust_bound_n=limit, detected_at_s=0.1 if confirmed else None,
+                           message=f"thrust loss rotor 4 ({kind.name.lower()})" if confirmed else "",
+                           deficit_n=np.zeros(4))
+
+    def update(self, time_s: float, *_args, **_kwargs) -> FaultStatus:
+        self.status = self._status(time_s)
+        return self.status
+
+
+def test_a_re_settled_fault_kind_is_announced_once_more_and_not_at_every_step(rig):
+    """Damage confirmed at 0.1 s; the kind flips between damage and propeller every frame from
+    0.3 s, settles on propeller at 0.5 s: one more announcement, 1 s after the first (the
+    kind then), and none after."""
+    app, fc, link, clock = rig
+
+    def kind_at(t_s):
+        flipping = 0.3 <= t_s < 0.5 and round(t_s / 0.02) % 2 == 0
+        return FaultKind.DAMAGE if t_s < 0.3 or flipping else FaultKind.PROPELLER
+    app.controller.detector = ScriptedDetector(kind_at)
+    fc.heartbeat()
+    critical = []
+    for k in range(150):
+        fly(app, fc, clock, 20 * k, 1)
+        critical += [(20 * k, m.text) for m in link.sent_messages()
+                     if m.get_type() == "STATUSTEXT" and m.severity == mavlink.MAV_SEVERITY_CRITICAL]
+        link.sent.clear()
+    assert critical == [(100, "thrust loss rotor 4 (damage)"), (1100, "thrust loss rotor 4 (propeller)")]
 
 
 # -------------------------------------------------------------------------------------------------
