@@ -24,6 +24,7 @@ offset's own motion with the legs.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -68,7 +69,7 @@ def _decode(msg) -> dict[str, np.ndarray]:
 def _valid(msg_id: int, values: dict[str, np.ndarray]) -> bool:
     if msg_id == THRUSTER_STATUS:
         return all(v.size == ROTOR_COUNT for v in values.values())
-    if not all(np.all(np.isfinite(v)) for v in values.values()):
+    if not all(math.isfinite(x) for v in values.values() for x in v.tolist()):     # Python floats: cheaper
         return False
     if msg_id == ATTITUDE_QUATERNION:
         return abs(float(np.linalg.norm(values["quat_wxyz"])) - 1.0) <= _QUAT_NORM_TOLERANCE
@@ -186,7 +187,13 @@ def rom_state(snap: VehicleSnapshot, af: Airframe) -> np.ndarray:
     x[rom.P] = snap.pos_ned_m + rot @ r_frd
     x[rom.EULER] = snap.euler_rad
     x[rom.HIP] = snap.hip_rad
-    x[rom.V] = snap.vel_ned_m_s + rot @ (np.cross(snap.rates_frd_rad_s, r_frd) + r_dot_frd)
+    x[rom.V] = snap.vel_ned_m_s + rot @ (_cross(snap.rates_frd_rad_s, r_frd) + r_dot_frd)
     x[rom.RATES] = snap.rates_frd_rad_s
     x[rom.HIP_RATE] = snap.hip_rate_rad_s
     return x
+
+
+def _cross(a, b) -> np.ndarray:
+    """np.cross of two 3-vectors, the same operations on Python floats (np.cross costs ~30 us)."""
+    (a0, a1, a2), (b0, b1, b2) = np.asarray(a, dtype=float).tolist(), np.asarray(b, dtype=float).tolist()
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])

@@ -160,20 +160,22 @@ class FlightController:
             self.announce(mavlink.MAV_SEVERITY_NOTICE, "FC armed" if armed else "FC disarmed")
             self.setpoint = None
 
-    def _watch_rotors(self, now_ms: int) -> None:
-        """The FC's own lost-rotor check on what its ESCs report (sitl/rotor_watch.py)."""
+    def _watch_rotors(self, now_ms: int, thrust_cmd_n) -> None:
+        """The FC's own lost-rotor check on what its ESCs report (sitl/rotor_watch.py) against
+        what it commanded them."""
         if self.rotor_watch.lost is not None:
             return
-        speed_rad_s = np.array(self.esc.report(now_ms).rpm, dtype=float) / RAD_S_TO_RPM
-        if self.rotor_watch.update(self.plant.rotor_state().thrust_cmd_n, speed_rad_s, now_ms) is not None:
+        speed_rad_s = [rpm / RAD_S_TO_RPM for rpm in self.esc.report(now_ms).rpm]
+        if self.rotor_watch.update(thrust_cmd_n, speed_rad_s, now_ms) is not None:
             self.announce(mavlink.MAV_SEVERITY_CRITICAL, f"FC: rotor {self.rotor_watch.lost} lost (ESC speed)")
 
     def tick(self, now_ms: int) -> None:
         """Choose who flies (companion or failsafe) and command the plant accordingly; the ESCs
         answer this output frame."""
         if self.esc is not None:
-            self.esc.sample(now_ms, self.plant.rotor_state())
-            self._watch_rotors(now_ms)
+            rotors = self.plant.rotor_state()
+            self.esc.sample(now_ms, rotors)
+            self._watch_rotors(now_ms, rotors.thrust_cmd_n)
         if not self.armed:
             self._set_mode(FcMode.LANDED)
             self._command_plant(np.zeros(ROTOR_COUNT), self.failsafe.hip_rad)

@@ -12,6 +12,8 @@ is not (killed before it confirmed, or restarted and not yet told).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
@@ -31,11 +33,11 @@ class RotorWatch:
         """Feed the thrusts commanded (4,) and the speeds the ESCs report (4,); the lost rotor, if any."""
         if self.lost is not None:
             return self.lost
-        command = np.asarray(command_n, dtype=float)
-        expected = np.sqrt(np.maximum(command, 0.0) / self.k_n_s2)
-        slow = (command >= MIN_COMMAND_N) & (np.asarray(speed_rad_s, dtype=float) < SLOW_FRACTION * expected)
+        command = np.asarray(command_n, dtype=float).tolist()         # Python floats: four numbers
+        speed = np.asarray(speed_rad_s, dtype=float).tolist()
         for i in range(ROTOR_COUNT):
-            if not slow[i]:
+            expected = math.sqrt(max(command[i], 0.0) / self.k_n_s2)
+            if not (command[i] >= MIN_COMMAND_N and speed[i] < SLOW_FRACTION * expected):
                 self._slow_since_ms[i] = None
             elif self._slow_since_ms[i] is None:
                 self._slow_since_ms[i] = now_ms
