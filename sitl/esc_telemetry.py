@@ -77,8 +77,8 @@ class EscTelemetry:
         self._serial_next_ms = [i * self._serial_period_ms // ROTOR_COUNT for i in range(ROTOR_COUNT)]
         self._next_ms = 0
         self._last_ms: int | None = None
-        self._temperature_c = np.full(ROTOR_COUNT, af.esc_ambient_temperature_c)
-        self._consumed_mah = np.zeros(ROTOR_COUNT)
+        self._temperature_c = [af.esc_ambient_temperature_c] * ROTOR_COUNT     # Python floats: four numbers
+        self._consumed_mah = [0.0] * ROTOR_COUNT
         self._count = [0] * ROTOR_COUNT                      # serial packets received, per ESC
         # Samples on their way to the FC: (arrival_ms, rotor or None for the RPM of all, values)
         self._in_flight: collections.deque = collections.deque()
@@ -104,10 +104,12 @@ class EscTelemetry:
         af = self._af
         dt_s = 0.0 if self._last_ms is None else (now_ms - self._last_ms) / 1000.0
         self._last_ms = now_ms
-        current = np.maximum(truth.esc_current_a, 0.0)
-        self._consumed_mah += current * dt_s * _MAH_PER_AS
-        steady = af.esc_ambient_temperature_c + af.esc_temperature_rise_c_per_a * current
-        self._temperature_c = steady + (self._temperature_c - steady) * math.exp(-dt_s / af.esc_thermal_time_constant_s)
+        decay = math.exp(-dt_s / af.esc_thermal_time_constant_s)
+        for i, current in enumerate(np.asarray(truth.esc_current_a, dtype=float).tolist()):
+            current = max(current, 0.0)
+            self._consumed_mah[i] += current * dt_s * _MAH_PER_AS
+            steady = af.esc_ambient_temperature_c + af.esc_temperature_rise_c_per_a * current
+            self._temperature_c[i] = steady + (self._temperature_c[i] - steady) * decay
 
     def _measured_rpm(self, truth: RotorState) -> list[int]:
         rpm = np.asarray(truth.rotor_speed_rad_s) * RAD_S_TO_RPM

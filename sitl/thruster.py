@@ -121,18 +121,15 @@ class Thrusters:
 
     def advance_drawing(self, dt_s: float, steps: int) -> list[float]:
         """advance(dt_s) `steps` times (targets and pack voltage held); after each, what the
-        ESCs draw from the pack in all (current_a summed). The same operations in the same
-        order as advance() and current_a, on Python floats: the same numbers bit for bit, for
-        a fraction of the cost of numpy on four-element arrays once per physics step."""
+        ESCs draw from the pack in all (current_a summed). On Python floats, in the order of
+        operations of advance() and current_a: the same numbers bit for bit, for a fraction of
+        the cost of numpy on four-element arrays once per physics step."""
         decay = math.exp(-dt_s / self._tau_s)
-        k_e, r, voltage_v = self._k_e, self._r, self.voltage_v
         settled, speed = self.settled_rad_s.tolist(), self.speed_rad_s.tolist()
-        drive = [(u, u / voltage_v, kind != _MOTOR) for u, kind in zip(self._u_v.tolist(), self.kind.tolist())]
         totals = []
         for _ in range(steps):
             speed = [w_s + (w - w_s) * decay for w_s, w in zip(settled, speed)]
-            totals.append(sum(share * max((u - k_e * w) / r, 0.0) if powered else 0.0
-                              for (u, share, powered), w in zip(drive, speed)))
+            totals.append(sum(self._pack_currents(speed)))
         self.speed_rad_s = np.array(speed)
         return totals
 
@@ -152,13 +149,22 @@ class Thrusters:
 
     @property
     def motor_current_a(self) -> np.ndarray:
-        i = np.maximum((self._u_v - self._k_e * self.speed_rad_s) / self._r, 0.0)
-        return np.where(self.kind == _MOTOR, 0.0, i)
+        return np.array(self._motor_currents(self.speed_rad_s.tolist()))
 
     @property
     def current_a(self) -> np.ndarray:
         """What each ESC draws from the pack."""
-        return self._u_v / self.voltage_v * self.motor_current_a
+        return np.array(self._pack_currents(self.speed_rad_s.tolist()))
+
+    def _motor_currents(self, speed_rad_s: list[float]) -> list[float]:
+        k_e, r = self._k_e, self._r
+        return [0.0 if kind == _MOTOR else max((u - k_e * w) / r, 0.0)
+                for u, w, kind in zip(self._u_v.tolist(), speed_rad_s, self.kind.tolist())]
+
+    def _pack_currents(self, speed_rad_s: list[float]) -> list[float]:
+        """Each ESC's draw from the pack: its motor's current scaled by its output voltage over the pack's."""
+        voltage_v = self.voltage_v
+        return [u / voltage_v * i for u, i in zip(self._u_v.tolist(), self._motor_currents(speed_rad_s))]
 
     @property
     def copper_loss_w(self) -> np.ndarray:
