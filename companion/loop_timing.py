@@ -1,6 +1,6 @@
 """How well the control loop keeps its period: each answer's duration (telemetry read to
 setpoint sent), the overruns (answers that took longer than the control period), and the rate
-achieved (answers in the last second), and the process's CPU time per step between the first
+achieved (answers in the last second), the mean answer time, and the process's CPU time per step between the first
 and the last answer (`cpu_ms_per_step`, time.process_time: what the loop costs, whatever else
 runs on the machine). `report(now_s)` gives a line at most every REPORT_S
 when something overran since the last one, so a slow computer is said, not flooded in the log.
@@ -27,6 +27,8 @@ class LoopTiming:
         self._cpu_first_s: float | None = None          # process CPU time at the first answer
         self._cpu_last_s = 0.0
         self._cpu_steps = 0                             # answers after the first
+        self._answers_total = 0
+        self._took_total_s = 0.0
 
     def answered(self, started_s: float, now_s: float) -> None:
         """An answer to telemetry read at started_s went out at now_s."""
@@ -36,6 +38,8 @@ class LoopTiming:
         else:
             self._cpu_last_s, self._cpu_steps = cpu_s, self._cpu_steps + 1
         took_s = now_s - started_s
+        self._answers_total += 1
+        self._took_total_s += took_s
         self.slowest_s = max(self.slowest_s, took_s)
         if took_s > self.period_s:
             self.overruns += 1
@@ -44,6 +48,11 @@ class LoopTiming:
         self._answers.append(now_s)
         while self._answers[0] <= now_s - RATE_WINDOW_S:
             self._answers.popleft()
+
+    @property
+    def mean_answer_ms(self) -> float | None:
+        """Mean time from telemetry read to setpoint sent (None: no answer yet)."""
+        return 1e3 * self._took_total_s / self._answers_total if self._answers_total else None
 
     @property
     def cpu_ms_per_step(self) -> float | None:

@@ -67,6 +67,10 @@ def _config(args: argparse.Namespace):
     return config
 
 
+def _ms(value_ms: float | None, decimals: int) -> str:
+    return "not measured" if value_ms is None else f"{value_ms:.{decimals}f} ms"
+
+
 def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.INFO, format="m4-companion: %(message)s", stream=sys.stderr)
     from companion.app import close_app, open_app
@@ -93,10 +97,10 @@ def run(args: argparse.Namespace) -> int:
     finally:
         close_app(app)
         c = app.counters
-        lead, cpu_ms = app.fc.delay.lead_s, app.timing.cpu_ms_per_step
+        lead, timing = app.fc.delay.lead_s, app.timing
         logging.getLogger("m4-companion").info(
             "stopped after %d setpoints; %d link losses; slowest solve %.1f ms; %d steps over the period; "
-            "setpoint lead %s; CPU %s per step", c.answered, c.link_losses, c.solve_ms_max, app.timing.overruns,
-            "not measured" if lead is None else f"{1e3 * lead:.0f} ms",
-            "not measured" if cpu_ms is None else f"{cpu_ms:.2f} ms")
+            "setpoint lead %s; telemetry read to setpoint sent %s on average; CPU %s per step", c.answered,
+            c.link_losses, c.solve_ms_max, timing.overruns, _ms(None if lead is None else 1e3 * lead, 0),
+            _ms(timing.mean_answer_ms, 2), _ms(timing.cpu_ms_per_step, 2))
     return 0

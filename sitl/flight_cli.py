@@ -86,7 +86,7 @@ def add_compare(sub) -> None:
 
     p = sub.add_parser("compare", help="posture manipulation vs fixed posture on the paper's scenarios: a Markdown table")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, metavar="DIR", help=f"output folder (default {DEFAULT_OUT})")
-    p.add_argument("--jobs", type=int, metavar="N", help="flights at once (default: half the cores)")
+    p.add_argument("--jobs", type=int, metavar="N", help="flights at once (default: one per core)")
     _rate(p)
     add_link_arguments(p, "the same for every flight")
     p.set_defaults(func=_compare)
@@ -117,7 +117,7 @@ def add_campaign(sub) -> None:
     p.add_argument("--loss", type=_loss, action="append", metavar="X",
                    help="only this loss of effectiveness (0..1; repeat for more; default 0.33, 0.66 and 1)")
     p.add_argument("--seed", type=seed_number, default=0, help="seed of the sample and of the sensor noise (default 0)")
-    p.add_argument("--jobs", type=int, metavar="N", help="flights at once (default: half the cores)")
+    p.add_argument("--jobs", type=int, metavar="N", help="flights at once (default: one per core)")
     _rate(p)
     p.add_argument("--engine", choices=ENGINES, default="local", help="local processes (default) or Dask (cluster extra)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler, e.g. tcp://HOST:8786 (default: a local cluster)")

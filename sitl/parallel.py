@@ -74,8 +74,10 @@ class Batch:
 
 
 def default_workers() -> int:
-    """Each flight keeps about two processes busy (plant and companion)."""
-    return max(1, (os.cpu_count() or 1) // 2)
+    """One flight per core: in lockstep a flight's two processes (plant and companion) take
+    turns, so together they keep about one core busy (with 2 flights on 2 cores a campaign ran
+    8.5-9 flights per core-minute, with 1 flight 4, with 4 flights 7.3; measured under load)."""
+    return _local_cores()
 
 
 def _local_cores() -> int:

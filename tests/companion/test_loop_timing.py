@@ -37,6 +37,19 @@ def test_overruns_are_counted_and_reported_at_most_every_few_seconds():
     assert timing.report(4.0 + REPORT_S) is None                # nothing overran since
 
 
+def test_the_mean_answer_time_and_the_cpu_time_per_step_between_the_first_and_last_answer():
+    timing = LoopTiming(0.02)
+    assert timing.mean_answer_ms is None and timing.cpu_ms_per_step is None
+    timing.answered(0.0, 0.002)
+    assert timing.cpu_ms_per_step is None                       # one answer: no step between two yet
+    busy_until = time.process_time() + 0.05
+    while time.process_time() < busy_until:                    # 50 ms of this process's CPU
+        pass
+    timing.answered(0.02, 0.026)
+    assert timing.mean_answer_ms == pytest.approx(4.0)
+    assert timing.cpu_ms_per_step >= 50.0
+
+
 def test_a_slow_control_step_over_real_sockets_is_counted_logged_once_and_published(caplog):
     config = parse_config({"control": {"rate_hz": 50.0}, "link": {"fc_url": "udpin:127.0.0.1:0"}}, "test")
     controller = Controller(ControllerSettings.of(config))

@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import pytest
 
+from sitl.flight_run import FlightFiles
 from sitl.fly import fly
+from sitl.fly_bench import loop_costs
 from sitl.records import read_feed
 
 pytestmark = pytest.mark.flight
@@ -27,3 +29,5 @@ def test_the_rotor_is_found_within_the_target_and_the_robot_survives(tmp_path, s
     assert fault["detected_rotor"] == fault["rotor"]
     assert 0.0 < fault["detected_at_s"] - fault["at_s"] <= latency_max_s
     assert _confirmed_messages(tmp_path)[-1] == message       # the kind as the evidence settles it
+    costs = loop_costs(FlightFiles(tmp_path))                 # what python -m sitl.fly_bench reads
+    assert costs is not None and costs.sitl_cpu_s > 0.0 and 0.0 < costs.answer_ms and 0.0 < costs.companion_cpu_ms
