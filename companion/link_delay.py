@@ -7,7 +7,7 @@ with tc1 = its own clock in ns since boot when it handled the request (ArduPilot
 so, echoing ts1), which is when the setpoint reached it: tc1 - ts1 is the setpoint's lead,
 the age of the answered telemetry instant when our answer acts (the telemetry's way down,
 our step, the setpoint's way up, on the FC's clock; 0 in lockstep, where the FC waits for
-us). The round trip on our own clock is measured as well. Each is the median of the last
+us, unless the SITL emulates a delayed link: then 2 D). The round trip on our own clock is measured as well. Each is the median of the last
 WINDOW samples (lost replies just leave fewer); a reply to a request we did not send is
 ignored.
 """

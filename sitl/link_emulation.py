@@ -12,9 +12,10 @@ of the machine. With the FC's simulated clock at t:
   to the FC (parsed, routed, handled, in its tlog) at t + 2 D on its clock, in arrival order.
   D covers the way down as well: the answer to the frame of instant t acts at t + 2 D, a
   TIMESYNC request sent with it is answered with tc1 = t + 2 D, so the companion measures a
-  setpoint lead of 2 D as it would over a real link. A datagram that answers frame t (an
-  M4_SETPOINT or M4_FAULT_STATUS first in it, time_boot_ms t) counts as arrived at t even
-  when the FC had moved on before it came (lockstep waits for the setpoint only).
+  setpoint lead of 2 D as it would over a real link. In lockstep a datagram that answers
+  frame t (an M4_SETPOINT or M4_FAULT_STATUS first in it, time_boot_ms t) counts as arrived
+  at t even when the FC had moved on before it came (lockstep waits for the setpoint only);
+  in real time everything counts as arrived when it came (the companion's time counts too).
 
 The delays are on the FC's 1 ms clock (2 D rounded to whole milliseconds). A loss is decided
 by a keyed hash of (seed, direction, instant, a message id of the datagram (the last one
@@ -129,9 +130,11 @@ class EmulatedLink(UdpLink):
     `next_delivery_ms()` says when the next held datagram is due."""
 
     def __init__(self, url: str, source_system: int, source_component: int, *, emulation: LinkEmulation,
-                 seed: int, clock: Callable[[], int], key: bytes | None = None, link_id: int = 0, **kwargs):
+                 seed: int, clock: Callable[[], int], lockstep: bool = True, key: bytes | None = None,
+                 link_id: int = 0, **kwargs):
         super().__init__(url, source_system, source_component, key=key, link_id=link_id, **kwargs)
         self.emulation = emulation
+        self.lockstep = lockstep
         self.clock = clock
         self.counters = EmulationCounters()
         self.answered_ms: int | None = None      # the newest instant an arrived M4_SETPOINT answers
@@ -178,13 +181,13 @@ class EmulatedLink(UdpLink):
         return self.deliver()
 
     def _arrived(self, now_ms: int, data: bytes, sender: tuple[str, int]) -> None:
-        """Lose or hold one datagram. The answer to frame t (the setpoint, and M4_FAULT_STATUS in
-        a datagram of its own, which may come in after the FC has moved on) is drawn and held by
-        its instant t; anything else by the instant it came."""
+        """Lose or hold one datagram. In lockstep the answer to frame t (the setpoint, or an
+        M4_FAULT_STATUS in a datagram of its own, which may come in after the FC has moved on)
+        is drawn and held by its instant t; anything else by the instant it came."""
         self.counters.received += 1
         msgs = [m for m in self._reader.parse_buffer(data) or () if m.get_type() != "BAD_DATA"]
         at_ms = now_ms
-        if msgs and msgs[0].get_msgId() in _ANSWERS and self.peer_filter(msgs[0]):
+        if self.lockstep and msgs and msgs[0].get_msgId() in _ANSWERS and self.peer_filter(msgs[0]):
             at_ms = min(int(msgs[0].time_boot_ms), now_ms)
         for msg in msgs:
             if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_M4_SETPOINT and self.peer_filter(msg):

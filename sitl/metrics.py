@@ -26,6 +26,9 @@ Definitions (times in the scenario's clock, positions of the centre of mass, NED
   + DETECTION_MARGIN x hover thrust. The detection campaign takes its detections from here.
 - realtime_factor: simulated seconds per wall second of the plant process, from its first
   answered control instant to the end.
+- link (added by sitl.fly): the companion's link as flown: delay_ms each way, loss, mode
+  ("lockstep": emulated in simulated time by the SITL; "proxy": sitl/netem.py in real time;
+  "none") and setpoint_lead_ms, the median lead the companion measured (None: unmeasured).
 """
 
 from __future__ import annotations

@@ -118,7 +118,8 @@ class Server:
         o = self.options
         if i == 0 and o.link is not None:
             self.emulated = EmulatedLink(url, FC_SYSTEM_ID, FC_COMPONENT_ID, emulation=o.link, seed=o.seed,
-                                         clock=lambda: self.vehicle.now_ms, tlog=self.tlog, key=o.signing_key)
+                                         clock=lambda: self.vehicle.now_ms, lockstep=not o.realtime, tlog=self.tlog,
+                                         key=o.signing_key)
             return self.emulated
         return UdpLink(url, FC_SYSTEM_ID, FC_COMPONENT_ID, tlog=self.tlog, key=o.signing_key, link_id=i)
 

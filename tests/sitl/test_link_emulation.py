@@ -119,3 +119,22 @@ def test_the_cli_refuses_bad_impairments_in_one_line(capsys, args, named):
         assert main([*command, *args]) == 2
         err = capsys.readouterr().err
         assert named in err and err.count("\n") == 1
+
+
+class SlowCompanion(TimesyncCompanion):
+    """Takes 15 ms (wall clock) to answer."""
+
+    def send(self, msg) -> None:
+        if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_M4_SETPOINT:
+            time.sleep(0.015)
+        super().send(msg)
+
+
+def test_in_real_time_the_lead_is_two_delays_plus_the_companions_own_time():
+    companion = SlowCompanion(period_ms=PERIOD_MS)
+    options = ServeOptions(scenario=HOVER, duration_s=60.0, link=LinkEmulation(delay_ms=20), realtime=True)
+    with served(companion, options):
+        companion.wait_for("TIMESYNC", lambda m: m.tc1 != 0 and m.ts1 >= 500_000_000, 20.0)
+    leads_ms = [(m.tc1 - m.ts1) / 1e6 for m in companion.of_type("TIMESYNC") if m.tc1 != 0]
+    assert len(leads_ms) >= 10
+    assert min(leads_ms) >= 40 and max(leads_ms) > 40          # the FC's clock ran on while it answered
