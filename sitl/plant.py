@@ -242,6 +242,11 @@ class Plant:
             on_ground=bool(d.ncon > 0),
         )
 
+    def measured_rates_frd_rad_s(self) -> np.ndarray:
+        """The gyro: measured_state().rates_frd_rad_s, without computing the rest of the state."""
+        rates = frames.flip_vector(self.data.qvel[self._rates])
+        return self._noise.measure_rates(float(self.data.time), rates) if self.options.sensor_noise else rates
+
     def measured_state(self) -> PlantState:
         """The truth, plus sensor noise when the options ask for it."""
         truth = self.state()

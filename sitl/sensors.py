@@ -27,16 +27,40 @@ class SensorNoise:
         """The truth plus noise on position, velocity, attitude (through the Euler angles, the
         quaternion rebuilt from them), body rates, hip angles and hip rates (the gyro's noise).
         Thrusts, the centre of mass and the ground flag are not measured quantities: kept."""
-        af, rng = self._af, np.random.default_rng((self._seed, round(truth.time_s * 1e6)))
-        euler = truth.euler_rad + rng.normal(0.0, af.attitude_noise_rad, 3)
+        n = self._draw(truth.time_s)
+        euler = truth.euler_rad + n.euler_rad
         euler[2] = (euler[2] + np.pi) % (2 * np.pi) - np.pi
         return dataclasses.replace(
             truth,
-            pos_ned_m=truth.pos_ned_m + rng.normal(0.0, af.position_noise_m, 3),
-            vel_ned_m_s=truth.vel_ned_m_s + rng.normal(0.0, af.velocity_noise_m_s, 3),
+            pos_ned_m=truth.pos_ned_m + n.pos_ned_m,
+            vel_ned_m_s=truth.vel_ned_m_s + n.vel_ned_m_s,
             euler_rad=euler,
             quat_wxyz=quat_wxyz_from_euler(euler),
-            rates_frd_rad_s=truth.rates_frd_rad_s + rng.normal(0.0, af.rate_noise_rad_s, 3),
-            hip_rad=truth.hip_rad + rng.normal(0.0, af.hip_noise_rad, ROTOR_COUNT),
-            hip_rate_rad_s=truth.hip_rate_rad_s + rng.normal(0.0, af.rate_noise_rad_s, ROTOR_COUNT),
+            rates_frd_rad_s=truth.rates_frd_rad_s + n.rates_frd_rad_s,
+            hip_rad=truth.hip_rad + n.hip_rad,
+            hip_rate_rad_s=truth.hip_rate_rad_s + n.hip_rate_rad_s,
         )
+
+    def measure_rates(self, time_s: float, rates_frd_rad_s: np.ndarray) -> np.ndarray:
+        """The gyro alone: what measure() gives as rates_frd_rad_s at the instant time_s."""
+        return rates_frd_rad_s + self._draw(time_s).rates_frd_rad_s
+
+    def _draw(self, time_s: float) -> "_Noise":
+        af, rng = self._af, np.random.default_rng((self._seed, round(time_s * 1e6)))
+        return _Noise(euler_rad=rng.normal(0.0, af.attitude_noise_rad, 3),
+                      pos_ned_m=rng.normal(0.0, af.position_noise_m, 3),
+                      vel_ned_m_s=rng.normal(0.0, af.velocity_noise_m_s, 3),
+                      rates_frd_rad_s=rng.normal(0.0, af.rate_noise_rad_s, 3),
+                      hip_rad=rng.normal(0.0, af.hip_noise_rad, ROTOR_COUNT),
+                      hip_rate_rad_s=rng.normal(0.0, af.rate_noise_rad_s, ROTOR_COUNT))
+
+
+@dataclasses.dataclass(frozen=True)
+class _Noise:
+    """One instant's noise, drawn in this order from the instant's generator."""
+    euler_rad: np.ndarray
+    pos_ned_m: np.ndarray
+    vel_ned_m_s: np.ndarray
+    rates_frd_rad_s: np.ndarray
+    hip_rad: np.ndarray
+    hip_rate_rad_s: np.ndarray

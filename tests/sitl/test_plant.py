@@ -274,6 +274,16 @@ def test_sensor_noise_only_when_asked_seeded_and_only_on_measured_quantities():
     assert a.thrust_n == pytest.approx(truth.thrust_n)
 
 
+@pytest.mark.parametrize("noise", [False, True])
+def test_the_gyro_alone_reads_what_the_whole_measured_state_reads(noise):
+    plant = Plant(AF, PlantOptions(sensor_noise=noise), seed=3)
+    plant.command(np.full(ROTOR_COUNT, plant.hover_thrust_n) + [0.5, -0.5, 0.3, -0.3], np.full(ROTOR_COUNT, 0.7))
+    for _ in range(5):
+        plant.step(0.004)
+        gyro = plant.measured_rates_frd_rad_s()
+        assert np.array_equal(gyro, plant.measured_state().rates_frd_rad_s) and np.any(gyro != 0.0)
+
+
 def test_sensor_noise_depends_on_the_instant_and_seed_not_on_how_often_it_was_drawn():
     once, often = (Plant(AF, PlantOptions(sensor_noise=True), seed=3) for _ in range(2))
     first = often.measured_state()
