@@ -46,6 +46,7 @@ from m4.mavlink.signing import setup_signing
 DELAY_MAX_MS = 2000.0
 SEEN_MAX = 4096                  # draws remembered (to number repeats) before the old ones are let go ...
 SEEN_KEEP_MS = 5000              # ... all but the last 5 s of them
+HELD_MAX = 10_000                # datagrams held at once (a flood beyond is lost, as by a full queue)
 _ANSWERS = (mavlink.MAVLINK_MSG_ID_M4_SETPOINT, mavlink.MAVLINK_MSG_ID_M4_FAULT_STATUS)
 _MAVLINK2_STX = 0xFD
 _MAVLINK1_STX = 0xFE
@@ -193,7 +194,7 @@ class EmulatedLink(UdpLink):
             if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_M4_SETPOINT and self.peer_filter(msg):
                 self.answered_ms = max(self.answered_ms or 0, int(msg.time_boot_ms))
                 self.counters.setpoints += 1
-        if self._draw.lost("up", at_ms, msgs[0].get_msgId() if msgs else -1):
+        if self._draw.lost("up", at_ms, msgs[0].get_msgId() if msgs else -1) or len(self._held) >= HELD_MAX:
             self.counters.lost_up += 1
             return
         due_ms = max(now_ms, at_ms + self.emulation.round_trip_ms)

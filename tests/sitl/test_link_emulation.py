@@ -8,6 +8,8 @@ import time
 import pytest
 
 from m4.mavlink import mavlink
+from m4.mavlink.link import UdpLink, wait_readable
+from sitl import link_emulation
 from sitl.cli import main
 from sitl.link_emulation import EmulationError, LinkEmulation, LossDraw
 from sitl.scenario import Scenario
@@ -138,3 +140,26 @@ def test_in_real_time_the_lead_is_two_delays_plus_the_companions_own_time():
     leads_ms = [(m.tc1 - m.ts1) / 1e6 for m in companion.of_type("TIMESYNC") if m.tc1 != 0]
     assert len(leads_ms) >= 10
     assert min(leads_ms) >= 40 and max(leads_ms) > 40          # the FC's clock ran on while it answered
+
+
+def test_a_flood_is_held_up_to_a_bound_and_handed_over_at_its_instant(monkeypatch):
+    monkeypatch.setattr(link_emulation, "HELD_MAX", 5)
+    now = {"ms": 100}
+    fc = link_emulation.EmulatedLink("udpin:127.0.0.1:0", 1, 1, emulation=LinkEmulation(delay_ms=10), seed=0,
+                                     clock=lambda: now["ms"])
+    sender = UdpLink(f"udpout:127.0.0.1:{fc.local_port}", 1, 191)
+    try:
+        for _ in range(20):
+            sender.send(mavlink.MAVLink_heartbeat_message(18, 8, 0, 0, 4, 3))
+        deadline = time.monotonic() + 5.0
+        while fc.counters.received < 20 and time.monotonic() < deadline:
+            wait_readable([fc], 0.1)
+            assert fc.receive_from() == []                     # nothing is due before 100 + 2 D
+        assert (fc.counters.received, fc.counters.lost_up, fc.next_delivery_ms()) == (20, 15, 120)
+        now["ms"] = 119
+        assert fc.deliver() == []
+        now["ms"] = 120
+        assert [m.get_type() for _, msgs in fc.deliver() for m in msgs] == ["HEARTBEAT"] * 5
+    finally:
+        sender.close()
+        fc.close()
