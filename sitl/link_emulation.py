@@ -22,7 +22,8 @@ by a keyed hash of (seed, direction, instant, a message id of the datagram (the 
 going down: a frame's M4_THRUSTER_STATUS; the first one coming up), how many such datagrams
 came at that instant before it): a counter-based generator of its own, apart from the
 plant's noise, and independent of messages whose number follows the wall clock (heartbeats,
-resent commands), so the same seed loses the same frames and setpoints.
+resent commands), so the same seed loses the same frames and setpoints. (When the
+companion's commands land still follows the wall clock: it resends them on its own clock.)
 
 For lockstep (sitl/serve.py) the link knows which frames it lost and which instants the
 companion has answered (`answered_ms`, on arrival: delivered later or lost), so the FC
