@@ -119,12 +119,12 @@ class Plant:
         k_t w_s^2 + 2 k_t w_s d exp(-t / tau) + k_t d^2 exp(-2 t / tau)."""
         rotors, d = self.thrusters, self.data
         rotors.update(self.battery.voltage_v)
-        k_t, w_s = rotors.thrust_coefficient_n_s2, rotors.settled_rad_s
-        gap = rotors.speed_rad_s - w_s
-        d.ctrl[self._thrust] = k_t * w_s ** 2
-        d.act[self._thrust_act] = k_t * w_s * (w_s + 2.0 * gap)
+        rotor = list(zip(rotors.thrust_coefficient_n_s2.tolist(), rotors.settled_rad_s.tolist(),
+                         (rotors.speed_rad_s - rotors.settled_rad_s).tolist()))      # (k_t, w_s, gap): Python floats
+        d.ctrl[self._thrust] = [k_t * (w_s * w_s) for k_t, w_s, _ in rotor]
+        d.act[self._thrust_act] = [k_t * w_s * (w_s + 2.0 * gap) for k_t, w_s, gap in rotor]
         d.ctrl[self._thrust_sq] = 0.0
-        d.act[self._thrust_sq_act] = k_t * gap ** 2
+        d.act[self._thrust_sq_act] = [k_t * (gap * gap) for k_t, _, gap in rotor]
 
     def command_thrust(self, thrust_n) -> None:
         """Thrusts alone (N, rotors 1..4), the hips' targets kept: the FC's rate feedback

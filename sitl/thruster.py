@@ -94,21 +94,24 @@ class Thrusters:
         self._ceiling = None
 
     # -- the motor ------------------------------------------------------------------------
-    def _drive_voltage(self, speed_rad_s):
+    def _drive_voltage(self, speed_rad_s: float) -> float:
         """The motor voltage that settles the nominal propeller at `speed_rad_s` (0 at rest)."""
-        w = np.asarray(speed_rad_s, dtype=float)
-        u = self._k_e * w + self._r * (self._k_q * w * w / self._k_e + self._i0)
-        return np.where(w > 0.0, u, 0.0)
+        w = speed_rad_s
+        return self._k_e * w + self._r * (self._k_q * w * w / self._k_e + self._i0) if w > 0.0 else 0.0
 
-    def _settled_speed(self, u_v, k_q):
+    def _settled_speed(self, u_v: float, k_q: float) -> float:
         """Root of k_q R w^2 + k_e^2 w - k_e (u - R i0) = 0 (0 when u cannot beat friction)."""
-        drive = self._k_e * np.maximum(u_v - self._r * self._i0, 0.0)
-        return 2.0 * drive / (self._k_e ** 2 + np.sqrt(self._k_e ** 4 + 4.0 * k_q * self._r * drive))
+        drive = self._k_e * max(u_v - self._r * self._i0, 0.0)
+        return 2.0 * drive / (self._k_e ** 2 + math.sqrt(self._k_e ** 4 + 4.0 * k_q * self._r * drive))
 
-    def _settle(self, speed_cmd, voltage_v):
-        """(ESC output voltage, settled speed) for the commanded speeds, faults applied."""
-        u = np.minimum(np.minimum(self._drive_voltage(speed_cmd), voltage_v), self._u_max_v)
-        return u, self._settled_speed(u, self._k_q * self._scale)
+    def _settle(self, speed_cmd, voltage_v: float) -> tuple[np.ndarray, np.ndarray]:
+        """(ESC output voltage, settled speed) for the commanded speeds (4,), faults applied:
+        rotor by rotor on Python floats (the FC commands the rotors at every 4 ms tick, a sagging
+        pack at every physics step, and numpy on four-element arrays costs more than the sums)."""
+        u = [min(min(self._drive_voltage(w), voltage_v), u_max)
+             for w, u_max in zip(np.asarray(speed_cmd, dtype=float).tolist(), self._u_max_v.tolist())]
+        w = [self._settled_speed(u_v, self._k_q * scale) for u_v, scale in zip(u, self._scale.tolist())]
+        return np.array(u), np.array(w)
 
     def update(self, voltage_v: float) -> None:
         """Recompute what every rotor heads for, on pack voltage `voltage_v`."""
