@@ -26,7 +26,14 @@ from companion.feed_publisher import open_feed
 from m4.airframe import load_airframe
 from m4.feed.settings import FeedSettings
 
-FEED = Path(__file__).with_name("hover-rotor-loss-feed.jsonl")   # 0-5 s of `m4-sitl fly hover-rotor-loss`, 25 Hz
+# 0-5 s of `m4-sitl fly hover-rotor-loss --out DIR`'s DIR/feed.jsonl at 25 Hz, numbers to 4 decimals:
+#   python -c 'import json, sys
+#   for line in open(sys.argv[1]):
+#       e = json.loads(line, parse_float=lambda s: round(float(s), 4))
+#       t = e["payload"]["t_s"]
+#       if t is not None and t <= 5.0 and round(t * 50) % 2 == 0:
+#           print(json.dumps(e, separators=(",", ":")))' DIR/feed.jsonl > hover-rotor-loss-feed.jsonl
+FEED = Path(__file__).with_name("hover-rotor-loss-feed.jsonl")
 WINDOW = (1280, 800)
 FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
          "--disable-background-networking", "--disable-component-update", "--disable-sync",

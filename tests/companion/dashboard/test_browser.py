@@ -42,7 +42,7 @@ def test_a_replayed_flight_shows_the_fault_the_posture_and_every_plot(chromium, 
     assert chromium.evaluate("document.body.dataset.status") == "ended"
     assert chromium.evaluate("document.getElementById('banner').className") == "confirmed"
     banner_text = chromium.evaluate("document.getElementById('banner').textContent")
-    assert "THRUST LOSS ROTOR 4 (rear-right), detected at t = 1.04 s" in banner_text
+    assert "THRUST LOSS ROTOR 4 (MOTOR) (rear-right), detected at t = 1.04 s" in banner_text
     hips = [float(v) for v in chromium.evaluate("document.getElementById('r-hip').textContent").split()]
     assert hips[0] > 80 and hips[1] < 10                   # the legs swung: rotor 1 out, rotor 2 folded
     assert chromium.evaluate("document.querySelectorAll('#plots canvas').length") == 8
