@@ -6,8 +6,9 @@ Flies the scenario against `m4-sitl serve` (lockstep, a subprocess) with the com
 in this process, alternately with the flight log on and off, and times every control step
 (telemetry in, NMPC, setpoint and fault status out, the log's share included). Prints, for
 each: the step's wall time (median, p99, max: what the loop's timing feels, noisy under
-load), the loop thread's CPU time per step (median: robust to load) and the whole process's
-CPU time per control step (every thread, the log's writer included).
+load), the loop thread's CPU time per step (median: robust to load), the whole process's
+CPU time per control step (every thread, the log's writer included), and the steps held up
+more than WAIT_MS beyond their own CPU time (waiting for the GIL or a core).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from companion.config import LogSettings, parse_config
 from sitl import scenarios
 
 WARM_START_STEPS = 5
+WAIT_MS = 1.0
 
 
 @dataclass
@@ -84,10 +86,11 @@ def main(argv: list[str] | None = None) -> int:
             runs["log off"] += step_times(args.scenario, args.seconds, None)
     for label, r in runs.items():
         wall, steps = np.array(r.wall_ms), len(r.wall_ms) + WARM_START_STEPS * args.repeats
+        held = int(np.count_nonzero(wall - np.array(r.cpu_ms) > WAIT_MS))
         print(f"{label}: {len(wall)} control steps of {args.scenario}: wall time median {np.median(wall):.2f} ms, "
               f"p99 {np.percentile(wall, 99):.2f} ms, max {wall.max():.2f} ms; CPU time median "
               f"{np.median(r.cpu_ms):.2f} ms (the loop's thread), {r.process_cpu_ms / steps:.2f} ms per step "
-              f"(the whole process)")
+              f"(the whole process); {held} steps held up over {WAIT_MS:g} ms beyond their CPU time")
     return 0
 
 
