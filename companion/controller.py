@@ -141,7 +141,7 @@ class Controller:
         self._new_reference = new_reference or (
             lambda t0_s, start_ned_m: MissionReference(s.mission, start_ned_m, af, s.reference, t0_s=t0_s))
         self.disturbance = DisturbanceEstimator(af, self.period_s, s.disturbance_gain)
-        self.predictor = Predictor(af, self.nmpc.rom.f)
+        self.predictor = Predictor(af, self.nmpc.rom.f, self.period_s)
         self.rate_feedback = RateFeedbackDesign(af, s.rate_feedback_bandwidth_rad_s)
         self.detector = self._new_detector()
         self.flight: Flight | None = None
@@ -220,7 +220,7 @@ class Controller:
         sp = self._setpoint(x_plan, res, fault.thrust_bound_n)
         x_next = res.x_pred[1] if res.ok else x_plan          # a failed solve plans no change of the rates
         sp = replace(sp, rate_feedback=self.rate_feedback.feedback(x_plan, x_next, c.dt_s, fault.thrust_bound_n))
-        self.sent.add(SentCommand(time_s, x, np.r_[sp.thrust_n, res.u[rom.HIP_ACCEL]]))
+        self.sent.add(SentCommand(time_s, x, np.r_[sp.thrust_n, res.u[rom.HIP_ACCEL]], sp.rate_feedback))
         return ControlStep(time_s, sp, x_plan, lead_s, x_ref, res, fault, confirmed_now, d)
 
     # ------------------------------------------------------------------------------------------
@@ -248,7 +248,7 @@ class Controller:
             return ours
         u = ours.input.copy()
         u[rom.THRUST] = reported
-        return SentCommand(ours.time_s, ours.state, u)
+        return SentCommand(ours.time_s, ours.state, u, ours.feedback)
 
     def _detect(self, time_s, x, usable, in_force, esc, limit_n) -> tuple[FaultStatus, bool]:
         """The detector's status after this frame; True at each new confirmation in a flight."""

@@ -6,7 +6,9 @@ companion.link_delay). Until then the FC flies the setpoints already in flight: 
 answering instant tau acts from tau + lead_s on. The NMPC plans from the state at t + lead_s,
 which this predicts with the ROM's dynamics (the NMPC's own, RK4), each sent command held
 over the stretch it is in force, the motors following it with their first-order lag
-(airframe motor_time_constant_s) from the thrust the FC measured at t. The hips are not predicted: their states are the goal the
+(airframe motor_time_constant_s) from the thrust the FC measured at t, plus the rate feedback
+the FC closes around each command (m4.setpoint.RateFeedback) on the predicted body rates, as
+the FC does on its gyro. The hips are not predicted: their states are the goal the
 controller keeps (companion.controller), which already is where the sent commands lead them.
 
 Pure logic: no clock, no I/O. With lead_s = 0 (lockstep, or a link without delay) the state
@@ -25,6 +27,7 @@ from companion.core import rom
 from companion.core.control_types import thrust_bounds
 from companion.core.rom import ND, NU, NX
 from m4.airframe import ROTOR_COUNT, Airframe
+from m4.setpoint import RateFeedback
 
 _SUBSTEPS = 2
 _MAX_PIECE_S = 0.01                 # longer stretches are split (RK4 accuracy, the motors' lag)
@@ -39,6 +42,7 @@ class SentCommand:
     time_s: float                   # the telemetry instant it answers (FC clock)
     state: np.ndarray               # (20,) the measured state at that instant (hips: their goal)
     input: np.ndarray               # (8,) thrust_n as sent, hip_accel_rad_s2 as planned
+    feedback: RateFeedback | None = None   # the rate feedback sent with it
 
     @property
     def thrust_n(self) -> np.ndarray:
@@ -80,10 +84,12 @@ class CommandHistory:
 
 
 class Predictor:
-    """Forward prediction with the ROM dynamics `f` (rom.RomFunctions.f: x, u, d -> xdot)."""
+    """Forward prediction with the ROM dynamics `f` (rom.RomFunctions.f: x, u, d -> xdot) for
+    commands sent every period_s (the rate feedback's planned rates are held after it)."""
 
-    def __init__(self, af: Airframe, f: ca.Function):
+    def __init__(self, af: Airframe, f: ca.Function, period_s: float):
         self._af = af
+        self._period_s = period_s
         x, u, d, dt = ca.SX.sym("x", NX), ca.SX.sym("u", NU), ca.SX.sym("d", ND), ca.SX.sym("dt")
         self._flow = ca.Function("m4_rom_flow", [x, u, d, dt], [rom.rk4(f, x, u, d, dt, _SUBSTEPS)])
 
@@ -107,12 +113,13 @@ class Predictor:
         tau = self._af.motor_time_constant_s
         xk = x.copy()
         for a, b in zip(edges[:-1], edges[1:]):
-            command = np.minimum(history.in_force(a, lead_s).thrust_n, bound)
+            sent = history.in_force(a, lead_s)
             pieces = max(1, int(np.ceil((b - a) / _MAX_PIECE_S - 1e-9)))
             h = (b - a) / pieces
             decay = np.exp(-h / tau) if tau > 0 else 0.0
             average = 1.0 - (tau / h) * (1.0 - decay) if tau > 0 else 1.0     # share of the step done on average
-            for _ in range(pieces):
+            for k in range(pieces):
+                command = self._command(sent, xk, a + k * h - (sent.time_s + lead_s), bound)
                 u = np.r_[thrust + (command - thrust) * average, np.zeros(ROTOR_COUNT)]   # hips: on their goal
                 xk = np.asarray(self._flow(xk, u, disturbance, h)).ravel()
                 thrust = command + (thrust - command) * decay
@@ -120,3 +127,11 @@ class Predictor:
             return x.copy()
         xk[rom.HIP], xk[rom.HIP_RATE] = x[rom.HIP], x[rom.HIP_RATE]
         return xk
+
+    def _command(self, sent: SentCommand, x, acting_s: float, bound) -> np.ndarray:
+        """What the FC commands acting_s after `sent` took effect, the robot at state x: the
+        thrusts sent plus their rate feedback, within the bounds."""
+        thrust = sent.thrust_n
+        if sent.feedback is not None:
+            thrust = thrust + sent.feedback.thrust_change_n(x[rom.RATES], acting_s, self._period_s)
+        return np.clip(thrust, self._af.thrust_min_n, bound)

@@ -7,7 +7,9 @@ import pytest
 
 from companion.core import rom
 from companion.core.prediction import HISTORY_S, CommandHistory, Predictor, SentCommand
+from companion.core.rate_feedback import RateFeedbackDesign
 from m4.airframe import load_airframe
+from m4.setpoint import RateFeedback
 
 AF = load_airframe()
 PERIOD = 0.02
@@ -43,7 +45,7 @@ def test_without_lead_the_measured_state_is_planned_from():
     history = CommandHistory()
     history.add(command(0.0, 20.0))
     x = rom.hover_state(AF)
-    assert np.array_equal(Predictor(AF, F).predict(x, 0.02, 0.0, history, np.zeros(rom.ND), NO_FAULT), x)
+    assert np.array_equal(Predictor(AF, F, 0.02).predict(x, 0.02, 0.0, history, np.zeros(rom.ND), NO_FAULT), x)
 
 
 def test_the_state_is_flown_forward_with_the_commands_in_flight():
@@ -55,7 +57,7 @@ def test_the_state_is_flown_forward_with_the_commands_in_flight():
         history.add(command(k * PERIOD, thrust))
     x = rom.hover_state(AF)
     x[rom.V] = (1.0, 0.0, 0.0)
-    predicted = Predictor(AF, F).predict(x, 0.1, 0.05, history, np.zeros(rom.ND), NO_FAULT, np.full(4, thrust))
+    predicted = Predictor(AF, F, 0.02).predict(x, 0.1, 0.05, history, np.zeros(rom.ND), NO_FAULT, np.full(4, thrust))
     step = rom.build_rom(AF, 0.05, substeps=8).step
     expected = np.asarray(step(x, np.r_[np.full(4, thrust), np.zeros(4)], np.zeros(rom.ND))).ravel()
     assert np.allclose(predicted[rom.P], expected[rom.P], atol=1e-6)
@@ -72,7 +74,7 @@ def test_the_motors_follow_a_new_command_with_their_lag():
     history.add(command(0.0, hover))
     history.add(command(0.05, hover + 3.0))
     lead, tau, mass = 0.1, AF.motor_time_constant_s, AF.total_mass_kg
-    predicted = Predictor(AF, F).predict(rom.hover_state(AF), 0.1, lead, history, np.zeros(rom.ND), NO_FAULT,
+    predicted = Predictor(AF, F, 0.02).predict(rom.hover_state(AF), 0.1, lead, history, np.zeros(rom.ND), NO_FAULT,
                                          np.full(4, hover))
     acting_s = 0.05                                     # from 0.15 s to 0.2 s
     climb_m_s = 4 * 3.0 / mass * (acting_s - tau * (1.0 - np.exp(-acting_s / tau)))
@@ -85,7 +87,27 @@ def test_a_lost_rotor_flies_the_prediction_at_its_estimated_ceiling_not_at_its_c
     for k in range(6):
         history.add(command(k * PERIOD, AF.hover_thrust_per_rotor_n))
     x = rom.hover_state(AF)
-    lost = Predictor(AF, F).predict(x, 0.1, 0.06, history, np.zeros(rom.ND), [30.0, 30.0, 30.0, 0.0])
-    healthy = Predictor(AF, F).predict(x, 0.1, 0.06, history, np.zeros(rom.ND), NO_FAULT)
+    lost = Predictor(AF, F, 0.02).predict(x, 0.1, 0.06, history, np.zeros(rom.ND), [30.0, 30.0, 30.0, 0.0])
+    healthy = Predictor(AF, F, 0.02).predict(x, 0.1, 0.06, history, np.zeros(rom.ND), NO_FAULT)
     assert np.allclose(healthy[rom.RATES], 0.0, atol=1e-6)
     assert np.linalg.norm(lost[rom.RATES][:2]) > 0.5                  # it starts to roll and pitch
+
+
+def test_the_fcs_rate_feedback_is_predicted_as_the_fc_closes_it():
+    """A roll rate the plan does not want (planned 0): the FC's feedback brakes it, and the
+    prediction through the commands in flight brakes it as well; without feedback it keeps on."""
+    x = rom.hover_state(AF)
+    x[rom.RATES] = [2.0, 0.0, 0.0]
+    gain = RateFeedbackDesign(AF, 20.0).gain(x[rom.HIP], NO_FAULT)
+    braking = RateFeedback(np.zeros(3), np.zeros(3), gain)
+    hover = AF.hover_thrust_per_rotor_n
+    rates = {}
+    for name, feedback in (("with", braking), ("without", None)):
+        history = CommandHistory()
+        for k in range(6):
+            history.add(SentCommand(k * PERIOD, x, np.r_[np.full(4, hover), np.zeros(4)], feedback))
+        predicted = Predictor(AF, F, PERIOD).predict(x, 0.1, 0.06, history, np.zeros(rom.ND), NO_FAULT,
+                                                     np.full(4, hover))
+        rates[name] = predicted[rom.RATES][0]
+    assert rates["without"] == pytest.approx(2.0, abs=0.05)
+    assert 0.0 < rates["with"] < 0.6 * rates["without"]
