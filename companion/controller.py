@@ -19,11 +19,14 @@ before it leaves.
 
 Delay: the setpoint reaches the FC lead_s after the instant it answers (measured by the link;
 0 in lockstep). The NMPC plans from the state predicted to that moment through the commands
-already in flight, along the reference from that moment (companion.core.prediction), and the
-detector and the disturbance estimate compare each period with the command that was in force
-at the FC during it, not the one we sent last.
+already in flight and the rate feedback the FC closes around each (companion.core.prediction),
+along the reference from that moment; each setpoint carries its own rate feedback
+(companion.core.rate_feedback). The detector and the disturbance estimate compare each period
+with the thrust the FC reports it commanded over it (companion.core.applied_thrust), not with
+the setpoint we sent last.
 
-Fault detection input: the measured state, the command in force over the last period (ours)
+Fault detection input: the measured state, the command in force over the last period (the
+FC's report of its thrusts when it gives one, else ours)
 and the FC's ESC telemetry when it has any (None: saturation and the model residual alone).
 The FC's per-rotor limits count only as a common cap (the largest of them): a limit that drops
 on one rotor is exactly what the detector must find itself, so it is not handed to it. The
