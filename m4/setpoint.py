@@ -7,6 +7,12 @@ robot for that long before the plan can react. So the setpoint also carries the 
 the plan expects while it is in force and a gain, and the FC closes that fast loop on its
 own gyro at its own rate: thrust_n + gain x (planned rates - measured rates). When the robot
 moves as planned the feedback adds nothing; the plan stays the companion's.
+
+Shortfall cover (also an extension field): the FC sees a rotor fall short of its command
+in its ESC's speed within a few milliseconds, long before the companion's answer can come
+back over the link. The setpoint carries how the other rotors cover each rotor's shortfall
+(thrust change per newton short: keep the sum and the roll and pitch torque), and the FC adds
+gain x shortfall at its own rate. With every rotor delivering, it adds nothing.
 """
 
 from __future__ import annotations
@@ -16,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 RATE_GAIN_MAX_N_PER_RAD_S = 50.0     # the FC refuses larger entries: no sane posture needs them
+SHORTFALL_GAIN_MAX = 4.0             # likewise for the cover: N per N short
 
 
 @dataclass(frozen=True)
@@ -48,9 +55,29 @@ class RateFeedback:
 
 
 @dataclass(frozen=True)
+class ShortfallCover:
+    gain: np.ndarray                         # (4, 4) thrust change of rotor i per newton rotor j falls short
+
+    @classmethod
+    def from_fields(cls, gain_flat) -> ShortfallCover | None:
+        """From M4_SETPOINT's shortfall_gain; None when it asks for no cover (all zero, the
+        default of a sender that does not know the field) or cannot be used (not finite, an
+        entry beyond SHORTFALL_GAIN_MAX)."""
+        gain = np.asarray(gain_flat, dtype=float).reshape(4, 4)
+        if not np.all(np.isfinite(gain)) or not np.any(gain) or np.max(np.abs(gain)) > SHORTFALL_GAIN_MAX:
+            return None
+        return cls(gain)
+
+    def thrust_change_n(self, shortfall_n) -> np.ndarray:
+        """(4,) the other rotors' cover for the rotors' shortfalls (4,), N."""
+        return self.gain @ np.asarray(shortfall_n, dtype=float)
+
+
+@dataclass(frozen=True)
 class Setpoint:
     thrust_n: np.ndarray          # (4,) per rotor
     hip_rad: np.ndarray           # (4,) servo goal at the answered instant ...
     hip_rate_rad_s: np.ndarray    # (4,) ... moving at this rate (M4_SETPOINT hip_angle_rad, hip_rate_rad_s)
     thrust_cut: bool = False      # M4_SETPOINT_FLAG_THRUST_CUT: every motor stops
     rate_feedback: RateFeedback | None = None   # None: thrust_n alone
+    shortfall_cover: ShortfallCover | None = None   # None: no cover (applied with the rate feedback)
