@@ -37,12 +37,13 @@ import numpy as np
 from m4.airframe import ROTOR_COUNT, Airframe
 from m4.log_limit import RepeatLimiter
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
-from m4.setpoint import RateFeedback, Setpoint
+from m4.setpoint import RateFeedback, Setpoint, ShortfallCover
 from sitl.commands import CommandHandler
 from sitl.esc_telemetry import EscTelemetry
 from sitl.failsafe import Failsafe, FailsafeMode
 from sitl.modes import FcMode, current_mode
 from sitl.rotor_watch import RotorWatch
+from sitl.shortfall import ShortfallMeter
 from sitl.state import PlantState
 from sitl.streams import DEFAULT_INTERVALS_MS, ESC_TELEMETRY_INTERVALS_MS, FRAME, StreamSchedule
 from sitl.telemetry import Home, Snapshot, Telemetry, statustext
@@ -104,6 +105,8 @@ class FlightController:
         self.armed = True
         self.fault_status: mavlink.MAVLink_m4_fault_status_message | None = None
         self.rotor_watch = RotorWatch(airframe)
+        self.shortfall = ShortfallMeter(airframe, TICK_MS / 1000.0)
+        self._shortfall_n: list[float] | None = None      # None: no ESC telemetry, no cover
         self.lockstep = lockstep
         self.plant = plant
         self.esc = esc                          # None: no ESC telemetry (many FCs have none)
@@ -129,11 +132,16 @@ class FlightController:
         self.plant.command(thrust_n, hip_rad, hip_rate_rad_s)
         self._measured = None
 
-    def _rate_feedback(self, sp: Setpoint, now_ms: int) -> None:
-        """The companion's thrusts plus its rate feedback on our gyro (m4.setpoint), every tick."""
-        rates = self.plant.measured_rates_frd_rad_s()      # the gyro alone: cheap at every tick
-        change = sp.rate_feedback.thrust_change_n(rates, (now_ms - self._applied_at_ms) / 1000.0,
-                                                  self.setpoint.period_ms / 1000.0)
+    def _fast_loop(self, sp: Setpoint, now_ms: int) -> None:
+        """The companion's thrusts plus, every tick, its rate feedback on our gyro and the other
+        rotors' cover for a rotor our ESCs show falling short (m4.setpoint)."""
+        change = np.zeros(ROTOR_COUNT)
+        if sp.rate_feedback is not None:
+            rates = self.plant.measured_rates_frd_rad_s()      # the gyro alone: cheap at every tick
+            change += sp.rate_feedback.thrust_change_n(rates, (now_ms - self._applied_at_ms) / 1000.0,
+                                                       self.setpoint.period_ms / 1000.0)
+        if sp.shortfall_cover is not None and self._shortfall_n is not None:
+            change += sp.shortfall_cover.thrust_change_n(self._shortfall_n)
         af = self.airframe
         self.plant.command_thrust(np.clip(sp.thrust_n + change, af.thrust_min_n, af.thrust_max_n))
         self._measured = None
@@ -175,6 +183,7 @@ class FlightController:
         if self.esc is not None:
             rotors = self.plant.rotor_state()
             self.esc.sample(now_ms, rotors)
+            self._shortfall_n = self.shortfall.update(rotors.thrust_cmd_n, self.esc.report(now_ms).rpm)
             self._watch_rotors(now_ms, rotors.thrust_cmd_n)
         if not self.armed:
             self._set_mode(FcMode.LANDED)
@@ -190,8 +199,8 @@ class FlightController:
             if self.setpoint is not self._applied:
                 self._command_plant(sp.thrust_n, sp.hip_rad, sp.hip_rate_rad_s)
                 self._applied, self._applied_at_ms = self.setpoint, now_ms
-            if sp.rate_feedback is not None:
-                self._rate_feedback(sp, now_ms)
+            if sp.rate_feedback is not None or sp.shortfall_cover is not None:
+                self._fast_loop(sp, now_ms)
             return
         state = self.measured_state(now_ms)
         self.failsafe.set_lost_rotor(self.lost_rotor())
@@ -287,7 +296,8 @@ class FlightController:
             hip_rate_rad_s=np.clip(rate, -af.hip_rate_max_rad_s, af.hip_rate_max_rad_s),
             thrust_cut=bool(msg.flags & mavlink.M4_SETPOINT_FLAG_THRUST_CUT),
             rate_feedback=RateFeedback.from_fields(msg.rates_ref_frd_rad_s, msg.rates_ref_change_frd_rad_s2,
-                                                   msg.rate_gain)))
+                                                   msg.rate_gain),
+            shortfall_cover=ShortfallCover.from_fields(msg.shortfall_gain)))
         self.counters.setpoints_accepted += 1
         self.tick(now_ms)
 

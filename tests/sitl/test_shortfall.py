@@ -1,0 +1,85 @@
+"""The FC's shortfall meter (sitl/shortfall.py) reads, in its ESCs' speed, how far each rotor
+falls short of its command, and the FC lets the others cover it when the setpoint asks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from m4.airframe import load_airframe
+from m4.mavlink import mavlink
+from sitl.flight_controller import TICK_MS
+from sitl.scenario import Scenario
+from sitl.shortfall import DEADBAND_N, ShortfallMeter
+from sitl.thruster import RAD_S_TO_RPM, FailureKind, Thrusters
+from sitl.vehicle import Vehicle
+from tests.sitl.test_fc_rate_feedback import THRUST_N, _from_companion
+
+AF = load_airframe()
+TICK_S = TICK_MS / 1000.0
+HOVER_N = AF.hover_thrust_per_rotor_n
+
+
+def _meter_after(commands_n, fault=None, ticks=50):
+    """Fly the plant's rotors through `commands_n` (one (4,) per tick, the last held), rotor 1
+    failing as `fault` (kind, loss) from the start; the meter's last reading and the thrust
+    the rotors truly give then."""
+    rotors = Thrusters(AF, HOVER_N, 14.8)
+    meter = ShortfallMeter(AF, TICK_S)
+    if fault is not None:
+        rotors.set_fault(0, *fault)
+    delayed_rpm = [list(rotors.speed_rad_s * RAD_S_TO_RPM)]
+    shortfall = None
+    for k in range(ticks):
+        command = commands_n[min(k, len(commands_n) - 1)]
+        rotors.command(command)
+        rotors.update(14.8)
+        rotors.advance(TICK_S)
+        shortfall = meter.update(command, delayed_rpm[-1])      # the speeds arrive a tick late
+        delayed_rpm.append(list(rotors.speed_rad_s * RAD_S_TO_RPM))
+    return np.array(shortfall), rotors.thrust_n
+
+
+def test_healthy_rotors_following_steps_of_their_command_fall_short_of_nothing():
+    steps = [np.full(4, HOVER_N)] * 5 + [np.array([25.0, 5.0, 14.7, 29.0])] * 10 + [np.array([2.0, 28.0, 14.7, 0.0])]
+    for ticks in range(1, 40):
+        assert np.all(_meter_after(steps, ticks=ticks)[0] == 0.0)
+
+
+@pytest.mark.parametrize("kind, loss", [(FailureKind.MOTOR, 1.0), (FailureKind.PROPELLER, 1.0),
+                                        (FailureKind.DEGRADED, 0.5), (FailureKind.DAMAGE, 0.5)])
+def test_a_failed_rotor_falls_short_by_what_it_no_longer_gives(kind, loss):
+    """Even a lighter (chipped) or missing propeller, on a motor that turns faster for it."""
+    shortfall, thrust_n = _meter_after([np.full(4, HOVER_N)], (kind, loss))
+    assert shortfall[0] == pytest.approx(HOVER_N - thrust_n[0] - DEADBAND_N, abs=0.1)
+    assert thrust_n[0] < HOVER_N - 2 * DEADBAND_N
+    assert np.all(shortfall[1:] == 0.0)
+
+
+def _fly(cover_gain, fail_rotor: int | None):
+    vehicle = Vehicle(Scenario(name="hover", duration_s=1.0), AF)
+    vehicle.start(lambda msgs: None)
+    vehicle.advance_to(100, lambda msgs: None)
+    if fail_rotor is not None:
+        vehicle.fc.set_rotor_loss(fail_rotor, 1.0, FailureKind.MOTOR)
+    sp = mavlink.MAVLink_m4_setpoint_message(1, 1, 100, 20, [THRUST_N] * 4, [AF.nominal_hip_rad] * 4, [0.0] * 4, 0,
+                                             shortfall_gain=cover_gain)
+    vehicle.handle([_from_companion(sp)], lambda msgs: None)
+    vehicle.advance_to(160, lambda msgs: None)
+    return vehicle.fc.measured_state(160).thrust_cmd_n
+
+
+COVER_4 = np.zeros((4, 4))
+COVER_4[:, 3] = [1.0, 1.0, -1.0, 0.0]           # rotor 4 short: 1 and 2 up, 3 down
+
+
+def test_the_fc_covers_a_rotor_its_escs_show_stopped_as_the_setpoint_asks():
+    thrust = _fly(COVER_4.ravel(), fail_rotor=4)
+    cover = thrust[0] - THRUST_N
+    assert cover > 0.5 * (THRUST_N - DEADBAND_N)             # most of it within 60 ms
+    assert thrust == pytest.approx([THRUST_N + cover, THRUST_N + cover, THRUST_N - cover, THRUST_N], abs=1e-3)
+
+
+def test_no_cover_without_the_field_or_without_a_shortfall():
+    assert _fly(np.zeros(16), fail_rotor=4) == pytest.approx([THRUST_N] * 4, abs=1e-5)
+    assert _fly(COVER_4.ravel(), fail_rotor=None) == pytest.approx([THRUST_N] * 4, abs=1e-5)
