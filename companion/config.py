@@ -84,6 +84,7 @@ class CompanionConfig:
     rate_hz: float = DEFAULT_RATE_HZ
     realtime_priority: int = 0              # SCHED_FIFO priority of the control loop, 1..99; 0: normal (companion/realtime.py)
     rate_feedback_bandwidth_rad_s: float = DEFAULT_RATE_FEEDBACK_BANDWIDTH_RAD_S   # 0: the FC flies thrust_n alone
+    shortfall_cover: bool = True            # the FC covers a rotor its ESCs show falling short (M4_SETPOINT)
     nmpc: NmpcConfig = field(default_factory=lambda: NmpcConfig(control_period_s=1.0 / DEFAULT_RATE_HZ,
                                                                 time_budget_share=COMPANION_TIME_BUDGET_SHARE))
     disturbance_gain: float = DEFAULT_DISTURBANCE_GAIN
@@ -121,6 +122,7 @@ def parse_config(data: dict, where: str, base_dir: Path | None = None) -> Compan
     realtime_priority = control.integer("realtime_priority", 0, lo=0, hi=PRIORITY_MAX)
     rate_feedback = control.number("rate_feedback_bandwidth_rad_s", DEFAULT_RATE_FEEDBACK_BANDWIDTH_RAD_S, lo=0.0,
                                    hi=RATE_FEEDBACK_BANDWIDTH_MAX_RAD_S)
+    shortfall_cover = control.boolean("shortfall_cover", True)
     control.finish()
     nmpc_table = top.table("nmpc")
     disturbance_gain = nmpc_table.number("disturbance_gain", DEFAULT_DISTURBANCE_GAIN, lo=0.0, lo_open=True, hi=1.0)
@@ -129,6 +131,7 @@ def parse_config(data: dict, where: str, base_dir: Path | None = None) -> Compan
         rate_hz=rate_hz,
         realtime_priority=realtime_priority,
         rate_feedback_bandwidth_rad_s=rate_feedback,
+        shortfall_cover=shortfall_cover,
         nmpc=nmpc,
         disturbance_gain=disturbance_gain,
         reference=_settings(top.table("reference"), ReferenceConfig),

@@ -83,13 +83,15 @@ class ControllerSettings:
     fault_detector: FaultDetectorConfig = field(default_factory=FaultDetectorConfig)
     upset: UpsetConfig = field(default_factory=UpsetConfig)
     rate_feedback_bandwidth_rad_s: float = 0.0      # the FC's rate feedback around the plan (0: none)
+    shortfall_cover: bool = False                   # the FC's cover for a rotor falling short
 
     @classmethod
     def of(cls, config: CompanionConfig) -> ControllerSettings:
         return cls(airframe=config.airframe, control_period_s=config.control_period_s, nmpc=config.nmpc,
                    disturbance_gain=config.disturbance_gain, mission=config.mission, reference=config.reference,
                    touchdown=config.touchdown, fault_detector=config.fault_detector, upset=config.upset,
-                   rate_feedback_bandwidth_rad_s=config.rate_feedback_bandwidth_rad_s)
+                   rate_feedback_bandwidth_rad_s=config.rate_feedback_bandwidth_rad_s,
+                   shortfall_cover=config.shortfall_cover)
 
 
 @dataclass(frozen=True)
@@ -145,7 +147,7 @@ class Controller:
             lambda t0_s, start_ned_m: MissionReference(s.mission, start_ned_m, af, s.reference, t0_s=t0_s))
         self.disturbance = DisturbanceEstimator(af, self.period_s, s.disturbance_gain)
         self.predictor = Predictor(af, self.nmpc.rom.f, self.period_s)
-        self.rate_feedback = RateFeedbackDesign(af, s.rate_feedback_bandwidth_rad_s)
+        self.rate_feedback = RateFeedbackDesign(af, s.rate_feedback_bandwidth_rad_s, s.shortfall_cover)
         self.detector = self._new_detector()
         self.flight: Flight | None = None
         self.sent = CommandHistory()
@@ -222,8 +224,10 @@ class Controller:
         res = self.nmpc.solve(x_plan, x_ref, fault.thrust_bound_n, d)
         sp = self._setpoint(x_plan, res, fault.thrust_bound_n)
         x_next = res.x_pred[1] if res.ok else x_plan          # a failed solve plans no change of the rates
-        sp = replace(sp, rate_feedback=self.rate_feedback.feedback(x_plan, x_next, c.dt_s, fault.thrust_bound_n))
-        self.sent.add(SentCommand(time_s, x, np.r_[sp.thrust_n, res.u[rom.HIP_ACCEL]], sp.rate_feedback))
+        sp = replace(sp, rate_feedback=self.rate_feedback.feedback(x_plan, x_next, c.dt_s, fault.thrust_bound_n),
+                     shortfall_cover=self.rate_feedback.cover(x_plan[rom.HIP], fault.thrust_bound_n))
+        self.sent.add(SentCommand(time_s, x, np.r_[sp.thrust_n, res.u[rom.HIP_ACCEL]], sp.rate_feedback,
+                                  sp.shortfall_cover))
         return ControlStep(time_s, sp, x_plan, lead_s, x_ref, res, fault, confirmed_now, d)
 
     # ------------------------------------------------------------------------------------------
@@ -251,7 +255,7 @@ class Controller:
             return ours
         u = ours.input.copy()
         u[rom.THRUST] = reported
-        return SentCommand(ours.time_s, ours.state, u, ours.feedback)
+        return replace(ours, input=u)
 
     def _detect(self, time_s, x, usable, in_force, esc, limit_n) -> tuple[FaultStatus, bool]:
         """The detector's status after this frame; True at each new confirmation in a flight."""

@@ -245,12 +245,15 @@ class FcLink:
         """The setpoint answering FC instant time_ms, with the fault status (when given) and a
         TIMESYNC request (when one is due), in one datagram: one send per control step."""
         flags = mavlink.M4_SETPOINT_FLAG_THRUST_CUT if sp.thrust_cut else 0
-        fb = sp.rate_feedback
-        feedback = () if fb is None else (_floats(fb.rates_ref_frd_rad_s), _floats(fb.rates_ref_change_frd_rad_s2),
-                                          _floats(fb.gain_n_per_rad_s.ravel()))
+        fb, cover = sp.rate_feedback, sp.shortfall_cover
+        extensions = {} if fb is None else dict(rates_ref_frd_rad_s=_floats(fb.rates_ref_frd_rad_s),
+                                                rates_ref_change_frd_rad_s2=_floats(fb.rates_ref_change_frd_rad_s2),
+                                                rate_gain=_floats(fb.gain_n_per_rad_s.ravel()))
+        if cover is not None:
+            extensions["shortfall_gain"] = _floats(cover.gain.ravel())
         msgs = [mavlink.MAVLink_m4_setpoint_message(
             *self.fc_ids, int(time_ms), int(period_ms), _floats(sp.thrust_n), _floats(sp.hip_rad),
-            _floats(sp.hip_rate_rad_s), flags, *feedback)]
+            _floats(sp.hip_rate_rad_s), flags, **extensions)]
         if fault is not None:
             msgs.append(_fault_status_message(time_ms, fault))
         if self.delay.request_due(time_ms):

@@ -8,7 +8,8 @@ which this predicts with the ROM's dynamics (the NMPC's own, RK4), each sent com
 over the stretch it is in force, the motors following it with their first-order lag
 (airframe motor_time_constant_s) from the thrust the FC measured at t, plus the rate feedback
 the FC closes around each command (m4.setpoint.RateFeedback) on the predicted body rates, as
-the FC does on its gyro. The hips are not predicted: their states are the goal the
+the FC does on its gyro, and the cover the FC gives a rotor falling short of a command
+(m4.setpoint.ShortfallCover) where the command asks a rotor for more than its bound. The hips are not predicted: their states are the goal the
 controller keeps (companion.controller), which already is where the sent commands lead them.
 
 Pure logic: no clock, no I/O. With lead_s = 0 (lockstep, or a link without delay) the state
@@ -27,7 +28,7 @@ from companion.core import rom
 from companion.core.control_types import thrust_bounds
 from companion.core.rom import ND, NU, NX
 from m4.airframe import ROTOR_COUNT, Airframe
-from m4.setpoint import RateFeedback
+from m4.setpoint import RateFeedback, ShortfallCover
 
 _SUBSTEPS = 2
 _MAX_PIECE_S = 0.01                 # longer stretches are split (RK4 accuracy, the motors' lag)
@@ -43,6 +44,7 @@ class SentCommand:
     state: np.ndarray               # (20,) the measured state at that instant (hips: their goal)
     input: np.ndarray               # (8,) thrust_n as sent, hip_accel_rad_s2 as planned
     feedback: RateFeedback | None = None   # the rate feedback sent with it
+    cover: ShortfallCover | None = None    # the shortfall cover sent with it
 
     @property
     def thrust_n(self) -> np.ndarray:
@@ -130,8 +132,13 @@ class Predictor:
 
     def _command(self, sent: SentCommand, x, acting_s: float, bound) -> np.ndarray:
         """What the FC commands acting_s after `sent` took effect, the robot at state x: the
-        thrusts sent plus their rate feedback, within the bounds."""
+        thrusts sent plus their rate feedback and the cover for what the bounds hold back,
+        within the bounds."""
+        af = self._af
         thrust = sent.thrust_n
         if sent.feedback is not None:
             thrust = thrust + sent.feedback.thrust_change_n(x[rom.RATES], acting_s, self._period_s)
-        return np.clip(thrust, self._af.thrust_min_n, bound)
+        thrust = np.clip(thrust, af.thrust_min_n, af.thrust_max_n)
+        if sent.cover is not None:
+            thrust = thrust + sent.cover.thrust_change_n(np.maximum(thrust - bound, 0.0))
+        return np.clip(thrust, af.thrust_min_n, bound)

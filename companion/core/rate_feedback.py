@@ -14,6 +14,12 @@ torque comes only from the rotors' drag moments, which would spend the thrust th
 A rotor whose bound is below LIVE_SHARE of hover thrust takes no part; with fewer than three
 live rotors there is no feedback.
 
+Shortfall cover: while all four rotors are live, a rotor that falls short by s (as the FC sees
+in its ESC's speed) is covered by the other three, whose changes df solve the same rows:
+[-a_y; a_x; 1]_others df = [-a_y; a_x; 1]_short s, so the sum and the roll and pitch torque
+stay as planned (the yaw moment does not: the robot spins up, as after a confirmed loss).
+Once a rotor is known weak the plan itself flies on the others, and there is no cover.
+
 Pure logic: no clock, no I/O.
 """
 
@@ -24,15 +30,16 @@ import numpy as np
 
 from companion.core import rom
 from m4.airframe import ROTOR_COUNT, Airframe
-from m4.setpoint import RATE_GAIN_MAX_N_PER_RAD_S, RateFeedback
+from m4.setpoint import RATE_GAIN_MAX_N_PER_RAD_S, SHORTFALL_GAIN_MAX, RateFeedback, ShortfallCover
 
 LIVE_SHARE = 0.5
 
 
 class RateFeedbackDesign:
-    def __init__(self, af: Airframe, bandwidth_rad_s: float):
+    def __init__(self, af: Airframe, bandwidth_rad_s: float, shortfall_cover: bool = False):
         self.af = af
         self.bandwidth_rad_s = float(bandwidth_rad_s)
+        self.shortfall_cover = shortfall_cover
         hip = ca.SX.sym("hip", ROTOR_COUNT)
         com, inertia = rom.mass_properties(af, hip)
         arms = rom.thruster_positions(af, hip) - ca.repmat(com, 1, ROTOR_COUNT)
@@ -42,18 +49,43 @@ class RateFeedbackDesign:
         """(4, 3) thrust change per rotor per unit rate error (N per rad/s) at posture hip_rad;
         None without feedback (bandwidth 0, fewer than three live rotors, a posture the model
         cannot take)."""
-        live = np.asarray(thrust_bound_n, dtype=float) > LIVE_SHARE * self.af.hover_thrust_per_rotor_n
+        live = self._live(thrust_bound_n)
         hip = np.asarray(hip_rad, dtype=float)
         if self.bandwidth_rad_s <= 0 or live.sum() < 3 or not np.all(np.isfinite(hip)):
             return None
-        arms, inertia = (np.asarray(v) for v in self._geometry(hip))
-        allocation = np.vstack([-arms[1, live], arms[0, live], np.ones(live.sum())])
+        allocation, inertia = self._allocation(hip)
         torque_per_error = self.bandwidth_rad_s * inertia[:2, :2]
         gain = np.zeros((ROTOR_COUNT, 3))
-        gain[live, :2] = np.linalg.pinv(allocation)[:, :2] @ torque_per_error
+        gain[live, :2] = np.linalg.pinv(allocation[:, live])[:, :2] @ torque_per_error
         if not np.all(np.isfinite(gain)) or np.max(np.abs(gain)) > RATE_GAIN_MAX_N_PER_RAD_S:
             return None
         return gain
+
+    def cover(self, hip_rad, thrust_bound_n) -> ShortfallCover | None:
+        """The other rotors' cover for each rotor's shortfall at posture hip_rad; None when
+        switched off, a rotor is known weak, or the posture cannot keep sum and torque."""
+        hip = np.asarray(hip_rad, dtype=float)
+        if not self.shortfall_cover or not self._live(thrust_bound_n).all() or not np.all(np.isfinite(hip)):
+            return None
+        allocation, _ = self._allocation(hip)
+        gain = np.zeros((ROTOR_COUNT, ROTOR_COUNT))
+        for short in range(ROTOR_COUNT):
+            others = [i for i in range(ROTOR_COUNT) if i != short]
+            try:
+                gain[others, short] = np.linalg.solve(allocation[:, others], allocation[:, short])
+            except np.linalg.LinAlgError:
+                return None
+        if not np.all(np.isfinite(gain)) or np.max(np.abs(gain)) > SHORTFALL_GAIN_MAX:
+            return None
+        return ShortfallCover(np.asarray(gain, dtype=np.float32).astype(float))     # as MAVLink carries it
+
+    def _live(self, thrust_bound_n) -> np.ndarray:
+        return np.asarray(thrust_bound_n, dtype=float) > LIVE_SHARE * self.af.hover_thrust_per_rotor_n
+
+    def _allocation(self, hip: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(3, 4) each rotor's roll and pitch torque and sum per newton, and the (3, 3) inertia."""
+        arms, inertia = (np.asarray(v) for v in self._geometry(hip))
+        return np.vstack([-arms[1], arms[0], np.ones(ROTOR_COUNT)]), inertia
 
     def feedback(self, x_start, x_next, dt_s: float, thrust_bound_n) -> RateFeedback | None:
         """The feedback for a plan from ROM state x_start whose next node, dt_s later, is x_next."""

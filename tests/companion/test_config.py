@@ -113,6 +113,7 @@ def test_relative_mission_and_airframe_files_are_found_beside_the_config(tmp_pat
     ("[control]\nrealtime_priority = 100", "realtime_priority"),
     ("[control]\nrealtime_priority = 50.0", "realtime_priority"),
     ("[control]\nrealtime_priority = true", "realtime_priority"),
+    ("[control]\nshortfall_cover = 1", "shortfall_cover"),
     ("[nmpc]\nhorizon = 0", "horizon"),
     ("[nmpc]\nhorizon = 2.5", "horizon"),
     ("[nmpc]\ndt_s = -0.1", "dt_s"),

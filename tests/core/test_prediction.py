@@ -111,3 +111,23 @@ def test_the_fcs_rate_feedback_is_predicted_as_the_fc_closes_it():
         rates[name] = predicted[rom.RATES][0]
     assert rates["without"] == pytest.approx(2.0, abs=0.05)
     assert 0.0 < rates["with"] < 0.6 * rates["without"]
+
+
+def test_the_fcs_cover_for_a_rotor_asked_beyond_its_bound_is_predicted():
+    """Commands sent before the loss was known ask rotor 4 for hover thrust; it gives nothing.
+    With the cover sent along, the FC moves the others to keep sum and torque, and the
+    prediction keeps the robot level; without it, the robot starts to roll and pitch."""
+    x = rom.hover_state(AF)
+    hover = AF.hover_thrust_per_rotor_n
+    lost = [AF.thrust_max_n] * 3 + [AF.thrust_min_n]
+    rates = {}
+    for name, cover in (("with", RateFeedbackDesign(AF, 0.0, shortfall_cover=True).cover(x[rom.HIP], NO_FAULT)),
+                        ("without", None)):
+        history = CommandHistory()
+        for k in range(6):
+            history.add(SentCommand(k * PERIOD, x, np.r_[np.full(4, hover), np.zeros(4)], None, cover))
+        predicted = Predictor(AF, F, PERIOD).predict(x, 0.1, 0.06, history, np.zeros(rom.ND), lost,
+                                                     np.full(4, hover))
+        rates[name] = np.linalg.norm(predicted[rom.RATES][:2])
+    assert rates["without"] > 0.5
+    assert rates["with"] < 0.05

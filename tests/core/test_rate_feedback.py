@@ -10,7 +10,7 @@ import pytest
 from companion.core import rom
 from companion.core.rate_feedback import RateFeedbackDesign
 from m4.airframe import load_airframe
-from m4.setpoint import RATE_GAIN_MAX_N_PER_RAD_S, RateFeedback
+from m4.setpoint import RATE_GAIN_MAX_N_PER_RAD_S, SHORTFALL_GAIN_MAX, RateFeedback, ShortfallCover
 
 AF = load_airframe()
 BW = 20.0
@@ -69,3 +69,37 @@ def test_the_fc_side_reads_no_feedback_from_zero_or_unusable_fields_and_holds_th
     assert fb.thrust_change_n(np.zeros(3), 0.01, 0.02)[0] == pytest.approx(1.1)
     assert fb.thrust_change_n(np.zeros(3), 0.5, 0.02)[0] == pytest.approx(1.2)
     assert np.all(fb.thrust_change_n([np.nan, 0, 0], 0.0, 0.02) == 0.0)
+
+
+COVERING = RateFeedbackDesign(AF, BW, shortfall_cover=True)
+
+
+@pytest.mark.parametrize("hip_deg", [[45, 45, 45, 45], [87, 2, 53, 23]])
+def test_the_other_three_rotors_cover_a_shortfall_keeping_sum_and_roll_and_pitch_torque(hip_deg):
+    hip = np.radians(hip_deg)
+    cover = COVERING.cover(hip, ALL_LIVE)
+    for short in range(4):
+        shortfall = np.zeros(4)
+        shortfall[short] = 5.0
+        delivered_change = cover.thrust_change_n(shortfall) - shortfall
+        torque, total = torque_and_sum(hip, delivered_change)
+        assert torque == pytest.approx([0.0, 0.0], abs=1e-5)
+        assert total == pytest.approx(0.0, abs=1e-5)
+        assert cover.gain[short, short] == 0.0             # a rotor never covers itself
+    assert np.all(cover.gain.astype(np.float32) == cover.gain)   # as MAVLink carries it
+
+
+def test_no_cover_when_switched_off_or_once_a_rotor_is_known_weak():
+    hip = np.full(4, AF.nominal_hip_rad)
+    weak = ALL_LIVE.copy()
+    weak[3] = 0.2 * AF.hover_thrust_per_rotor_n
+    assert COVERING.cover(hip, weak) is None
+    assert DESIGN.cover(hip, ALL_LIVE) is None
+
+
+def test_the_fc_side_reads_no_cover_from_zero_or_unusable_fields():
+    assert ShortfallCover.from_fields(np.zeros(16)) is None
+    assert ShortfallCover.from_fields(np.r_[np.nan, np.ones(15)]) is None
+    assert ShortfallCover.from_fields(np.full(16, 2 * SHORTFALL_GAIN_MAX)) is None
+    cover = ShortfallCover.from_fields(np.r_[0.0, 0.0, 0.0, 1.0, np.zeros(12)])
+    assert cover.thrust_change_n([0.0, 0.0, 0.0, 3.0]) == pytest.approx([3.0, 0.0, 0.0, 0.0])
