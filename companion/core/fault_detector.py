@@ -146,6 +146,11 @@ class FaultDetector:
         self._lag_n = np.zeros(ROTOR_COUNT)        # thrust the model says the motors deliver
         self._cmd_lag_n = np.zeros(ROTOR_COUNT)    # the command through the motor lag: what the ESCs are asked for
         self._asked_n = np.zeros(ROTOR_COUNT)      # the command in force (clipped to the limits)
+        # The FC may change a command anywhere between our frames (its rate feedback, its cover
+        # of a failing rotor): the lagged command lies between these two, each frame's change
+        # taken at its start or at its end.
+        self._cmd_lag_low_n = np.zeros(ROTOR_COUNT)
+        self._cmd_lag_high_n = np.zeros(ROTOR_COUNT)
         self._esc_time_s = -math.inf               # newest ESC frame used
         self._esc_thrust_n = np.zeros(ROTOR_COUNT)     # its speed-implied thrusts
         self._esc_rpm: np.ndarray | None = None
@@ -202,17 +207,20 @@ class FaultDetector:
         if thrust_limit_n is not None:
             limit = np.asarray(thrust_limit_n, dtype=float).reshape(ROTOR_COUNT)
             self._limit_n = np.where(np.isfinite(limit), limit, self._af.thrust_max_n)
-        asked = self._asked_n = np.clip(cmd, self._af.thrust_min_n, self._limit_n)
+        asked_before, asked = self._asked_n, np.clip(cmd, self._af.thrust_min_n, self._limit_n)
+        self._asked_n = asked
         target = self._expected_response(asked)
         prev, self._prev = self._prev, (time_s, x)
         dt = None if prev is None else time_s - prev[0]
         if dt is None or not 0 < dt <= self._c.max_gap_s:
             self._window.clear()
-            self._lag_n, self._cmd_lag_n = target, asked
+            self._lag_n, self._cmd_lag_n, self._cmd_lag_low_n, self._cmd_lag_high_n = target, asked, asked, asked
             self._run = None
             return self.status
         average_n, self._lag_n = self._model.motor_response(self._lag_n, target, dt)
         self._cmd_lag_n = self._model.motor_response(self._cmd_lag_n, asked, dt)[1]
+        self._cmd_lag_low_n = self._model.motor_response(self._cmd_lag_low_n, np.minimum(asked_before, asked), dt)[1]
+        self._cmd_lag_high_n = self._model.motor_response(self._cmd_lag_high_n, np.maximum(asked_before, asked), dt)[1]
         reading = self._esc_reading(time_s, esc)
         evidence = self._residual_evidence(time_s, prev[1], x, average_n, cmd, dt, reading)
         if reading is not None:
@@ -252,9 +260,9 @@ class FaultDetector:
         esc_dt, self._esc_time_s = esc.time_s - self._esc_time_s, esc.time_s
         if not np.any(np.isfinite(esc.rpm)):
             return None
-        # Overspeed is judged against the larger of the lagged and the new command: a rotor
-        # slowing down after a command drop still turns faster than the lagged model says.
-        reading = read_escs(esc, np.maximum(self._cmd_lag_n, self._asked_n), self._propeller)
+        # Overspeed is judged against the most the rotor may have been asked: a rotor slowing
+        # down after a command drop still turns faster than the lagged model says.
+        reading = read_escs(esc, np.maximum(self._cmd_lag_high_n, self._asked_n), self._propeller)
         self._esc_thrust_n = np.where(np.isfinite(reading.thrust_n), reading.thrust_n, self._cmd_lag_n)
         # The rotor speed follows its first-order lag: speed = heading + decay (previous - heading).
         rpm = np.where(np.isfinite(reading.rpm), reading.rpm, self._propeller.rpm(self._esc_thrust_n))
@@ -271,10 +279,13 @@ class FaultDetector:
         if math.isfinite(reading.battery_ceiling_n):
             expected = np.minimum(expected, self._common_floor_n(reading))
         deficit = expected - self._esc_thrust_n
-        i = int(np.argmax(deficit))
-        alone = bool(np.all(np.delete(deficit, i) < c.deficit_min_n / 2))
-        large = deficit[i] >= c.deficit_min_n or (deficit[i] >= c.deficit_min_n / 2
-                                                   and deficit[i] >= c.shortfall_min * expected[i])
+        # A rotor is short only of the least it may have been asked (a rotor the FC is
+        # spinning up between our frames is not short).
+        least = np.minimum(expected, self._cmd_lag_low_n) - self._esc_thrust_n
+        i = int(np.argmax(least))
+        alone = bool(np.all(np.delete(least, i) < c.deficit_min_n / 2))
+        large = least[i] >= c.deficit_min_n or (least[i] >= c.deficit_min_n / 2
+                                                 and least[i] >= c.shortfall_min * expected[i])
         self._deficit_n = deficit
         kind = _KIND_OF_CONDITION[reading.condition[i]]
         if kind is FaultKind.DEGRADED and self._esc_heading_n[i] <= _STOPPED_SHARE * expected[i]:
