@@ -377,6 +377,7 @@ class FaultDetector:
         elif self._kind is FaultKind.DAMAGE and expected > self._c.deficit_min_n:
             self._effectiveness = float(np.clip(delivered / expected, 0.0, 1.0))
             self._estimate_n = self._effectiveness * self._limit_n[i]
+            self._lag_n[i] *= self._effectiveness    # the same speed, less thrust at once: no lag to wait for
         else:
             self._estimate_n = self._clip(delivered)
         self._window.clear()                   # the evidence was read against the healthy model

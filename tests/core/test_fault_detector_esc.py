@@ -101,21 +101,33 @@ def test_a_lost_propeller_overspeeds_its_motor_and_is_told_from_a_stopped_one():
     assert s.thrust_max_estimate_n[0] == pytest.approx(AF.thrust_min_n)
 
 
+def chip(e):
+    e.blade_share[1] = 0.5
+
+
+def test_a_damaged_propeller_is_sized_by_the_thrust_it_gives_at_its_speed():
+    """Rotor 2's propeller loses half its blade: half the thrust at a speed, 9 % faster on the
+    lighter load; its ESC sees nothing wrong, the residual does: a damaged propeller, its ceiling
+    what a full command now gives, within 10 % of hover thrust from confirmation on."""
+    statuses = fly(Escs(), hover(40), {5: chip})
+    k, s = first_confirmed(statuses)
+    assert s.rotor == 2 and s.kind is FaultKind.DAMAGE and (k - 5 + 1) * DT <= 0.12 + 1e-9
+    ceiling_n = 0.5 * 1.09**2 * AF.thrust_max_n
+    assert all(abs(s.thrust_max_estimate_n[1] - ceiling_n) <= 0.1 * HOVER_N for s in statuses[k:])
+
+
 def test_a_damaged_propeller_stays_damaged_when_a_current_read_while_braking_says_unloaded():
-    """Rotor 2's propeller loses half its blade: half the thrust, 9 % faster on the lighter
-    load; its ESC sees nothing wrong, the residual does: a damaged propeller. Later its ESC
-    reports a current sampled while it braked the rotor (0.3 A, held until the next poll 0.1 s
-    on): on a rotor turning fast that reads as unloaded, yet the residual measures half its
-    thrust: it stays a damaged propeller with its estimate, never a lost one."""
-    def chip(e):
-        e.blade_share[1] = 0.5
+    """The damaged propeller above, confirmed; then its ESC reports a current sampled while it
+    braked the rotor (0.3 A, held until the next poll 0.1 s on): on a rotor turning fast that
+    reads as unloaded, yet the residual measures half its thrust: it stays a damaged propeller
+    with its estimate, never a lost one."""
     def brake(e):
         e.stale_current_a[1] = 0.3
     def poll(e):
         e.stale_current_a[1] = np.nan
     statuses = fly(Escs(), hover(40), {5: chip, 20: brake, 25: poll})
-    k, s = first_confirmed(statuses)
-    assert s.rotor == 2 and s.kind is FaultKind.DAMAGE and k < 20
+    k, _ = first_confirmed(statuses)
+    assert k < 20
     assert all(s.kind is FaultKind.DAMAGE and s.message == "thrust loss rotor 2 (damage)" for s in statuses[k:])
     assert min(s.thrust_max_estimate_n[1] for s in statuses[k:]) >= 0.3 * AF.thrust_max_n
 
