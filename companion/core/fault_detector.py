@@ -68,6 +68,7 @@ from companion.core.fault_residual import (
 # leave this many times that unexplained on top of its share.
 _NOISE_CHI2_MARGIN = 3.0
 _STOPPED_SHARE = 0.1      # an ESC whose speed heads for less than this share of the asked thrust: a stopped motor
+_LOST_SHARE = 0.25        # a damaged propeller sized below this share of its command may be a lost one
 _LAG_SPANS = 3.0          # the lag is undone in the sizing over spans up to this many motor time constants
 _KIND_OF_CONDITION = {RotorCondition.STOPPED: FaultKind.MOTOR, RotorCondition.UNLOADED: FaultKind.PROPELLER,
                       RotorCondition.SLOW: FaultKind.DEGRADED, RotorCondition.NORMAL: FaultKind.DEGRADED}
@@ -90,7 +91,6 @@ class FaultDetectorConfig:
     shortfall_min: float = 0.3            # share of its lagged command a rotor may fall short by (ESC path)
     saturation_margin_n: float = 0.5      # a rotor commanded within this of its bound is at its bound
     gross_share: float = 0.5              # a residual vote for a rotor short of this share of its command is fast too
-    lost_share: float = 0.25              # a damaged propeller giving less than this share of its command may be lost
     sag_floor_share: float = 0.6          # no ESC voltage: a battery may lower every ceiling to this share of the limit
     ceiling_deficit_min_n: float = 0.5    # a deficit this large of the faulty rotor lowers its estimate
     estimate_gain: float = 0.3            # weight of each such observation after confirmation
@@ -110,7 +110,7 @@ class FaultDetectorConfig:
                      "bias_time_constant_s", "max_gap_s", "probe_n"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"FaultDetectorConfig.{name} must be > 0")
-        for name in ("estimate_gain", "rise_gain", "sag_floor_share", "gross_share", "lost_share"):
+        for name in ("estimate_gain", "rise_gain", "sag_floor_share", "gross_share"):
             if getattr(self, name) > 1:
                 raise ValueError(f"FaultDetectorConfig.{name} must be <= 1, got {getattr(self, name)}")
 
@@ -388,12 +388,12 @@ class FaultDetector:
         less than the model says, higher when, asked above its estimate, it measurably gives more.
         An ESC that shows the rotor stopped or unloaded after all (a lost propeller takes a few
         frames to overspeed) names the kind and zeroes the estimate; unloaded renames a damaged
-        propeller only once the residual finds it giving less than lost_share of its command (a
+        propeller only once the residual finds it giving less than _LOST_SHARE of its command (a
         damaged propeller turns a little fast, and a current its ESC sampled while braking it,
         held until the next poll, reads as no load)."""
         c, i = self._c, self._rotor
         later = None if reading is None else _KIND_OF_CONDITION.get(reading.condition[i])
-        gives_thrust = self._kind is FaultKind.DAMAGE and self._effectiveness >= c.lost_share
+        gives_thrust = self._kind is FaultKind.DAMAGE and self._effectiveness >= _LOST_SHARE
         if (later is FaultKind.MOTOR or later is FaultKind.PROPELLER and not gives_thrust) and self._kind is not later:
             self._kind, self._effectiveness, self._estimate_n = later, 1.0, self._af.thrust_min_n
         delivered, expected = evidence.delivered_n[i], evidence.expected_n[i]
