@@ -20,7 +20,10 @@ a new one (`...-HHMMSS-2.tlog`). When a file is closed, the oldest logs of the f
 until all of them fit in `max_total_mb` (the file being written is never removed).
 
 Timing: the control loop only appends to a queue (a deque: no lock, no I/O, no packing); a
-thread of its own packs the decisions, writes and flushes every `FLUSH_S`. If the folder
+thread of its own, every `FLUSH_S`, stamps each packet as it crossed the link (never decoded
+nor packed again), packs the decisions with precompiled structs (m4/mavlink/frame_packer.py:
+pymavlink's packing, ten times slower, held the interpreter's lock long enough to delay
+control steps by milliseconds) and writes the batch in one call a file. If the folder
 cannot be written at start the companion says so and flies without a log (a flight without a
 log beats no flight); a write error later is reported once and ends the logging.
 """
@@ -35,7 +38,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from companion.config import LogSettings
-from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
+from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from m4.mavlink.frame_packer import FramePacker
 from m4.mavlink.tlog import TLOG_TIME
 
 log = logging.getLogger("m4-companion")
@@ -48,7 +52,7 @@ _NEW_FLIGHT = object()            # a queue entry: start a new file here
 @dataclass(frozen=True)
 class Decision:
     time_ms: int
-    values: tuple[tuple[str, float], ...]
+    values: tuple[tuple[bytes, float], ...]       # (NAMED_VALUE_FLOAT name, value)
 
 
 class FlightLog:
@@ -64,9 +68,11 @@ class FlightLog:
         self._armed: bool | None = None
         self._file = None
         self._size = 0
+        self._max_file_bytes = settings.max_file_mb * 1e6
         self._stop = threading.Event()
-        self._packets: list[bytes] = []               # what self._mav packs (the writer thread's)
-        self._mav = new_mav(self, FC_SYSTEM_ID, COMPANION_COMPONENT_ID)
+        self._decision_frames = FramePacker(mavlink.MAVLink_named_value_float_message, FC_SYSTEM_ID,
+                                            COMPANION_COMPONENT_ID)
+        self._seq = 0                                 # of the decision frames (the writer thread's)
         self._thread: threading.Thread | None = None
 
     @classmethod
@@ -103,22 +109,18 @@ class FlightLog:
         """What the controller decided for the telemetry instant `time_ms` (a ControlStep)."""
         if self._thread is None:
             return
-        values = [("step_ms", latency_s * 1e3), ("com_n", step.state[0]), ("com_e", step.state[1]),
-                  ("com_d", step.state[2])]
+        values = [(b"step_ms", latency_s * 1e3), (b"com_n", step.state[0]), (b"com_e", step.state[1]),
+                  (b"com_d", step.state[2])]
         if step.reference is not None:
-            values += [("ref_n", step.reference[0, 0]), ("ref_e", step.reference[0, 1]),
-                       ("ref_d", step.reference[0, 2])]
+            values += [(b"ref_n", step.reference[0, 0]), (b"ref_e", step.reference[0, 1]),
+                       (b"ref_d", step.reference[0, 2])]
         if step.nmpc is not None:
             r = step.nmpc
-            values += [("nmpc_ms", r.solve_ms), ("nmpc_iter", r.iterations), ("nmpc_cost", r.cost),
-                       ("nmpc_ok", r.ok), ("nmpc_fb", r.fallback)]
+            values += [(b"nmpc_ms", r.solve_ms), (b"nmpc_iter", r.iterations), (b"nmpc_cost", r.cost),
+                       (b"nmpc_ok", r.ok), (b"nmpc_fb", r.fallback)]
         self._queue.append((self._clock_ns() // 1000, Decision(int(time_ms), tuple(values))))
 
     # -- the writer thread -------------------------------------------------------------------
-    def write(self, packet: bytes) -> None:
-        """Where self._mav puts a packed decision (writer thread only)."""
-        self._packets.append(bytes(packet))
-
     def _run(self) -> None:
         while not self._stop.wait(FLUSH_S):
             if not self._drain():
@@ -126,19 +128,21 @@ class FlightLog:
         self._drain()
 
     def _drain(self) -> bool:
-        """Write what is queued; False after a write error (reported once; logging ends)."""
+        """Write what is queued, one write a file; False after a write error (reported once;
+        logging ends)."""
+        chunk: list[bytes] = []                       # tlog records for the current file
         try:
             while self._queue:
                 entry = self._queue.popleft()
                 if entry is _NEW_FLIGHT:
-                    self._close_file()
-                    self._open()
+                    chunk = self._next_file(chunk)
                     continue
-                time_us, payload = entry
-                for packet in self._pack(payload):
-                    self._write(time_us, packet)
-            if self._file is not None:
-                self._file.flush()
+                for record in self._records(*entry):
+                    if self._size >= self._max_file_bytes:
+                        chunk = self._next_file(chunk)
+                    chunk.append(record)
+                    self._size += len(record)
+            self._write(chunk)
             return True
         except OSError as e:
             log.error("flight log: cannot write %s (%s); no more flight log this run", self.files[-1], e.strerror or e)
@@ -146,21 +150,30 @@ class FlightLog:
             self._thread = None
             return False
 
-    def _pack(self, payload) -> list[bytes]:
+    def _records(self, time_us: int, payload) -> list[bytes]:
+        """The tlog records of one queue entry: a packet as it crossed the link, or a decision's
+        NAMED_VALUE_FLOATs."""
+        stamp = TLOG_TIME.pack(time_us & ~0x3)
         if not isinstance(payload, Decision):
-            return [payload]
+            return [stamp + payload]
+        records = []
         for name, value in payload.values:
-            self._mav.named_value_float_send(payload.time_ms, name.encode(), float(value))
-        packets, self._packets = self._packets, []
-        return packets
+            records.append(stamp + self._decision_frames.pack(self._seq, payload.time_ms, value, name))
+            self._seq += 1
+        return records
 
-    def _write(self, time_us: int, packet: bytes) -> None:
-        if self._size >= self.settings.max_file_mb * 1e6:
-            self._close_file()
-            self._open()
-        self._file.write(TLOG_TIME.pack(time_us & ~0x3) + packet)
-        self._size += TLOG_TIME.size + len(packet)
-        self.records += 1
+    def _write(self, chunk: list[bytes]) -> None:
+        if chunk:
+            self._file.write(b"".join(chunk))
+            self._file.flush()
+            self.records += len(chunk)
+
+    def _next_file(self, chunk: list[bytes]) -> list[bytes]:
+        """Write the current file's last records, close it and open the next; the new chunk."""
+        self._write(chunk)
+        self._close_file()
+        self._open()
+        return []
 
     def _open(self) -> None:
         stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime(self._clock_ns() / 1e9))
