@@ -8,7 +8,9 @@ in this process, alternately with the flight log on and off, and times every con
 each: the step's wall time (median, p99, max: what the loop's timing feels, noisy under
 load), the loop thread's CPU time per step (median: robust to load), the whole process's
 CPU time per control step (every thread, the log's writer included), and the steps held up
-more than WAIT_MS beyond their own CPU time (waiting for the GIL or a core).
+more than WAIT_MS beyond their own CPU time (waiting for the GIL or a core). With the log on,
+also the writer thread's CPU time per batch: how long it can keep the GIL from the loop (a
+write releases it), the cause of held-up steps that load on the machine cannot fake.
 """
 
 from __future__ import annotations
@@ -38,10 +40,12 @@ class StepTimes:
     wall_ms: list[float] = field(default_factory=list)      # each step's wall time
     cpu_ms: list[float] = field(default_factory=list)       # each step's CPU time in the loop's thread
     process_cpu_ms: float = 0.0                             # the process's CPU time over the flight
+    writer_batch_cpu_ms: list[float] = field(default_factory=list)   # the log writer's, each batch
 
     def __add__(self, other: StepTimes) -> StepTimes:
         return StepTimes(self.wall_ms + other.wall_ms, self.cpu_ms + other.cpu_ms,
-                         self.process_cpu_ms + other.process_cpu_ms)
+                         self.process_cpu_ms + other.process_cpu_ms,
+                         self.writer_batch_cpu_ms + other.writer_batch_cpu_ms)
 
 
 def step_times(scenario: str, seconds: float, log_dir: Path | None) -> StepTimes:
@@ -58,6 +62,14 @@ def step_times(scenario: str, seconds: float, log_dir: Path | None) -> StepTimes
         times.cpu_ms.append((time.thread_time() - start_cpu) * 1e3)
         times.wall_ms.append((time.perf_counter() - start) * 1e3)
     app._answer = timed
+    drain = app.flight_log._drain
+
+    def timed_drain():
+        start_cpu = time.thread_time()
+        ok = drain()
+        times.writer_batch_cpu_ms.append((time.thread_time() - start_cpu) * 1e3)
+        return ok
+    app.flight_log._drain = timed_drain
     thread = threading.Thread(target=app.run, daemon=True)
     cpu_start = time.process_time()
     thread.start()
@@ -70,7 +82,7 @@ def step_times(scenario: str, seconds: float, log_dir: Path | None) -> StepTimes
         close_app(app)                  # the log's writer flushes and ends here: its CPU counts
     times.process_cpu_ms = (time.process_time() - cpu_start) * 1e3
     skip = WARM_START_STEPS             # the first steps build the warm start
-    return StepTimes(times.wall_ms[skip:], times.cpu_ms[skip:], times.process_cpu_ms)
+    return StepTimes(times.wall_ms[skip:], times.cpu_ms[skip:], times.process_cpu_ms, times.writer_batch_cpu_ms)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -91,6 +103,10 @@ def main(argv: list[str] | None = None) -> int:
               f"p99 {np.percentile(wall, 99):.2f} ms, max {wall.max():.2f} ms; CPU time median "
               f"{np.median(r.cpu_ms):.2f} ms (the loop's thread), {r.process_cpu_ms / steps:.2f} ms per step "
               f"(the whole process); {held} steps held up over {WAIT_MS:g} ms beyond their CPU time")
+        if r.writer_batch_cpu_ms:
+            batch = np.array(r.writer_batch_cpu_ms)
+            print(f"  the log's writer: {len(batch)} batches, CPU time per batch median {np.median(batch):.2f} ms, "
+                  f"p99 {np.percentile(batch, 99):.2f} ms, max {batch.max():.2f} ms")
     return 0
 
 
