@@ -44,7 +44,7 @@ from m4.mavlink.tlog import TLOG_TIME
 
 log = logging.getLogger("m4-companion")
 
-FLUSH_S = 0.2
+FLUSH_S = 0.05                    # a batch: ~2.5 control steps, ~0.1-0.3 ms of the writer holding the GIL
 PATTERN = "flight-*.tlog"
 _NEW_FLIGHT = object()            # a queue entry: start a new file here
 
