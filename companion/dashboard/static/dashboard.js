@@ -352,15 +352,24 @@ const handlers = {
   },
 };
 
+// What the fault is, the rotor's name added to the message's own parentheses (the fault's
+// kind): "thrust loss rotor 4 (rear-right, motor)". The message stays word for word the
+// STATUSTEXT the companion sent.
+function faultWhat(p) {
+  const what = p.message || (p.rotor ? `rotor ${p.rotor}` : "unknown rotor");
+  if (!airframe || !p.rotor) return what;
+  const name = airframe.rotor_names[p.rotor - 1];
+  const kind = what.match(/^(.*) \((.+)\)$/);
+  return kind ? `${kind[1]} (${name}, ${kind[2]})` : `${what} (${name})`;
+}
+
 function showFault(p) {
   const banner = $("banner");
   const state = ["healthy", "suspect", "confirmed"].includes(p.state) ? p.state : "waiting";
   let text = "no fault";
   if (state !== "healthy") {
-    const what = p.message || (p.rotor ? `rotor ${p.rotor}` : "unknown rotor");
-    const name = airframe && p.rotor ? ` (${airframe.rotor_names[p.rotor - 1]})` : "";
     const when = isNum(p.detected_at_s) ? `, detected at t = ${p.detected_at_s.toFixed(2)} s` : "";
-    text = `${state === "confirmed" ? "FAULT" : "SUSPECT"}: ${what.toUpperCase()}${name}${when}`
+    text = `${state === "confirmed" ? "FAULT" : "SUSPECT"}: ${faultWhat(p)}${when}`
       + ` \u2014 thrust ceilings ${fmtVec(p.thrust_max_estimate_n, 1)} N`;
   }
   banner.className = state;

@@ -42,7 +42,7 @@ def test_a_replayed_flight_shows_the_fault_the_posture_and_every_plot(chromium, 
     assert chromium.evaluate("document.body.dataset.status") == "ended"
     assert chromium.evaluate("document.getElementById('banner').className") == "confirmed"
     banner_text = chromium.evaluate("document.getElementById('banner').textContent")
-    assert "THRUST LOSS ROTOR 4 (MOTOR) (rear-right), detected at t = 1.04 s" in banner_text
+    assert "FAULT: thrust loss rotor 4 (rear-right, motor), detected at t = 1.04 s" in banner_text
     hips = [float(v) for v in chromium.evaluate("document.getElementById('r-hip').textContent").split()]
     assert hips[0] > 80 and hips[1] < 10                   # the legs swung: rotor 1 out, rotor 2 folded
     assert chromium.evaluate("document.querySelectorAll('#plots canvas').length") == 8
@@ -85,7 +85,7 @@ def test_the_banner_turns_red_when_a_live_fault_is_published(chromium, dashboard
     banner = chromium.rect("#banner")
     assert _share(before, banner, FAULT_RED) < 0.01
     assert _share(after, banner, FAULT_RED) > 0.6
-    assert "THRUST LOSS ROTOR 2 (rear-left)" in chromium.evaluate("document.getElementById('banner').textContent")
+    assert "FAULT: thrust loss rotor 2 (rear-left), detected" in chromium.evaluate("document.getElementById('banner').textContent")
     assert 1 - _share(after, chromium.rect("#view3d"), PANEL, tolerance=3) > 0.05
 
 
