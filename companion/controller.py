@@ -44,7 +44,14 @@ import numpy as np
 
 from companion.core import rom
 from companion.core.applied_thrust import AppliedThrust
-from companion.core.control_types import FaultState, FaultStatus, plausible_state, safe_setpoint, thrust_bounds
+from companion.core.control_types import (
+                                          FaultState,
+                                          FaultStatus,
+                                          one_period_apart,
+                                          plausible_state,
+                                          safe_setpoint,
+                                          thrust_bounds,
+)
 from companion.core.disturbance import DisturbanceEstimator
 from companion.core.esc_evidence import EscSample, PropellerModel
 from companion.core.fault_detector import FaultDetector, FaultDetectorConfig
@@ -62,7 +69,6 @@ from m4.setpoint import Setpoint
 if TYPE_CHECKING:
     from companion.config import CompanionConfig
 
-_CONSECUTIVE_TOLERANCE = 0.5     # steps closer than (1 +- this) periods count as consecutive
 HIP_RESYNC_RAD = 0.2             # hip goal this far from the measured joint: restart it there
 
 DetectorFactory = Callable[[], FaultDetector]
@@ -243,7 +249,7 @@ class Controller:
         newest = self.sent.newest
         if newest is None:
             return False
-        return abs(time_s - newest.time_s - self.period_s) <= _CONSECUTIVE_TOLERANCE * self.period_s
+        return one_period_apart(newest.time_s, time_s, self.period_s)
 
     def _in_force_last_period(self, time_s: float, lead_s: float) -> SentCommand | None:
         """The command the FC flew over the period that ends at time_s (None: none of ours):

@@ -20,9 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from companion.core.control_types import one_period_apart
 from m4.airframe import ROTOR_COUNT
-
-_CONSECUTIVE_TOLERANCE = 0.25        # reports (1 +- this) periods apart count as consecutive
 
 
 class AppliedThrust:
@@ -55,7 +54,7 @@ class AppliedThrust:
         now = self._newest[1]
         previous = self._previous
         p = self.period_s
-        if previous is None or abs(time_s - previous[0] - p) > _CONSECUTIVE_TOLERANCE * p:
+        if previous is None or not one_period_apart(previous[0], time_s, p):
             return now.copy()
         share_previous = (max(float(lead_s), 0.0) % p) / p if np.isfinite(lead_s) else 0.0
         return share_previous * previous[1] + (1.0 - share_previous) * now

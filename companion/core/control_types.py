@@ -3,6 +3,8 @@ feed and the tests share with the controller without loading a solver.
 
 - FaultState, FaultKind, FaultStatus: the fault detector's answer (M4_FAULT_STATUS's content).
 - plausible_state: whether a measured ROM state can be planned from.
+- one_period_apart: whether two frame instants are consecutive control steps (the controller's
+  disturbance update and the FC's applied thrust both ask it).
 - thrust_bounds, safe_setpoint: the last word on a setpoint before it leaves the process
   (every value finite, thrusts within [thrust_min, bound], hips within the joint range and
   the same-side sum, rates within the servo's limit; what is not finite becomes a safe value).
@@ -20,6 +22,8 @@ from m4.airframe import ROTOR_COUNT, Airframe
 from m4.setpoint import Setpoint
 
 _HIP_MARGIN_RAD = 0.5            # measured hips beyond the joint range by more than this are broken
+_CONSECUTIVE_TOLERANCE = 0.5     # of a period: the FC's frames are on a grid of the period, and half
+                                 # of one tells one period (jittered) from none or two (a lost frame)
 _PLAUSIBLE = ((rom.P, 1e5), (rom.EULER, 2 * np.pi), (rom.V, 100.0), (rom.RATES, 100.0), (rom.HIP_RATE, 100.0))
 
 
@@ -62,6 +66,12 @@ def plausible_state(af: Airframe, x) -> bool:
     hip = x[rom.HIP]
     hip_ok = np.all(hip >= af.hip_min_rad - _HIP_MARGIN_RAD) and np.all(hip <= af.hip_max_rad + _HIP_MARGIN_RAD)
     return bool(hip_ok and all(np.all(np.abs(x[part]) <= limit) for part, limit in _PLAUSIBLE))
+
+
+def one_period_apart(earlier_s: float, later_s: float, period_s: float) -> bool:
+    """Whether frames at these FC instants are consecutive control steps: one period apart,
+    within _CONSECUTIVE_TOLERANCE of a period."""
+    return abs(later_s - earlier_s - period_s) <= _CONSECUTIVE_TOLERANCE * period_s
 
 
 def thrust_bounds(af: Airframe, thrust_max_n) -> np.ndarray:

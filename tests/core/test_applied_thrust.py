@@ -45,3 +45,8 @@ def test_a_report_that_cannot_tell_forgets_what_was_reported(bad):
 def test_a_repeated_frame_does_not_shift_the_previous_report():
     a = reports((1.00, 10.0), (1.02, 14.0), (1.02, 14.0))
     np.testing.assert_allclose(a.over_period(1.02, 0.01), np.full(4, 12.0))
+
+
+def test_reports_a_jittered_period_apart_mix_as_the_controller_counts_its_steps_consecutive():
+    a = reports((1.00, 10.0), (1.027, 14.0))          # 1.35 periods: the next frame, late, not a lost one
+    np.testing.assert_allclose(a.over_period(1.027, 0.01), np.full(4, 12.0))
