@@ -32,6 +32,10 @@ import numpy as np
 from m4.airframe import ROTOR_COUNT, Airframe
 
 _RAD_S_PER_RPM = 2.0 * math.pi / 60.0
+# What ESC_TELEMETRY_1_TO_4 can carry (uint16 rpm, centiamps, centivolts): beyond it a number
+# is no reading, and its powers would overflow.
+_RPM_MAX = 65535.0
+_CURRENT_MAX_A = _VOLTAGE_MAX_V = 655.35
 
 
 class RotorCondition(IntEnum):
@@ -101,9 +105,9 @@ def read_escs(sample: EscSample, expected_n: np.ndarray, model: PropellerModel,
               th: EscThresholds = EscThresholds()) -> EscReading:
     """The thrusts and conditions of one ESC frame, against the thrust the rotors should give now
     (the command through the motor lag, within the battery's ceiling)."""
-    rpm = np.asarray(sample.rpm, dtype=float).reshape(ROTOR_COUNT)
-    current = np.asarray(sample.current_a, dtype=float).reshape(ROTOR_COUNT)
-    voltage = np.asarray(sample.voltage_v, dtype=float).reshape(ROTOR_COUNT)
+    rpm = _reported(sample.rpm, _RPM_MAX)
+    current = _reported(sample.current_a, _CURRENT_MAX_A)
+    voltage = _reported(sample.voltage_v, _VOLTAGE_MAX_V)
     volts = voltage[np.isfinite(voltage) & (voltage > 0)]
     ceiling = model.ceiling_n(float(np.median(volts))) if volts.size else math.inf
     expected_rpm = model.rpm(np.minimum(expected_n, ceiling))
@@ -124,6 +128,13 @@ def read_escs(sample: EscSample, expected_n: np.ndarray, model: PropellerModel,
         conditions.append(_condition(speed_share[i], unloaded, th) if np.isfinite(rpm[i]) else RotorCondition.NORMAL)
     thrust = np.where([c is RotorCondition.UNLOADED for c in conditions], 0.0, thrust)
     return EscReading(rpm=rpm, thrust_n=thrust, condition=tuple(conditions), battery_ceiling_n=ceiling)
+
+
+def _reported(values, most: float) -> np.ndarray:
+    """The four values as reported; NaN (not reported) where one is not a reading: not finite,
+    negative or beyond `most`."""
+    v = np.asarray(values, dtype=float).reshape(ROTOR_COUNT)
+    return np.where((v >= 0.0) & (v <= most), v, np.nan)
 
 
 def _condition(speed_share: float, unloaded: bool, th: EscThresholds) -> RotorCondition:

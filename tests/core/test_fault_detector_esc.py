@@ -2,9 +2,12 @@
 the kind, the ceiling, a sagging battery, an intermittent fault and a second one."""
 
 import math
+import warnings
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from m4.airframe import ROTOR_COUNT, load_airframe
 from companion.core import rom
@@ -167,3 +170,23 @@ def test_a_collapsed_load_marks_a_rotor_turning_fast_unloaded_but_a_stale_curren
     assert reading.condition == (RotorCondition.NORMAL, RotorCondition.NORMAL, RotorCondition.UNLOADED,
                                  RotorCondition.NORMAL)
     assert reading.thrust_n[2] == 0.0 and reading.thrust_n[1] == pytest.approx(HOVER_N)
+
+
+FOUR_NUMBERS = st.lists(st.floats(allow_nan=True, allow_infinity=True), min_size=4, max_size=4).map(np.array)
+
+
+@given(rpm=FOUR_NUMBERS, current=FOUR_NUMBERS, voltage=FOUR_NUMBERS)
+def test_any_numbers_are_read_without_overflow_and_no_thrust_is_infinite(rpm, current, voltage):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        reading = read_escs(EscSample(0.0, rpm, current, voltage), np.full(ROTOR_COUNT, HOVER_N), PROP)
+    assert not np.any(np.isinf(reading.thrust_n))
+
+
+def test_a_speed_no_esc_telemetry_can_carry_is_not_reported():
+    rpm = PROP.rpm(np.full(ROTOR_COUNT, HOVER_N))
+    current = LOAD * rpm**3 / 14.8
+    rpm[0], rpm[1] = 1e200, -3000.0
+    reading = read_escs(EscSample(0.0, rpm, current, np.full(ROTOR_COUNT, 14.8)), np.full(ROTOR_COUNT, HOVER_N), PROP)
+    assert np.all(np.isnan(reading.thrust_n[:2])) and reading.condition[:2] == (RotorCondition.NORMAL,) * 2
+    assert reading.thrust_n[2] == pytest.approx(HOVER_N)
