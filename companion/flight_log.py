@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import collections
 import logging
+import math
 import threading
 import time
 from dataclasses import dataclass
@@ -47,6 +48,7 @@ log = logging.getLogger("m4-companion")
 FLUSH_S = 0.05                    # a batch: ~2.5 control steps, ~0.1-0.3 ms of the writer holding the GIL
 PATTERN = "flight-*.tlog"
 _NEW_FLIGHT = object()            # a queue entry: start a new file here
+_FLOAT32_MAX = 3.4028234663852886e38
 
 
 @dataclass(frozen=True)
@@ -158,7 +160,7 @@ class FlightLog:
             return [stamp + payload]
         records = []
         for name, value in payload.values:
-            records.append(stamp + self._decision_frames.pack(self._seq, payload.time_ms, value, name))
+            records.append(stamp + self._decision_frames.pack(self._seq, payload.time_ms, _float32(value), name))
             self._seq += 1
         return records
 
@@ -208,6 +210,13 @@ class FlightLog:
             self._stop.set()
             thread.join()
         self._close_file()
+
+
+def _float32(value) -> float:
+    """A NAMED_VALUE_FLOAT's value: beyond float32's range an infinity of its sign (struct would
+    raise, ending the log), NaN as it is."""
+    v = float(value)
+    return math.copysign(math.inf, v) if abs(v) > _FLOAT32_MAX else v
 
 
 def open_flight_log(settings: LogSettings) -> FlightLog:

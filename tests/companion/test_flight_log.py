@@ -114,3 +114,15 @@ def test_the_log_table_is_read_and_checked(tmp_path):
     assert config.log == LogSettings(enabled=True, dir=tmp_path / "logs", max_file_mb=10.0, max_total_mb=100.0)
     assert parse_config({}, "defaults").log.dir.name      # a default folder ($M4_LOG_DIR in the tests)
     assert not parse_config({"log": {"enabled": False}}, "c.toml").log.enabled
+
+
+def test_a_value_beyond_float32_is_logged_as_infinity_and_the_log_goes_on(tmp_path):
+    flight_log = FlightLog(LogSettings(dir=tmp_path)).start()
+    step = _step()
+    step.nmpc.cost = 1e40                             # a diverging solve
+    flight_log.decision(20, step, latency_s=0.001)
+    flight_log.decision(40, _step(), latency_s=0.001)
+    flight_log.close()
+    costs = [(m.time_boot_ms, m.value) for m in _read(flight_log.files[0]) if m.get_type() == "NAMED_VALUE_FLOAT"
+             and m.name == "nmpc_cost"]
+    assert costs == [(20, float("inf")), (40, 0.5)]
