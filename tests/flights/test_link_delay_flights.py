@@ -24,3 +24,16 @@ def test_the_hover_rotor_loss_survives_50_ms_each_way_and_20_percent_loss(tmp_pa
     fault = m["faults"][0]
     assert fault["detected_rotor"] == 4 and fault["detected_at_s"] - fault["at_s"] <= 0.1
     assert m["link"]["setpoint_lead_ms"] == pytest.approx(100, abs=5)
+
+
+def test_and_in_real_time_through_the_loopback_proxy(tmp_path):
+    """The same through sitl/netem.py, paced by the wall clock: the lead jitters with the
+    companion's step and setpoints land between the FC's frames. Both processes in
+    SCHED_FIFO, as deployed, so other work on the machine does not decide the flight."""
+    options = FlightOptions(realtime=True, link=LinkEmulation(delay_ms=50, loss=0.2), companion_priority=40,
+                            sitl_priority=40)
+    m = fly("hover-rotor-loss", tmp_path, options, figures=False, progress=False)
+    assert m["link"]["mode"] == "proxy"
+    assert m["survived"], m["checks"]
+    assert m["faults"][0]["detected_rotor"] == 4
+    assert 100 <= m["link"]["setpoint_lead_ms"] <= 130
