@@ -18,7 +18,9 @@ Shortfall cover: while all four rotors are live, a rotor that falls short by s (
 in its ESC's speed) is covered by the other three, whose changes df solve the same rows:
 [-a_y; a_x; 1]_others df = [-a_y; a_x; 1]_short s, so the sum and the roll and pitch torque
 stay as planned (the yaw moment does not: the robot spins up, as after a confirmed loss).
-Once a rotor is known weak the plan itself flies on the others, and there is no cover.
+Once the detector has confirmed a fault the plan knows it (a lost rotor's bound, a damaged
+propeller's effectiveness) and no cover is sent: covering it as well would count the
+shortfall twice.
 
 Pure logic: no clock, no I/O.
 """
@@ -49,7 +51,7 @@ class RateFeedbackDesign:
         """(4, 3) thrust change per rotor per unit rate error (N per rad/s) at posture hip_rad;
         None without feedback (bandwidth 0, fewer than three live rotors, a posture the model
         cannot take)."""
-        live = self._live(thrust_bound_n)
+        live = np.asarray(thrust_bound_n, dtype=float) > LIVE_SHARE * self.af.hover_thrust_per_rotor_n
         hip = np.asarray(hip_rad, dtype=float)
         if self.bandwidth_rad_s <= 0 or live.sum() < 3 or not np.all(np.isfinite(hip)):
             return None
@@ -61,11 +63,11 @@ class RateFeedbackDesign:
             return None
         return gain
 
-    def cover(self, hip_rad, thrust_bound_n) -> ShortfallCover | None:
+    def cover(self, hip_rad, fault_confirmed: bool) -> ShortfallCover | None:
         """The other rotors' cover for each rotor's shortfall at posture hip_rad; None when
-        switched off, a rotor is known weak, or the posture cannot keep sum and torque."""
+        switched off, a fault is confirmed, or the posture cannot keep sum and torque."""
         hip = np.asarray(hip_rad, dtype=float)
-        if not self.shortfall_cover or not self._live(thrust_bound_n).all() or not np.all(np.isfinite(hip)):
+        if not self.shortfall_cover or fault_confirmed or not np.all(np.isfinite(hip)):
             return None
         allocation, _ = self._allocation(hip)
         gain = np.zeros((ROTOR_COUNT, ROTOR_COUNT))
@@ -78,9 +80,6 @@ class RateFeedbackDesign:
         if not np.all(np.isfinite(gain)) or np.max(np.abs(gain)) > SHORTFALL_GAIN_MAX:
             return None
         return ShortfallCover(np.asarray(gain, dtype=np.float32).astype(float))     # as MAVLink carries it
-
-    def _live(self, thrust_bound_n) -> np.ndarray:
-        return np.asarray(thrust_bound_n, dtype=float) > LIVE_SHARE * self.af.hover_thrust_per_rotor_n
 
     def _allocation(self, hip: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(3, 4) each rotor's roll and pitch torque and sum per newton, and the (3, 3) inertia."""

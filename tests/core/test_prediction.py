@@ -121,7 +121,7 @@ def test_the_fcs_cover_for_a_rotor_asked_beyond_its_bound_is_predicted():
     hover = AF.hover_thrust_per_rotor_n
     lost = [AF.thrust_max_n] * 3 + [AF.thrust_min_n]
     rates = {}
-    for name, cover in (("with", RateFeedbackDesign(AF, 0.0, shortfall_cover=True).cover(x[rom.HIP], NO_FAULT)),
+    for name, cover in (("with", RateFeedbackDesign(AF, 0.0, shortfall_cover=True).cover(x[rom.HIP], False)),
                         ("without", None)):
         history = CommandHistory()
         for k in range(6):

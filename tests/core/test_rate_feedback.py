@@ -77,7 +77,7 @@ COVERING = RateFeedbackDesign(AF, BW, shortfall_cover=True)
 @pytest.mark.parametrize("hip_deg", [[45, 45, 45, 45], [87, 2, 53, 23]])
 def test_the_other_three_rotors_cover_a_shortfall_keeping_sum_and_roll_and_pitch_torque(hip_deg):
     hip = np.radians(hip_deg)
-    cover = COVERING.cover(hip, ALL_LIVE)
+    cover = COVERING.cover(hip, fault_confirmed=False)
     for short in range(4):
         shortfall = np.zeros(4)
         shortfall[short] = 5.0
@@ -89,12 +89,13 @@ def test_the_other_three_rotors_cover_a_shortfall_keeping_sum_and_roll_and_pitch
     assert np.all(cover.gain.astype(np.float32) == cover.gain)   # as MAVLink carries it
 
 
-def test_no_cover_when_switched_off_or_once_a_rotor_is_known_weak():
+def test_no_cover_when_switched_off_or_once_a_fault_is_confirmed():
+    """A confirmed fault is in the plan (a damaged propeller keeps a bound above hover, its
+    effectiveness modelled): covering it too would count its shortfall twice."""
     hip = np.full(4, AF.nominal_hip_rad)
-    weak = ALL_LIVE.copy()
-    weak[3] = 0.2 * AF.hover_thrust_per_rotor_n
-    assert COVERING.cover(hip, weak) is None
-    assert DESIGN.cover(hip, ALL_LIVE) is None
+    assert COVERING.cover(hip, fault_confirmed=False) is not None
+    assert COVERING.cover(hip, fault_confirmed=True) is None
+    assert DESIGN.cover(hip, fault_confirmed=False) is None
 
 
 def test_the_fc_side_reads_no_cover_from_zero_or_unusable_fields():
