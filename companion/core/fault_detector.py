@@ -68,6 +68,7 @@ from companion.core.fault_residual import (
 # leave this many times that unexplained on top of its share.
 _NOISE_CHI2_MARGIN = 3.0
 _STOPPED_SHARE = 0.1      # an ESC whose speed heads for less than this share of the asked thrust: a stopped motor
+_LOST_SHARE = 0.25        # a damaged propeller sized below this share of its command may be a lost one
 _LAG_SPANS = 3.0          # the lag is undone in the sizing over spans up to this many motor time constants
 _KIND_OF_CONDITION = {RotorCondition.STOPPED: FaultKind.MOTOR, RotorCondition.UNLOADED: FaultKind.PROPELLER,
                       RotorCondition.SLOW: FaultKind.DEGRADED, RotorCondition.NORMAL: FaultKind.DEGRADED}
@@ -376,6 +377,7 @@ class FaultDetector:
         elif self._kind is FaultKind.DAMAGE and expected > self._c.deficit_min_n:
             self._effectiveness = float(np.clip(delivered / expected, 0.0, 1.0))
             self._estimate_n = self._effectiveness * self._limit_n[i]
+            self._lag_n[i] *= self._effectiveness    # the same speed, less thrust at once: no lag to wait for
         else:
             self._estimate_n = self._clip(delivered)
         self._window.clear()                   # the evidence was read against the healthy model
@@ -385,10 +387,14 @@ class FaultDetector:
         """Move the confirmed rotor's model towards what it delivers: lower when it clearly gives
         less than the model says, higher when, asked above its estimate, it measurably gives more.
         An ESC that shows the rotor stopped or unloaded after all (a lost propeller takes a few
-        frames to overspeed) names the kind and zeroes the estimate."""
+        frames to overspeed) names the kind and zeroes the estimate; unloaded renames a damaged
+        propeller only once the residual finds it giving less than _LOST_SHARE of its command (a
+        damaged propeller turns a little fast, and a current its ESC sampled while braking it,
+        held until the next poll, reads as no load)."""
         c, i = self._c, self._rotor
         later = None if reading is None else _KIND_OF_CONDITION.get(reading.condition[i])
-        if later in (FaultKind.MOTOR, FaultKind.PROPELLER) and self._kind is not later:
+        gives_thrust = self._kind is FaultKind.DAMAGE and self._effectiveness >= _LOST_SHARE
+        if (later is FaultKind.MOTOR or later is FaultKind.PROPELLER and not gives_thrust) and self._kind is not later:
             self._kind, self._effectiveness, self._estimate_n = later, 1.0, self._af.thrust_min_n
         delivered, expected = evidence.delivered_n[i], evidence.expected_n[i]
         if self._kind is FaultKind.DAMAGE:

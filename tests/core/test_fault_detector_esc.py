@@ -23,23 +23,30 @@ LOAD = 9.0e-10          # current * voltage / rpm^3 of a loaded propeller (about
 
 class Escs:
     """Four rotors whose speed follows the command (as thrust) through the motor lag, within a
-    per-rotor speed ceiling; a propeller can be missing (the motor then runs 25 % faster, unloaded)."""
+    per-rotor speed ceiling; a propeller can be missing (the motor then runs 25 % faster, unloaded)
+    or chipped (blade_share of its thrust and load left at a speed: it runs 18 % x the share lost
+    faster on its lighter load). stale_current_a: a current the ESC reports instead of its load's
+    (NaN: none), e.g. one sampled while it braked the rotor, held until the next poll."""
 
     def __init__(self, voltage_v=14.8):
         self.rpm = PROP.rpm(np.full(ROTOR_COUNT, HOVER_N))
         self.rpm_max = np.full(ROTOR_COUNT, np.inf)
         self.unloaded = np.zeros(ROTOR_COUNT, dtype=bool)
+        self.blade_share = np.ones(ROTOR_COUNT)
+        self.stale_current_a = np.full(ROTOR_COUNT, np.nan)
         self.voltage_v = voltage_v
 
     def step(self, t_s, cmd_n) -> EscSample:
         ceiling_rpm = PROP.rpm(np.full(ROTOR_COUNT, PROP.ceiling_n(self.voltage_v)))
-        goal = np.minimum(np.minimum(PROP.rpm(cmd_n), self.rpm_max), ceiling_rpm) * np.where(self.unloaded, 1.25, 1.0)
+        overspeed = np.where(self.unloaded, 1.25, 1.0 + 0.18 * (1.0 - self.blade_share))
+        goal = np.minimum(np.minimum(PROP.rpm(cmd_n), self.rpm_max), ceiling_rpm) * overspeed
         self.rpm = goal + (self.rpm - goal) * math.exp(-DT / AF.motor_time_constant_s)
-        current = np.where(self.unloaded, 1.0, LOAD * self.rpm**3 / self.voltage_v)
+        current = np.where(self.unloaded, 1.0, self.blade_share * LOAD * self.rpm**3 / self.voltage_v)
+        current = np.where(np.isfinite(self.stale_current_a), self.stale_current_a, current)
         return EscSample(time_s=t_s, rpm=self.rpm.copy(), current_a=current, voltage_v=np.full(ROTOR_COUNT, self.voltage_v))
 
     def thrust_n(self):
-        return np.where(self.unloaded, 0.0, PROP.thrust_n(self.rpm))
+        return np.where(self.unloaded, 0.0, self.blade_share * PROP.thrust_n(self.rpm))
 
 
 STEP = rom.build_rom(AF, DT, 4).step
@@ -95,6 +102,37 @@ def test_a_lost_propeller_overspeeds_its_motor_and_is_told_from_a_stopped_one():
     assert s.rotor == 1 and s.kind is FaultKind.PROPELLER
     assert (k - 5 + 1) * DT <= 0.10 + 1e-9
     assert s.thrust_max_estimate_n[0] == pytest.approx(AF.thrust_min_n)
+
+
+def chip(e):
+    e.blade_share[1] = 0.5
+
+
+def test_a_damaged_propeller_is_sized_by_the_thrust_it_gives_at_its_speed():
+    """Rotor 2's propeller loses half its blade: half the thrust at a speed, 9 % faster on the
+    lighter load; its ESC sees nothing wrong, the residual does: a damaged propeller, its ceiling
+    what a full command now gives, within 10 % of hover thrust from confirmation on."""
+    statuses = fly(Escs(), hover(40), {5: chip})
+    k, s = first_confirmed(statuses)
+    assert s.rotor == 2 and s.kind is FaultKind.DAMAGE and (k - 5 + 1) * DT <= 0.12 + 1e-9
+    ceiling_n = 0.5 * 1.09**2 * AF.thrust_max_n
+    assert all(abs(s.thrust_max_estimate_n[1] - ceiling_n) <= 0.1 * HOVER_N for s in statuses[k:])
+
+
+def test_a_damaged_propeller_stays_damaged_when_a_current_read_while_braking_says_unloaded():
+    """The damaged propeller above, confirmed; then its ESC reports a current sampled while it
+    braked the rotor (0.3 A, held until the next poll 0.1 s on): on a rotor turning fast that
+    reads as unloaded, yet the residual measures half its thrust: it stays a damaged propeller
+    with its estimate, never a lost one."""
+    def brake(e):
+        e.stale_current_a[1] = 0.3
+    def poll(e):
+        e.stale_current_a[1] = np.nan
+    statuses = fly(Escs(), hover(40), {5: chip, 20: brake, 25: poll})
+    k, _ = first_confirmed(statuses)
+    assert k < 20
+    assert all(s.kind is FaultKind.DAMAGE and s.message == "thrust loss rotor 2 (damage)" for s in statuses[k:])
+    assert min(s.thrust_max_estimate_n[1] for s in statuses[k:]) >= 0.3 * AF.thrust_max_n
 
 
 def test_a_motor_that_cannot_reach_its_speed_is_sized_by_the_speed_it_reaches():
