@@ -16,6 +16,7 @@ import casadi as ca
 import numpy as np
 
 from companion.core import rom
+from companion.core.casadi_call import BufferedFunction
 from companion.core.rom import ND, NU, NX
 
 
@@ -32,35 +33,24 @@ def linearisation(step: ca.Function, horizon: int) -> ca.Function:
 
 
 class Linearisation:
-    """Evaluates a `linearisation` function on preallocated numpy buffers (no conversion cost).
+    """Evaluates a `linearisation` function on preallocated numpy buffers (companion.core.casadi_call).
 
     Call with (x0 (20,), us (N, 8), d (6,)); returns fresh arrays xs (N+1, 20),
-    a (N, 20, 20) and b (N, 20, 8) with a[k] = A_k, b[k] = B_k.
+    a (N, 20, 20) and b (N, 20, 8) with a[k] = A_k, b[k] = B_k (NaN when the evaluation
+    fails: reported like a diverged rollout, the caller falls back).
     """
 
     def __init__(self, fn: ca.Function, horizon: int):
         self.horizon = horizon
-        self._x0, self._us, self._d = np.zeros(NX), np.zeros(horizon * NU), np.zeros(ND)
-        self._xs = np.zeros((horizon + 1) * NX)
-        self._a, self._b = np.zeros(horizon * NX * NX), np.zeros(horizon * NU * NX)
-        self._fn = fn                                  # the buffers below refer to it
-        self._buffer, self._evaluate = fn.buffer()
-        for i, arr in enumerate((self._x0, self._us, self._d)):
-            self._buffer.set_arg(i, memoryview(arr))
-        for i, arr in enumerate((self._xs, self._a, self._b)):
-            self._buffer.set_res(i, memoryview(arr))
+        self._fn = BufferedFunction(fn)
 
     def __call__(self, x0: np.ndarray, us: np.ndarray, d: np.ndarray):
         n = self.horizon
-        self._x0[:], self._us[:], self._d[:] = x0, us.ravel(), d
-        self._evaluate()
-        if self._buffer.ret() != 0:          # reported like a diverged rollout: the caller falls back
-            for arr in (self._xs, self._a, self._b):
-                arr.fill(np.nan)
+        xs, a, b = self._fn.evaluate(x0, us.ravel(), d)
         # Column-major outputs: X (20, N+1) is xs (N+1, 20); A (20, 20N) holds A_k^T blocks.
-        return (self._xs.reshape(n + 1, NX).copy(),
-                self._a.reshape(n, NX, NX).transpose(0, 2, 1).copy(),
-                self._b.reshape(n, NU, NX).transpose(0, 2, 1).copy())
+        return (xs.reshape(n + 1, NX).copy(),
+                a.reshape(n, NX, NX).transpose(0, 2, 1).copy(),
+                b.reshape(n, NU, NX).transpose(0, 2, 1).copy())
 
 
 def sensitivities(a: np.ndarray, b: np.ndarray) -> np.ndarray:

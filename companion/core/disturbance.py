@@ -22,6 +22,7 @@ import numpy as np
 
 from m4.airframe import Airframe
 from companion.core import rom
+from companion.core.casadi_call import BufferedFunction
 from companion.core.rom import ND, NU, NX
 
 _MEASURED = np.r_[np.arange(NX)[rom.V], np.arange(NX)[rom.RATES]]   # rows of x the estimate uses
@@ -44,8 +45,8 @@ class DisturbanceEstimator:
         step = rom.build_rom(airframe, period_s, substeps=2).step
         x, u, d = ca.SX.sym("x", NX), ca.SX.sym("u", NU), ca.SX.sym("d", ND)
         x_next = step(x, u, d)
-        self._predict = ca.Function("m4_disturbance_predict", [x, u, d],
-                                    [x_next[_MEASURED], ca.jacobian(x_next[_MEASURED], d)])
+        self._predict = BufferedFunction(ca.Function("m4_disturbance_predict", [x, u, d],
+                                                     [x_next[_MEASURED], ca.jacobian(x_next[_MEASURED], d)]))
         self.estimate = np.zeros(ND)
 
     def reset(self) -> None:
@@ -58,7 +59,7 @@ class DisturbanceEstimator:
         if not all(np.all(np.isfinite(v)) for v in (x_prev, u_applied, x_new)):
             return self.estimate.copy()
         with np.errstate(over="ignore", invalid="ignore"):
-            predicted, sensitivity = (np.asarray(v) for v in self._predict(x_prev, u_applied, self.estimate))
+            predicted, sensitivity = self._predict(x_prev, u_applied, self.estimate)
             innovation = x_new[_MEASURED] - predicted.ravel()
             if not (np.all(np.isfinite(innovation)) and np.all(np.isfinite(sensitivity))):
                 return self.estimate.copy()           # a state too wild for the model to step

@@ -24,6 +24,7 @@ import numpy as np
 
 from m4.airframe import Airframe
 from companion.core import rom
+from companion.core.casadi_call import BufferedFunction
 
 CHANNELS = np.r_[np.arange(rom.V.start, rom.V.stop), np.arange(rom.RATES.start, rom.RATES.stop)]
 _PREDICTION_SUBSTEPS = 4
@@ -76,8 +77,8 @@ class ThrustResidualModel:
         xk = rom.rk4(f, x, u, ca.DM.zeros(rom.ND), dt, _PREDICTION_SUBSTEPS)
         com, inertia = rom.mass_properties(af, x[rom.HIP])
         torque = rom.thrust_torque_frd(af, x[rom.HIP], com, u[rom.THRUST])
-        self._predict = ca.Function("m4_fault_predict", [x, u, dt],
-                                    [xk, ca.jacobian(xk, u[rom.THRUST]), ca.diag(inertia), torque])
+        self._predict = BufferedFunction(ca.Function("m4_fault_predict", [x, u, dt],
+                                                     [xk, ca.jacobian(xk, u[rom.THRUST]), ca.diag(inertia), torque]))
 
     def motor_decay(self, dt_s: float) -> float:
         """Share of a thrust step the first-order motor lag has still to go after dt_s (0: no lag)."""
@@ -103,8 +104,7 @@ class ThrustResidualModel:
         u[rom.THRUST] = expected_thrust_n
         u[rom.HIP_ACCEL] = (x_now[rom.HIP_RATE] - x_prev[rom.HIP_RATE]) / dt_s
         x_pred, jac, inertia_diag, torque = self._predict(x_prev, u, dt_s)
-        x_pred, inertia_diag, torque = (np.asarray(v).ravel() for v in (x_pred, inertia_diag, torque))
-        jac = np.asarray(jac)
+        x_pred, inertia_diag, torque = (v.ravel() for v in (x_pred, inertia_diag, torque))
         raw = x_now[CHANNELS] - x_pred[CHANNELS]
         r = raw - bias_per_s * dt_s
         sens = jac[CHANNELS, :]                          # (6, 4)

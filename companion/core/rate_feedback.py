@@ -31,6 +31,7 @@ import casadi as ca
 import numpy as np
 
 from companion.core import rom
+from companion.core.casadi_call import BufferedFunction
 from m4.airframe import ROTOR_COUNT, Airframe
 from m4.setpoint import RATE_GAIN_MAX_N_PER_RAD_S, SHORTFALL_GAIN_MAX, RateFeedback, ShortfallCover
 
@@ -45,7 +46,7 @@ class RateFeedbackDesign:
         hip = ca.SX.sym("hip", ROTOR_COUNT)
         com, inertia = rom.mass_properties(af, hip)
         arms = rom.thruster_positions(af, hip) - ca.repmat(com, 1, ROTOR_COUNT)
-        self._geometry = ca.Function("m4_rate_feedback_geometry", [hip], [arms, inertia])
+        self._geometry = BufferedFunction(ca.Function("m4_rate_feedback_geometry", [hip], [arms, inertia]))
 
     def gain(self, hip_rad, thrust_bound_n) -> np.ndarray | None:
         """(4, 3) thrust change per rotor per unit rate error (N per rad/s) at posture hip_rad;
@@ -83,7 +84,7 @@ class RateFeedbackDesign:
 
     def _allocation(self, hip: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(3, 4) each rotor's roll and pitch torque and sum per newton, and the (3, 3) inertia."""
-        arms, inertia = (np.asarray(v) for v in self._geometry(hip))
+        arms, inertia = self._geometry(hip)
         return np.vstack([-arms[1], arms[0], np.ones(ROTOR_COUNT)]), inertia
 
     def feedback(self, x_start, x_next, dt_s: float, thrust_bound_n) -> RateFeedback | None:

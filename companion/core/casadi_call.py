@@ -1,0 +1,66 @@
+"""Calling a CasADi Function from numpy the cheap way: on preallocated buffers.
+
+`fn(numpy arrays)` converts every argument to a DM and every result back, about 0.1 ms per
+call on top of the evaluation itself (measured: a 6-output model step of 57 us took 170 us
+called directly, 60 us on buffers). `BufferedFunction` binds numpy buffers to the function's
+inputs and outputs once; a call copies the arguments in, evaluates and copies the results
+out. The values are the function's own: the same evaluation, only the conversion is gone.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+
+class BufferedFunction:
+    """`fn` evaluated on numpy buffers. Call with one array (or float) per input, each holding
+    that input's entries in column-major order; returns one fresh array per output, shaped
+    (rows, columns) like np.asarray of the DM it would return, sparse outputs made dense.
+    An evaluation that reports failure gives NaN everywhere (like a diverged model)."""
+
+    def __init__(self, fn: ca.Function):
+        if not all(fn.sparsity_in(i).is_dense() for i in range(fn.n_in())):
+            raise ValueError(f"BufferedFunction: every input of {fn.name()} must be dense")
+        self._fn = fn                                  # the buffers below refer to it
+        self._args = [np.zeros(fn.nnz_in(i)) for i in range(fn.n_in())]
+        self._results = [np.zeros(fn.nnz_out(i)) for i in range(fn.n_out())]
+        self._shapes = [fn.size_out(i) for i in range(fn.n_out())]
+        self._scatter = [_dense_positions(fn.sparsity_out(i)) for i in range(fn.n_out())]
+        self._buffer, self._evaluate = fn.buffer()
+        for i, arr in enumerate(self._args):
+            self._buffer.set_arg(i, memoryview(arr))
+        for i, arr in enumerate(self._results):
+            self._buffer.set_res(i, memoryview(arr))
+
+    def __call__(self, *args) -> tuple[np.ndarray, ...]:
+        return tuple(self._dense(i, nonzeros) for i, nonzeros in enumerate(self.evaluate(*args)))
+
+    def evaluate(self, *args) -> list[np.ndarray]:
+        """Each output's structural nonzeros in column-major order: the buffers themselves,
+        overwritten by the next call."""
+        for buffer, value in zip(self._args, args, strict=True):
+            buffer[:] = np.ravel(value, order="F")
+        self._evaluate()
+        if self._buffer.ret() != 0:
+            for arr in self._results:
+                arr.fill(np.nan)
+        return self._results
+
+    def _dense(self, i: int, nonzeros: np.ndarray) -> np.ndarray:
+        rows, cols = self._shapes[i]
+        positions = self._scatter[i]
+        if positions is None:
+            flat = nonzeros.copy()
+        else:
+            flat = np.zeros(rows * cols)
+            flat[positions] = nonzeros
+        return np.ascontiguousarray(flat.reshape((rows, cols), order="F"))   # laid out as np.asarray(DM)
+
+
+def _dense_positions(sparsity: ca.Sparsity) -> np.ndarray | None:
+    """Column-major positions of the structural nonzeros (None: the output is dense)."""
+    if sparsity.is_dense():
+        return None
+    rows, cols = sparsity.get_triplet()
+    return np.asarray(rows) + sparsity.size1() * np.asarray(cols)
