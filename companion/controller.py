@@ -148,10 +148,11 @@ class Controller:
         self.period_s = s.control_period_s
         self.nmpc = nmpc or Nmpc(af, s.nmpc)
         propeller = PropellerModel.from_airframe(af)
-        self._new_detector = new_detector or (lambda: FaultDetector(af, s.fault_detector, propeller))
+        codegen = s.nmpc.codegen              # every model evaluated each step: compiled, or none of them
+        self._new_detector = new_detector or (lambda: FaultDetector(af, s.fault_detector, propeller, codegen))
         self._new_reference = new_reference or (
             lambda t0_s, start_ned_m: MissionReference(s.mission, start_ned_m, af, s.reference, t0_s=t0_s))
-        self.disturbance = DisturbanceEstimator(af, self.period_s, s.disturbance_gain)
+        self.disturbance = DisturbanceEstimator(af, self.period_s, s.disturbance_gain, codegen=codegen)
         self.predictor = Predictor(af, self.nmpc.rom.f, self.period_s)
         self.rate_feedback = RateFeedbackDesign(af, s.rate_feedback_bandwidth_rad_s, s.shortfall_cover)
         self.detector = self._new_detector()

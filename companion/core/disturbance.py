@@ -23,16 +23,18 @@ import numpy as np
 from m4.airframe import Airframe
 from companion.core import rom
 from companion.core.casadi_call import BufferedFunction
+from companion.core.codegen_cache import compiled
 from companion.core.rom import ND, NU, NX
 
 _MEASURED = np.r_[np.arange(NX)[rom.V], np.arange(NX)[rom.RATES]]   # rows of x the estimate uses
 
 
 class DisturbanceEstimator:
-    """Filtered, bounded disturbance estimate for control period `period_s`."""
+    """Filtered, bounded disturbance estimate for control period `period_s`; codegen: its model
+    step compiled to C (cached, companion.core.codegen_cache), else CasADi's VM."""
 
     def __init__(self, airframe: Airframe, period_s: float, gain: float = 0.3,
-                 force_max_n: float | None = None, torque_max_n_m: float | None = None):
+                 force_max_n: float | None = None, torque_max_n_m: float | None = None, codegen: bool = False):
         if not 0 < gain <= 1:
             raise ValueError(f"DisturbanceEstimator gain must lie in (0, 1], got {gain}")
         if not period_s > 0:
@@ -45,8 +47,9 @@ class DisturbanceEstimator:
         step = rom.build_rom(airframe, period_s, substeps=2).step
         x, u, d = ca.SX.sym("x", NX), ca.SX.sym("u", NU), ca.SX.sym("d", ND)
         x_next = step(x, u, d)
-        self._predict = BufferedFunction(ca.Function("m4_disturbance_predict", [x, u, d],
-                                                     [x_next[_MEASURED], ca.jacobian(x_next[_MEASURED], d)]))
+        predict = ca.Function("m4_disturbance_predict", [x, u, d],
+                              [x_next[_MEASURED], ca.jacobian(x_next[_MEASURED], d)])
+        self._predict = BufferedFunction(compiled(predict) if codegen else predict)
         self.estimate = np.zeros(ND)
 
     def reset(self) -> None:

@@ -134,14 +134,16 @@ class _Evidence:
 
 class FaultDetector:
     def __init__(self, af: Airframe, config: FaultDetectorConfig = FaultDetectorConfig(),
-                 propeller: PropellerModel | None = None):
+                 propeller: PropellerModel | None = None, codegen: bool = False):
+        """propeller: the ESC model (None: ESC frames are not read); codegen: the residual's
+        model step compiled to C (cached), else CasADi's VM."""
         config.validate()
         self._af, self._c = af, config
         self._propeller = propeller                # None: no ESC model, ESC frames are not read
         self._model = ThrustResidualModel(af, ResidualNoise(
             velocity_m_s=config.velocity_noise_m_s, rates_rad_s=config.rates_noise_rad_s,
             force_n=config.force_model_error_n, torque_n_m=config.torque_model_error_n_m,
-            torque_share=config.torque_model_share))
+            torque_share=config.torque_model_share), codegen)
         self._limit_n = np.full(ROTOR_COUNT, af.thrust_max_n)
         self._prev: tuple[float, np.ndarray] | None = None
         self._lag_n = np.zeros(ROTOR_COUNT)        # thrust the model says the motors deliver

@@ -25,6 +25,7 @@ import numpy as np
 from m4.airframe import Airframe
 from companion.core import rom
 from companion.core.casadi_call import BufferedFunction
+from companion.core.codegen_cache import compiled
 
 CHANNELS = np.r_[np.arange(rom.V.start, rom.V.stop), np.arange(rom.RATES.start, rom.RATES.stop)]
 _PREDICTION_SUBSTEPS = 4
@@ -68,17 +69,19 @@ class IntervalFit:
 
 
 class ThrustResidualModel:
-    """One-step prediction of the ROM and the per-rotor sensitivity of (v, rates) to thrust."""
+    """One-step prediction of the ROM and the per-rotor sensitivity of (v, rates) to thrust;
+    codegen: compiled to C (cached, companion.core.codegen_cache), else CasADi's VM."""
 
-    def __init__(self, af: Airframe, noise: ResidualNoise):
+    def __init__(self, af: Airframe, noise: ResidualNoise, codegen: bool = False):
         self._af, self._noise = af, noise
         f = rom.dynamics(af)
         x, u, dt = ca.SX.sym("x", rom.NX), ca.SX.sym("u", rom.NU), ca.SX.sym("dt")
         xk = rom.rk4(f, x, u, ca.DM.zeros(rom.ND), dt, _PREDICTION_SUBSTEPS)
         com, inertia = rom.mass_properties(af, x[rom.HIP])
         torque = rom.thrust_torque_frd(af, x[rom.HIP], com, u[rom.THRUST])
-        self._predict = BufferedFunction(ca.Function("m4_fault_predict", [x, u, dt],
-                                                     [xk, ca.jacobian(xk, u[rom.THRUST]), ca.diag(inertia), torque]))
+        predict = ca.Function("m4_fault_predict", [x, u, dt],
+                              [xk, ca.jacobian(xk, u[rom.THRUST]), ca.diag(inertia), torque])
+        self._predict = BufferedFunction(compiled(predict) if codegen else predict)
 
     def motor_decay(self, dt_s: float) -> float:
         """Share of a thrust step the first-order motor lag has still to go after dt_s (0: no lag)."""
