@@ -119,13 +119,13 @@ def read_escs(sample: EscSample, expected_n: np.ndarray, model: PropellerModel,
         speed_share = np.where(expected_rpm >= th.speed_min_rpm, rpm / expected_rpm, np.nan)
     thrust = model.thrust_n(rpm)
     conditions = []
-    for i in range(ROTOR_COUNT):
-        others = np.delete(load, i)
-        others = others[np.isfinite(others)]
-        unloaded = bool(speed_share[i] > th.overspeed_share)
-        if np.isfinite(load[i]) and others.size and speed_share[i] > th.loaded_share:
-            unloaded |= bool(load[i] < th.unloaded_load_share * float(np.median(others)))
-        conditions.append(_condition(speed_share[i], unloaded, th) if np.isfinite(rpm[i]) else RotorCondition.NORMAL)
+    loads, shares = load.tolist(), speed_share.tolist()      # four rotors: Python floats, not numpy calls
+    for i, (load_i, share_i, rpm_i) in enumerate(zip(loads, shares, rpm.tolist())):
+        others = [v for j, v in enumerate(loads) if j != i and math.isfinite(v)]
+        unloaded = share_i > th.overspeed_share
+        if math.isfinite(load_i) and others and share_i > th.loaded_share:
+            unloaded |= load_i < th.unloaded_load_share * _median(others)
+        conditions.append(_condition(share_i, unloaded, th) if math.isfinite(rpm_i) else RotorCondition.NORMAL)
     thrust = np.where([c is RotorCondition.UNLOADED for c in conditions], 0.0, thrust)
     return EscReading(rpm=rpm, thrust_n=thrust, condition=tuple(conditions), battery_ceiling_n=ceiling)
 
@@ -137,8 +137,14 @@ def _reported(values, most: float) -> np.ndarray:
     return np.where((v >= 0.0) & (v <= most), v, np.nan)
 
 
+def _median(values: list[float]) -> float:
+    """np.median's value (the middle two averaged as np.mean does: their sum halved)."""
+    ordered, middle = sorted(values), len(values) // 2
+    return ordered[middle] if len(values) % 2 else (ordered[middle - 1] + ordered[middle]) / 2
+
+
 def _condition(speed_share: float, unloaded: bool, th: EscThresholds) -> RotorCondition:
-    if not np.isfinite(speed_share):                  # nothing expected (rotor commanded idle)
+    if not math.isfinite(speed_share):                  # nothing expected (rotor commanded idle)
         return RotorCondition.UNLOADED if unloaded else RotorCondition.NORMAL
     if speed_share < th.stopped_share:
         return RotorCondition.STOPPED
