@@ -233,7 +233,7 @@ class Controller:
         x_next = res.x_pred[1] if res.ok else x_plan          # a failed solve plans no change of the rates
         sp = replace(sp, rate_feedback=self.rate_feedback.feedback(x_plan, x_next, c.dt_s, fault.thrust_bound_n),
                      shortfall_cover=self.rate_feedback.cover(x_plan[rom.HIP], fault.state is FaultState.CONFIRMED))
-        self.sent.add(SentCommand(time_s, x, np.r_[sp.thrust_n, res.u[rom.HIP_ACCEL]], sp.rate_feedback,
+        self.sent.add(SentCommand(time_s, x, np.concatenate([sp.thrust_n, res.u[rom.HIP_ACCEL]]), sp.rate_feedback,
                                   sp.shortfall_cover))
         return ControlStep(time_s, sp, x_plan, lead_s, x_ref, res, fault, confirmed_now, d)
 

@@ -123,7 +123,7 @@ class ThrustResidualModel:
         v = 2 * n.velocity_m_s**2 + (n.force_n * dt_s / self._af.total_mass_kg) ** 2
         torque_error = np.hypot(n.torque_n_m, n.torque_share * torque_n_m)
         w = 2 * n.rates_rad_s**2 + (torque_error * dt_s / inertia_diag_kg_m2) ** 2
-        return np.r_[np.full(3, v), w]
+        return np.concatenate([np.full(3, v), w])
 
 
 def combine(fits: list[IntervalFit]) -> IntervalFit:

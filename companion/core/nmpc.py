@@ -91,6 +91,7 @@ class Nmpc:
         state_w[-1] *= w.terminal_scale
         self.cost = TrackingCost(state_w=state_w, input_w=w.input_diag())
         self._hover_u = np.tile(rom.hover_input(airframe), (n, 1))
+        self._diagonal = np.diag_indices(n * NU)         # of the condensed QP's Hessian
         self._sense = np.concatenate([np.zeros(n * NU, dtype=np.int32), np.full(row_count, 8, dtype=np.int32)])
         self._guess: np.ndarray | None = None
         self._duals: np.ndarray | None = None
@@ -148,8 +149,8 @@ class Nmpc:
         if self.first_rows is not None:
             c0 = self.first_rows.values(x0, us)
             jac = np.vstack([jac, self.first_rows.jac])
-            lower = np.r_[lower, self.first_rows.lo - c0]
-            upper = np.r_[upper, self.first_rows.hi - c0]
+            lower = np.concatenate([lower, self.first_rows.lo - c0])
+            upper = np.concatenate([upper, self.first_rows.hi - c0])
         return jac, np.maximum(lower, -_BIG), np.minimum(upper, _BIG)
 
     def _initial_guess(self, u_ref, lo, hi) -> np.ndarray:
@@ -178,7 +179,7 @@ class Nmpc:
                 return self._fallback(x0, lo, hi, "qp_failed", it, t0)
             gamma = sensitivities(a, b)
             hess, grad = self.cost.gauss_newton(gamma, xs, us, ref, u_ref)
-            hess[np.diag_indices_from(hess)] += _LEVENBERG * np.max(np.diag(hess))
+            hess[self._diagonal] += _LEVENBERG * np.max(np.diag(hess))
             rows, row_lo, row_hi = self._constraint_rows(x0, xs, us, gamma)
             upper = np.concatenate([hi_all - us.ravel(), row_hi])
             lower = np.concatenate([lo_all - us.ravel(), row_lo])

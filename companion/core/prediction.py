@@ -122,7 +122,7 @@ class Predictor:
             average = 1.0 - (tau / h) * (1.0 - decay) if tau > 0 else 1.0     # share of the step done on average
             for k in range(pieces):
                 command = self._command(sent, xk, a + k * h - (sent.time_s + lead_s), bound)
-                u = np.r_[thrust + (command - thrust) * average, np.zeros(ROTOR_COUNT)]   # hips: on their goal
+                u = np.concatenate([thrust + (command - thrust) * average, np.zeros(ROTOR_COUNT)])   # hips: on their goal
                 xk = np.asarray(self._flow(xk, u, disturbance, h)).ravel()
                 thrust = command + (thrust - command) * decay
         if not np.all(np.isfinite(xk)):
