@@ -27,6 +27,17 @@ _CONSECUTIVE_TOLERANCE = 0.5     # of a period: the FC's frames are on a grid of
 _PLAUSIBLE = ((rom.P, 1e5), (rom.EULER, 2 * np.pi), (rom.V, 100.0), (rom.RATES, 100.0), (rom.HIP_RATE, 100.0))
 
 
+def _per_entry(limits) -> np.ndarray:
+    """(NX,) the limit on each state entry's magnitude (inf: none), from (slice, limit) pairs."""
+    out = np.full(rom.NX, np.inf)
+    for part, limit in limits:
+        out[part] = limit
+    return out
+
+
+_PLAUSIBLE_ABS = _per_entry(_PLAUSIBLE)       # one comparison per state, not one per part
+
+
 class FaultState(IntEnum):
     """Values as in M4_FAULT_STATUS.state."""
 
@@ -65,7 +76,7 @@ def plausible_state(af: Airframe, x) -> bool:
         return False
     hip = x[rom.HIP]
     hip_ok = np.all(hip >= af.hip_min_rad - _HIP_MARGIN_RAD) and np.all(hip <= af.hip_max_rad + _HIP_MARGIN_RAD)
-    return bool(hip_ok and all(np.all(np.abs(x[part]) <= limit) for part, limit in _PLAUSIBLE))
+    return bool(hip_ok and np.all(np.abs(x) <= _PLAUSIBLE_ABS))
 
 
 def one_period_apart(earlier_s: float, later_s: float, period_s: float) -> bool:

@@ -180,13 +180,19 @@ class FaultDetector:
         self._state, self._rotor, self._detected_at_s = FaultState.CONFIRMED, rotor - 1, detected_at_s
         self._estimate_n = float(thrust_max_estimate_n)
 
+    def _thrust_bound_n(self) -> np.ndarray:
+        """The NMPC's bounds: the limits, the estimate plus the probe on a confirmed rotor."""
+        bound = self._limit_n.copy()
+        if self._state is FaultState.CONFIRMED:
+            bound[self._rotor] = min(self._estimate_n + self._c.probe_n, self._limit_n[self._rotor])
+        return bound
+
     @property
     def status(self) -> FaultStatus:
-        estimate, bound = self._limit_n.copy(), self._limit_n.copy()
+        estimate, bound = self._limit_n.copy(), self._thrust_bound_n()
         confirmed = self._state is FaultState.CONFIRMED
         if confirmed:
             estimate[self._rotor] = self._estimate_n
-            bound[self._rotor] = min(self._estimate_n + self._c.probe_n, self._limit_n[self._rotor])
         rotor = None if self._rotor is None else self._rotor + 1
         message = ""
         if confirmed:
@@ -316,7 +322,7 @@ class FaultDetector:
             self._bias_per_s += min(dt / c.bias_time_constant_s, 1.0) * (raw / dt - self._bias_per_s)
         if reading is None:
             self._deficit_n = pooled.deficit_size_n
-        saturated = (cmd[i] >= self.status.thrust_bound_n[i] - c.saturation_margin_n
+        saturated = (cmd[i] >= self._thrust_bound_n()[i] - c.saturation_margin_n
                      or expected[i] - delivered[i] >= c.gross_share * expected[i])
         kind = FaultKind.UNKNOWN
         if reading is not None and reading.condition[i] is RotorCondition.NORMAL:

@@ -95,6 +95,13 @@ class Nmpc:
         self._sense = np.concatenate([np.zeros(n * NU, dtype=np.int32), np.full(row_count, 8, dtype=np.int32)])
         self._guess: np.ndarray | None = None
         self._duals: np.ndarray | None = None
+        # The warm start: the previous plan shifted by warm_start_shift stages, interpolated
+        # between its nodes i0 and i1 (the last one held); the same every solve.
+        pos = np.minimum(np.arange(n) + config.warm_start_shift, n - 1)
+        self._shift_i0 = np.floor(pos).astype(int)
+        self._shift_i1 = np.minimum(self._shift_i0 + 1, n - 1)
+        self._shift_frac = (pos - self._shift_i0)[:, None]
+        self._shift_keep = 1 - self._shift_frac
 
     # ----------------------------------------------------------------- public API
     def reset(self) -> None:
@@ -154,16 +161,10 @@ class Nmpc:
         return jac, np.maximum(lower, -_BIG), np.minimum(upper, _BIG)
 
     def _initial_guess(self, u_ref, lo, hi) -> np.ndarray:
-        n = self.config.horizon
         if self._guess is None:
             us = u_ref.copy()
         else:
-            s = self.config.warm_start_shift
-            pos = np.minimum(np.arange(n) + s, n - 1)
-            i0 = np.floor(pos).astype(int)
-            i1 = np.minimum(i0 + 1, n - 1)
-            frac = (pos - i0)[:, None]
-            us = (1 - frac) * self._guess[i0] + frac * self._guess[i1]
+            us = self._shift_keep * self._guess[self._shift_i0] + self._shift_frac * self._guess[self._shift_i1]
         return np.clip(us, lo, hi)
 
     def _sqp(self, x0, ref, u_ref, d, lo, hi, t0) -> NmpcResult:
