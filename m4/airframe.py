@@ -1,4 +1,6 @@
-"""The airframe: one TOML file read into a frozen dataclass, shared by every model.
+"""The airframe: one TOML file read into a frozen dataclass, shared by every model. Figures
+derived from the file (total mass, hover thrust, side pairs...) are computed once per
+airframe (cached_property): the control loop and the plant read them every step.
 
 Frames: body FRD (x forward, y right, z down); world local NED. Rotors are indexed 0..3 in
 code and numbered 1..4 (PX4 quad-X) wherever a person reads them.
@@ -82,34 +84,34 @@ class Airframe:
     esc_voltage_noise_v: float
 
     # Derived quantities: computed from the fields above, never stored twice.
-    @property
+    @cached_property
     def leg_mass_kg(self) -> float:
         return self.leg_hip_block_mass_kg + self.leg_link_mass_kg + self.leg_wheel_mass_kg
 
-    @property
+    @cached_property
     def total_mass_kg(self) -> float:
         return self.body_mass_kg + ROTOR_COUNT * self.leg_mass_kg
 
-    @property
+    @cached_property
     def hover_thrust_per_rotor_n(self) -> float:
         return self.total_mass_kg * self.gravity_m_s2 / ROTOR_COUNT
 
-    @property
+    @cached_property
     def rotor_speed_max_rad_s(self) -> float:
         """Rotor speed at thrust_max_n: full throttle on the nominal battery voltage."""
         return math.sqrt(self.thrust_max_n / self.thrust_coefficient_n_s2)
 
-    @property
+    @cached_property
     def drag_torque_coefficient_n_m_s2(self) -> float:
         """k_q: the propeller's drag torque k_q w^2 (its reaction moment is k_m times its thrust)."""
         return self.moment_coefficient_m * self.thrust_coefficient_n_s2
 
-    @property
+    @cached_property
     def motor_back_emf_v_s_rad(self) -> float:
         """k_e of the motor (V per rad/s), which is also its torque constant (N m per A)."""
         return 60.0 / (2.0 * math.pi * self.motor_kv_rpm_per_v)
 
-    @property
+    @cached_property
     def motor_resistance_ohm(self) -> float:
         """Winding resistance that makes full throttle on the nominal voltage turn the propeller
         at rotor_speed_max_rad_s: V = k_e w + R (k_q w^2 / k_e + i0)."""
@@ -117,7 +119,7 @@ class Airframe:
         current_a = self.drag_torque_coefficient_n_m_s2 * w * w / k_e + self.motor_no_load_current_a
         return (self.battery_nominal_voltage_v - k_e * w) / current_a
 
-    @property
+    @cached_property
     def leg_lumps(self) -> tuple[tuple[float, float], ...]:
         """(mass_kg, fraction of the leg length from the hip) of the hip block, link and wheel."""
         masses = (self.leg_hip_block_mass_kg, self.leg_link_mass_kg, self.leg_wheel_mass_kg)
@@ -134,7 +136,7 @@ class Airframe:
         (read-only)."""
         return _read_only(np.sign(self.hip_positions_frd_m[:, :2]))
 
-    @property
+    @cached_property
     def same_side_pairs(self) -> tuple[tuple[int, int], tuple[int, int]]:
         """Rotor indices on the right (y > 0) and on the left (y < 0) side of the body."""
         y = np.array(self.hip_frd_m)[:, 1]
@@ -142,7 +144,7 @@ class Airframe:
         left = tuple(int(i) for i in np.flatnonzero(y < 0))
         return right, left  # type: ignore[return-value]
 
-    @property
+    @cached_property
     def leg_swing_mass_kg(self) -> float:
         """Sum over a leg's lumps of mass x fraction of the reach: the mass that, carried at the
         hub, moves the centre of mass as the leg does."""
