@@ -108,8 +108,8 @@ def read_escs(sample: EscSample, expected_n: np.ndarray, model: PropellerModel,
     rpm = _reported(sample.rpm, _RPM_MAX)
     current = _reported(sample.current_a, _CURRENT_MAX_A)
     voltage = _reported(sample.voltage_v, _VOLTAGE_MAX_V)
-    volts = voltage[np.isfinite(voltage) & (voltage > 0)]
-    ceiling = model.ceiling_n(float(np.median(volts))) if volts.size else math.inf
+    volts = [v for v in voltage.tolist() if math.isfinite(v) and v > 0]
+    ceiling = model.ceiling_n(_median(volts)) if volts else math.inf
     expected_rpm = model.rpm(np.minimum(expected_n, ceiling))
     turning = np.isfinite(rpm) & (rpm >= th.speed_min_rpm)
     current = np.where(current > 0.0, current, np.nan)     # a turning motor draws current: 0 is "not polled yet"

@@ -292,7 +292,7 @@ class FaultDetector:
         # spinning up between our frames is not short).
         least = np.minimum(expected, self._cmd_lag_low_n) - self._esc_thrust_n
         i = int(np.argmax(least))
-        alone = bool(np.all(np.delete(least, i) < c.deficit_min_n / 2))
+        alone = all(v < c.deficit_min_n / 2 for j, v in enumerate(least.tolist()) if j != i)
         large = least[i] >= c.deficit_min_n or (least[i] >= c.deficit_min_n / 2
                                                  and least[i] >= c.shortfall_min * expected[i])
         self._deficit_n = deficit
