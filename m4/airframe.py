@@ -151,8 +151,10 @@ class Airframe:
         return sum(m * f for m, f in self.leg_lumps)
 
     def thruster_positions_frd_m(self, hip_rad) -> np.ndarray:
-        """(..., 4, 3) thruster hub positions in the body frame for sagittal angles hip_rad (..., 4)."""
+        """(..., 4, 3) thruster hub positions in the body frame for sagittal angles hip_rad (..., 4);
+        NaN for an angle that is not finite (an infinite angle has no position)."""
         q = np.asarray(hip_rad, dtype=float)
+        q = np.where(np.isfinite(q), q, np.nan)
         s = self.leg_direction_signs
         out = np.broadcast_to(self.hip_positions_frd_m, q.shape + (3,)).copy()
         out[..., 0] += self.leg_length_m * s[:, 0] * np.cos(q)

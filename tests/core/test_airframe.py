@@ -26,6 +26,13 @@ def test_thrusters_fold_forward_and_backward_at_zero_and_point_sideways_at_ninet
     assert out[3, :2] == pytest.approx([-0.15, 0.10 + 0.22])        # rear-right points right
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+def test_a_hip_angle_that_is_not_finite_has_no_thruster_position():
+    af = load_airframe()
+    hub = af.thruster_positions_frd_m([math.inf, -math.inf, math.nan, af.nominal_hip_rad])
+    assert np.all(np.isnan(hub[:3, :2])) and np.all(np.isfinite(hub[3]))
+
+
 def test_symmetric_posture_keeps_the_centre_of_mass_at_the_hull_centre():
     af = load_airframe()
     assert af.com_offset_frd_m(np.full(4, 0.6)) == pytest.approx(np.zeros(3), abs=1e-12)
