@@ -153,8 +153,7 @@ class Airframe:
     def thruster_positions_frd_m(self, hip_rad) -> np.ndarray:
         """(..., 4, 3) thruster hub positions in the body frame for sagittal angles hip_rad (..., 4);
         NaN for an angle that is not finite (an infinite angle has no position)."""
-        q = np.asarray(hip_rad, dtype=float)
-        q = np.where(np.isfinite(q), q, np.nan)
+        q = _angles(hip_rad)
         s = self.leg_direction_signs
         out = np.broadcast_to(self.hip_positions_frd_m, q.shape + (3,)).copy()
         out[..., 0] += self.leg_length_m * s[:, 0] * np.cos(q)
@@ -173,13 +172,20 @@ class Airframe:
         return _read_only(self.leg_mass_kg * self.hip_positions_frd_m.sum(axis=0))
 
     def com_offset_rate_frd_m_s(self, hip_rad, hip_rate_rad_s) -> np.ndarray:
-        """d/dt of com_offset_frd_m(hip_rad) while the hips move at hip_rate_rad_s."""
-        q, qd = np.asarray(hip_rad, dtype=float), np.asarray(hip_rate_rad_s, dtype=float)
+        """d/dt of com_offset_frd_m(hip_rad) while the hips move at hip_rate_rad_s (NaN for an
+        angle that is not finite)."""
+        q, qd = _angles(hip_rad), np.asarray(hip_rate_rad_s, dtype=float)
         s = self.leg_direction_signs
         reach_rate = np.zeros((len(q), 3))
         reach_rate[:, 0] = -self.leg_length_m * s[:, 0] * np.sin(q) * qd
         reach_rate[:, 1] = self.leg_length_m * s[:, 1] * np.cos(q) * qd
         return self.leg_swing_mass_kg * reach_rate.sum(axis=0) / self.total_mass_kg
+
+
+def _angles(hip_rad) -> np.ndarray:
+    """Hip angles as floats, NaN where not finite: an infinite angle has no sine or cosine."""
+    q = np.asarray(hip_rad, dtype=float)
+    return np.where(np.isfinite(q), q, np.nan)
 
 
 def _read_only(a: np.ndarray) -> np.ndarray:

@@ -31,6 +31,7 @@ def test_a_hip_angle_that_is_not_finite_has_no_thruster_position():
     af = load_airframe()
     hub = af.thruster_positions_frd_m([math.inf, -math.inf, math.nan, af.nominal_hip_rad])
     assert np.all(np.isnan(hub[:3, :2])) and np.all(np.isfinite(hub[3]))
+    assert np.all(np.isnan(af.com_offset_rate_frd_m_s([math.inf, 0.0, 0.0, 0.0], np.ones(4))[:2]))
 
 
 def test_symmetric_posture_keeps_the_centre_of_mass_at_the_hull_centre():
