@@ -44,14 +44,8 @@ import numpy as np
 
 from companion.core import rom
 from companion.core.applied_thrust import AppliedThrust
-from companion.core.control_types import (
-                                          FaultState,
-                                          FaultStatus,
-                                          one_period_apart,
-                                          plausible_state,
-                                          safe_setpoint,
-                                          thrust_bounds,
-)
+from companion.core.control_types import (FaultState, FaultStatus, one_period_apart, plausible_state, safe_setpoint,
+                                          thrust_bounds)
 from companion.core.disturbance import DisturbanceEstimator
 from companion.core.esc_evidence import EscSample, PropellerModel
 from companion.core.fault_detector import FaultDetector, FaultDetectorConfig

@@ -168,12 +168,12 @@ class FlightController:
             self.announce(mavlink.MAV_SEVERITY_NOTICE, "FC armed" if armed else "FC disarmed")
             self.setpoint = None
 
-    def _watch_rotors(self, now_ms: int, thrust_cmd_n) -> None:
-        """The FC's own lost-rotor check on what its ESCs report (sitl/rotor_watch.py) against
-        what it commanded them."""
+    def _watch_rotors(self, now_ms: int, thrust_cmd_n, rpm) -> None:
+        """The FC's own lost-rotor check on the speeds its ESCs report (sitl/rotor_watch.py)
+        against what it commanded them."""
         if self.rotor_watch.lost is not None:
             return
-        speed_rad_s = [rpm / RAD_S_TO_RPM for rpm in self.esc.report(now_ms).rpm]
+        speed_rad_s = [r / RAD_S_TO_RPM for r in rpm]
         if self.rotor_watch.update(thrust_cmd_n, speed_rad_s, now_ms) is not None:
             self.announce(mavlink.MAV_SEVERITY_CRITICAL, f"FC: rotor {self.rotor_watch.lost} lost (ESC speed)")
 
@@ -183,8 +183,9 @@ class FlightController:
         if self.esc is not None:
             rotors = self.plant.rotor_state()
             self.esc.sample(now_ms, rotors)
-            self._shortfall_n = self.shortfall.update(rotors.thrust_cmd_n, self.esc.report(now_ms).rpm)
-            self._watch_rotors(now_ms, rotors.thrust_cmd_n)
+            rpm = self.esc.report(now_ms).rpm
+            self._shortfall_n = self.shortfall.update(rotors.thrust_cmd_n, rpm)
+            self._watch_rotors(now_ms, rotors.thrust_cmd_n, rpm)
         if not self.armed:
             self._set_mode(FcMode.LANDED)
             self._command_plant(np.zeros(ROTOR_COUNT), self.failsafe.hip_rad)

@@ -9,8 +9,9 @@ propeller on the voltage the ESC gives it: the motor's torque balance (sitl/thru
 k_e ((u - k_e w) / R - i0) = drag) with u the voltage that settles the nominal propeller at
 w_e says its propeller gives k_t w_e^2 - (k_t k_e^2 / (k_q R)) (w - w_e), nothing once it
 has lost its propeller and runs near no-load speed. The shortfall is what is missing beyond
-DEADBAND_N (the speed's noise and quantisation, the motor constants' error). The speeds arrive esc_telemetry_delay_s late, so they are held against what was
-expected when they were measured. M4_SETPOINT's shortfall cover (m4/setpoint.py) turns it into the other rotors'
+DEADBAND_N (the speed's noise and quantisation, the motor constants' error). The speeds
+arrive esc_telemetry_delay_s late, so they are held against what was expected when they were
+measured. M4_SETPOINT's shortfall cover (m4/setpoint.py) turns it into the other rotors'
 change.
 
 FC logic, without sockets: sitl/flight_controller.py feeds it at every tick.
@@ -34,8 +35,8 @@ class ShortfallMeter:
         self._unload_n_s = (af.thrust_coefficient_n_s2 * af.motor_back_emf_v_s_rad ** 2
                             / (af.drag_torque_coefficient_n_m_s2 * af.motor_resistance_ohm))
         self._decay = math.exp(-tick_s / af.motor_time_constant_s)
-        self._expected_rad_s: list[float] | None = None
-        # the expected speeds of the last ticks, the oldest when the speeds now reported were measured
+        # the expected speeds of the last ticks, the newest now, the oldest when the speeds now
+        # reported were measured
         self._history: collections.deque[list[float]] = collections.deque(
             maxlen=math.ceil(af.esc_telemetry_delay_s / tick_s - 1e-9) + 1)
 
@@ -43,11 +44,9 @@ class ShortfallMeter:
         """The rotors' shortfall (N, rotors 1..4) one tick after they were commanded
         thrust_cmd_n (4,), their ESCs reporting rpm (4,)."""
         target = [math.sqrt(max(float(t), 0.0) / self._k_n_s2) for t in thrust_cmd_n]
-        if self._expected_rad_s is None:
-            self._expected_rad_s = target
-        else:
-            self._expected_rad_s = [w + (e - w) * self._decay for w, e in zip(target, self._expected_rad_s)]
-        self._history.append(self._expected_rad_s)
+        if self._history:
+            target = [w + (e - w) * self._decay for w, e in zip(target, self._history[-1])]
+        self._history.append(target)
         shortfall = []
         for expected, measured_rpm in zip(self._history[0], rpm):
             measured = float(measured_rpm) / RAD_S_TO_RPM

@@ -47,6 +47,7 @@ class RateFeedbackDesign:
         com, inertia = rom.mass_properties(af, hip)
         arms = rom.thruster_positions(af, hip) - ca.repmat(com, 1, ROTOR_COUNT)
         self._geometry = BufferedFunction(ca.Function("m4_rate_feedback_geometry", [hip], [arms, inertia]))
+        self._last: tuple[bytes, tuple[np.ndarray, np.ndarray]] | None = None   # the gain's and the cover's posture
 
     def gain(self, hip_rad, thrust_bound_n) -> np.ndarray | None:
         """(4, 3) thrust change per rotor per unit rate error (N per rad/s) at posture hip_rad;
@@ -83,9 +84,13 @@ class RateFeedbackDesign:
         return ShortfallCover(np.asarray(gain, dtype=np.float32).astype(float))     # as MAVLink carries it
 
     def _allocation(self, hip: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(3, 4) each rotor's roll and pitch torque and sum per newton, and the (3, 3) inertia."""
-        arms, inertia = self._geometry(hip)
-        return np.vstack([-arms[1], arms[0], np.ones(ROTOR_COUNT)]), inertia
+        """(3, 4) each rotor's roll and pitch torque and sum per newton, and the (3, 3) inertia;
+        evaluated once for the posture a step's gain and cover share."""
+        key = hip.tobytes()
+        if self._last is None or self._last[0] != key:
+            arms, inertia = self._geometry(hip)
+            self._last = (key, (np.vstack([-arms[1], arms[0], np.ones(ROTOR_COUNT)]), inertia))
+        return self._last[1]
 
     def feedback(self, x_start, x_next, dt_s: float, thrust_bound_n) -> RateFeedback | None:
         """The feedback for a plan from ROM state x_start whose next node, dt_s later, is x_next."""
