@@ -4,8 +4,10 @@ controller measured and what the companion did, no simulator truth.
 Positions are the hull's (the IMU's, LOCAL_POSITION_NED) unless the companion's log holds its
 centre of mass and reference (NAMED_VALUE_FLOAT com_*, ref_*). Definitions as sitl.metrics
 where both have them (analysis.measures):
-- faults: those injected by command (or given), each with the first confirmed M4_FAULT_STATUS
-  naming a rotor at or after it (detected_at_s, detected_rotor, latency_s);
+- faults: those injected by command (or given), each with its detection as analysis.detection
+  defines it (detected_at_s, detected_rotor, latency_s), judged against the ceiling the fault's
+  kind and loss state for the airframe's hover thrust; first_confirmation_s: the first confirmed
+  M4_FAULT_STATUS, whatever it names;
 - altitude_loss_m: largest drop after the first fault below the reference altitude (the
   companion's, when logged; else the altitude at the fault);
 - max_tilt_deg_after_fault, tilt_recovered_s (within 10 deg to the end), yaw_rate_final_rad_s
@@ -18,36 +20,22 @@ With no fault, "after the fault" is the whole flight.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
+from analysis import detection
+from analysis.detection import Fault, stated_ceiling_n
 from analysis.measures import tilt_deg, tilt_recovered_s, time_to_yaw_saturation, yaw_rate_final
-from analysis.tlog_reader import Fault, FlightRecord, Series
+from analysis.tlog_reader import FlightRecord, Series
+from m4.airframe import Airframe
 from m4.mavlink import mavlink
 
-CONFIRMED = mavlink.M4_FAULT_STATE_CONFIRMED
 
-
-def detections(record: FlightRecord, faults: list[Fault]) -> list[dict]:
-    """Each fault with the first confirmation at or after it and before the next fault."""
+def detections(record: FlightRecord, faults: list[Fault], hover_thrust_per_rotor_n: float) -> list[dict]:
+    """Each fault and its detection (analysis.detection), against the ceiling its kind and loss state."""
     fs = record.fault_state
-    confirmed = np.flatnonzero((fs.values[:, 0] == CONFIRMED) & (fs.values[:, 1] > 0)) if len(fs) else []
-    ends = [f.at_s for f in faults[1:]] + [math.inf]
-    out = []
-    for fault, end_s in zip(faults, ends):
-        hit = next((k for k in confirmed if fault.at_s <= fs.time_s[k] < end_s), None)
-        detected_at = None if hit is None else float(fs.time_s[hit])
-        out.append({"at_s": fault.at_s, "rotor": fault.rotor, "loss": fault.loss, "detected_at_s": detected_at,
-                    "detected_rotor": None if hit is None else int(fs.values[hit, 1]),
-                    "latency_s": None if hit is None else detected_at - fault.at_s})
-    return out
-
-
-def first_confirmation_s(record: FlightRecord) -> float | None:
-    fs = record.fault_state
-    hits = np.flatnonzero(fs.values[:, 0] == CONFIRMED) if len(fs) else []
-    return float(fs.time_s[hits[0]]) if len(hits) else None
+    ceilings_n = [stated_ceiling_n(f, hover_thrust_per_rotor_n) for f in faults]
+    return detection.detections(faults, ceilings_n, hover_thrust_per_rotor_n, fs.time_s, fs.values[:, 0],
+                                fs.values[:, 1], fs.values[:, 2:])
 
 
 def _stats(series: Series | None) -> dict | None:
@@ -81,9 +69,9 @@ def _position_rmse(record: FlightRecord) -> float | None:
     return float(np.sqrt(np.mean(np.sum((com - ref) ** 2, axis=1))))
 
 
-def telemetry_metrics(record: FlightRecord, faults: list[Fault]) -> dict:
-    """Every metric a tlog gives (see the module's docstring)."""
-    pos, att, rates = record.position_ned_m, record.euler_rad, record.rates_frd_rad_s
+def telemetry_metrics(record: FlightRecord, faults: list[Fault], af: Airframe) -> dict:
+    """Every metric a tlog gives (see the module's docstring) of a flight of the airframe `af`."""
+    pos, att, rates, status = record.position_ned_m, record.euler_rad, record.rates_frd_rad_s, record.fault_state
     if not len(pos) or not len(att):
         raise ValueError("no LOCAL_POSITION_NED or ATTITUDE from the flight controller in this tlog")
     start_s = faults[0].at_s if faults else float(pos.time_s[0])
@@ -99,8 +87,8 @@ def telemetry_metrics(record: FlightRecord, faults: list[Fault]) -> dict:
     nmpc_ok = record.named.get("nmpc_ok")
     return {
         "duration_s": record.duration_s,
-        "faults": detections(record, faults),
-        "first_confirmation_s": first_confirmation_s(record),
+        "faults": detections(record, faults, af.hover_thrust_per_rotor_n),
+        "first_confirmation_s": detection.first_confirmation_s(status.time_s, status.values[:, 0]),
         "altitude_loss_m": float(max(np.max(drop, initial=0.0), 0.0)),
         "max_tilt_deg_after_fault": float(np.max(tilt[att.time_s >= start_s], initial=0.0)),
         "tilt_recovered_s": tilt_recovered_s(att.time_s, tilt, start_s, len(att) - 1),

@@ -3,10 +3,10 @@
 What the FC measured (LOCAL_POSITION_NED, ATTITUDE, M4_JOINT_STATE, M4_THRUSTER_STATUS:
 component 1), what the companion commanded and decided (M4_SETPOINT, M4_FAULT_STATUS and the
 NAMED_VALUE_FLOAT of its flight log: component 191), STATUSTEXT from either, and the faults
-injected by command (MAV_CMD_INJECT_FAILURE, MAV_CMD_M4_ROTOR_LOSS, once the FC accepted
-them). Times are the FC's time_boot_ms in seconds; a message without one (STATUSTEXT, a
-command) takes the newest FC instant logged before it. Repeats of an instant (a lockstep
-frame sent again) are dropped.
+injected by command (MAV_CMD_INJECT_FAILURE: a motor stop; MAV_CMD_M4_ROTOR_LOSS with its
+kind; once the FC accepted them). Times are the FC's time_boot_ms in seconds; a message
+without one (STATUSTEXT, a command) takes the newest FC instant logged before it. Repeats of
+an instant (a lockstep frame sent again) are dropped.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.detection import Fault
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, mavlink, mavutil
 
 m = mavlink
@@ -42,13 +43,6 @@ class Series:
 
 
 @dataclass(frozen=True)
-class Fault:
-    at_s: float
-    rotor: int                     # 1..4, 0: all
-    loss: float                    # 0 restores
-
-
-@dataclass(frozen=True)
 class FlightRecord:
     position_ned_m: Series         # LOCAL_POSITION_NED x, y, z (the hull, as the FC measures it)
     velocity_ned_m_s: Series
@@ -70,13 +64,15 @@ class FlightRecord:
 
 
 _INJECT = (m.MAV_CMD_INJECT_FAILURE, m.MAV_CMD_M4_ROTOR_LOSS)
+_KINDS = {m.M4_ROTOR_FAILURE_KIND_DEGRADED: "degraded", m.M4_ROTOR_FAILURE_KIND_MOTOR: "motor",
+          m.M4_ROTOR_FAILURE_KIND_PROPELLER: "propeller", m.M4_ROTOR_FAILURE_KIND_DAMAGE: "damage"}
 
 
 def _injected_fault(cmd, t_s: float) -> Fault | None:
     if cmd.command == m.MAV_CMD_M4_ROTOR_LOSS:
-        return Fault(t_s, int(cmd.param1), float(cmd.param2))
+        return Fault(t_s, int(cmd.param1), float(cmd.param2), _KINDS.get(cmd.param3, "unknown"))
     if cmd.param1 == m.FAILURE_UNIT_SYSTEM_MOTOR and cmd.param2 in (m.FAILURE_TYPE_OFF, m.FAILURE_TYPE_OK):
-        return Fault(t_s, int(cmd.param3), 1.0 if cmd.param2 == m.FAILURE_TYPE_OFF else 0.0)
+        return Fault(t_s, int(cmd.param3), 1.0 if cmd.param2 == m.FAILURE_TYPE_OFF else 0.0, "motor")
     return None
 
 

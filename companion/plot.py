@@ -7,7 +7,9 @@ laptop without MuJoCo: `pip install "m4-fault-recovery[plot]"`.
 Writes DIR/metrics.json (analysis.flight_metrics) and DIR/{trajectory, velocities_rates,
 actuators, yaw_rate}.FORMAT (analysis.figures); DIR defaults to a folder beside the tlog,
 named after it. Faults injected by command are in the tlog; `--fault` adds one that is not
-(a simulator scenario's, a rotor cut by hand), at AT_S seconds of the flight controller's clock.
+(a simulator scenario's, a rotor cut by hand), at AT_S seconds of the flight controller's clock:
+a degraded motor, LOSS as in a scenario file (its ceiling (1 - LOSS) x the default airframe's
+hover thrust, against which analysis.detection judges the companion's detection).
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ EXIT_BAD_INPUT = 2
 
 
 def _fault(text: str):
-    from analysis.tlog_reader import Fault
+    from analysis.detection import Fault
 
     parts = text.split(":")
     try:
@@ -49,6 +51,7 @@ def run(args: argparse.Namespace) -> int:
     from analysis.figures import draw
     from analysis.flight_metrics import telemetry_metrics
     from analysis.tlog_reader import read_tlog
+    from m4.airframe import load_airframe
 
     if not args.tlog.is_file():
         return _error(f"no such tlog: {args.tlog}")
@@ -56,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         record = read_tlog(args.tlog)
         faults = sorted([*record.injected, *args.fault], key=lambda f: f.at_s)
-        metrics = telemetry_metrics(record, faults)
+        metrics = telemetry_metrics(record, faults, load_airframe())
     except (OSError, ValueError) as e:
         return _error(f"{args.tlog}: {e}")
     out.mkdir(parents=True, exist_ok=True)

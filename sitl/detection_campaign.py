@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from analysis.detection import CONFIRMED
 from m4.airframe import ROTOR_COUNT, load_airframe
 from sitl.campaign import Campaign
 from sitl.flight_run import FlightOptions
@@ -46,7 +47,6 @@ SIZING_AFTER_S = 1.0
 MISMATCH = 0.1
 ALTITUDE_M = 3.0
 ENDURANCE_FLIGHT_S = 60.0
-CONFIRMED = 2
 TARGETS_S = {("motor", True): 0.05, ("propeller", True): 0.10, ("motor", False): 0.15, ("propeller", False): 0.15}
 SIZING_TARGET_PCT = 10.0
 DEFAULT_OUT = Path("runs") / "detection"

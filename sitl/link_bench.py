@@ -20,12 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.detection import CONFIRMED
 from m4.toml_fields import ConfigError
 from sitl import scenarios
 from sitl.flight_run import FlightError, FlightFiles, FlightOptions
 from sitl.fly import fly
 from sitl.link_emulation import LinkEmulation
-from sitl.metrics import CONFIRMED
 from sitl.records import read_fault_status
 
 DEFAULT_SCENARIOS = ("hover-rotor-loss", "forward-flight-fault", "fault-free")

@@ -18,12 +18,13 @@ Definitions (times in the scenario's clock, positions of the centre of mass, NED
   first total rotor loss (else the first fault) until |yaw rate| first reaches
   YAW_SATURATION_FRACTION of its final value
   (None when the final rate is below YAW_SPIN_MIN_RAD_S: the robot does not spin).
-- faults[i].detected_at_s: the first instant in [at_s, next fault's at_s) at which the
-  companion's fault status is confirmed with a thrust estimate on the named rotor that
-  reflects this fault: at most the ceiling the fault leaves the rotor (its kind and loss,
-  sitl.thruster.fault_ceiling_n: 0 for a stopped motor or a lost propeller, (1 - loss) x hover
-  thrust for a degraded motor, about (1 - loss) x the rotor's limit for a damaged propeller)
-  + DETECTION_MARGIN x hover thrust. The detection campaign takes its detections from here.
+- faults[i].detected_at_s, detected_rotor, latency_s: analysis.detection's rule (the tlog's
+  metrics use it too): the first instant in [at_s, next fault's at_s) at which the companion's
+  fault status is confirmed with a thrust estimate on the named rotor that reflects this fault:
+  at most the ceiling the fault leaves the rotor (its kind and loss, sitl.thruster.fault_ceiling_n:
+  0 for a stopped motor or a lost propeller, (1 - loss) x hover thrust for a degraded motor,
+  about (1 - loss) x the rotor's limit for a damaged propeller) + DETECTION_MARGIN x hover
+  thrust. The detection campaign takes its detections from here.
 - realtime_factor: simulated seconds per wall second of the plant process, from its first
   answered control instant to the end.
 - link (added by sitl.fly): the companion's link as flown: delay_ms each way, loss, mode
@@ -33,22 +34,18 @@ Definitions (times in the scenario's clock, positions of the centre of mass, NED
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
+from analysis import detection
 from analysis.measures import TILT_RECOVERED_DEG, tilt_deg, tilt_recovered_s, time_to_yaw_saturation, yaw_rate_final
 from m4.airframe import Airframe
 from m4.mission_plan import MissionPlan
-from m4.mavlink import mavlink
 from sitl.scenario import Scenario
 from sitl.records import FaultStatusLog, NmpcLog
 from sitl.thruster import fault_ceiling_n
 from sitl.truth import Truth
 
-CONFIRMED = mavlink.M4_FAULT_STATE_CONFIRMED
 TILT_UPSIDE_DOWN_DEG = 90.0
-DETECTION_MARGIN = 0.25
 COMPLETE_TOLERANCE_S = 0.05
 AT_REST_SPEED_M_S = 0.2
 TOUCHDOWN_WINDOW_S = 0.2
@@ -97,27 +94,18 @@ def altitude_loss_m(time_s: np.ndarray, com_z_ned_m: np.ndarray, ref_z_ned_m: np
     return float(max(np.max(drop, initial=0.0), 0.0))
 
 
+def detection_faults(scenario: Scenario) -> list[detection.Fault]:
+    """The scenario's faults as analysis.detection (and a tlog's metrics) take them."""
+    return [detection.Fault(f.at_s, f.rotor, f.loss, f.kind.label, f.until_s) for f in scenario.faults]
+
+
 def detections(scenario: Scenario, status: FaultStatusLog, af: Airframe) -> list[dict]:
-    out = []
-    ends = [f.at_s for f in scenario.faults[1:]] + [math.inf]
-    thrust_max_n = scenario.plant.thrust_max_n
-    for fault, end_s in zip(scenario.faults, ends):
-        detected_at, detected_rotor = None, None
-        bound_n = (fault_ceiling_n(af, fault.kind, fault.loss, thrust_max_n)
-                   + DETECTION_MARGIN * af.hover_thrust_per_rotor_n)
-        for k in np.flatnonzero((status.state == CONFIRMED) & (status.time_s >= fault.at_s) & (status.time_s < end_s)):
-            rotor = int(status.rotor[k])
-            if 1 <= rotor <= status.thrust_max_estimate_n.shape[1] and status.thrust_max_estimate_n[k, rotor - 1] <= bound_n:
-                detected_at, detected_rotor = float(status.time_s[k]), rotor
-                break
-        out.append({"at_s": fault.at_s, "rotor": fault.rotor, "loss": fault.loss, "kind": fault.kind.label,
-                    "until_s": fault.until_s, "detected_at_s": detected_at, "detected_rotor": detected_rotor})
-    return out
-
-
-def first_confirmation_s(status: FaultStatusLog) -> float | None:
-    hits = np.flatnonzero(status.state == CONFIRMED)
-    return float(status.time_s[hits[0]]) if hits.size else None
+    """The scenario's faults and their detections (analysis.detection), each judged against the
+    ceiling the plant's motor model says the fault leaves its rotor."""
+    faults = detection_faults(scenario)
+    ceilings_n = [fault_ceiling_n(af, f.kind, f.loss, scenario.plant.thrust_max_n) for f in scenario.faults]
+    return detection.detections(faults, ceilings_n, af.hover_thrust_per_rotor_n, status.time_s, status.state,
+                                status.rotor, status.thrust_max_estimate_n)
 
 
 def nmpc_summary(nmpc: NmpcLog) -> dict:
@@ -149,7 +137,7 @@ def _rounded(value):
 
 def reference_track(scenario: Scenario, af: Airframe, truth: Truth, status: FaultStatusLog) -> np.ndarray:
     """(n, 3) the mission reference at each truth sample, the hold where the companion confirmed the fault."""
-    hold_s = first_confirmation_s(status) if scenario.faults else None
+    hold_s = detection.first_confirmation_s(status.time_s, status.state) if scenario.faults else None
     return reference_positions(scenario, af, truth.time_s, truth.com_ned_m, hold_s)
 
 

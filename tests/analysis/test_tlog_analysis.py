@@ -15,12 +15,15 @@ import pytest
 
 from analysis.figures import body_velocities, draw
 from analysis.flight_metrics import telemetry_metrics
-from analysis.tlog_reader import Fault, read_tlog
+from analysis.detection import Fault
+from analysis.tlog_reader import read_tlog
 from companion.cli import main
+from m4.airframe import load_airframe
 from m4.mavlink import mavlink, new_mav
 from m4.mavlink.tlog import TlogWriter
 
 m = mavlink
+AF = load_airframe()
 ROOT = Path(__file__).resolve().parents[2]
 FAULT_S, DETECTED_S = 1.0, 1.06
 
@@ -42,7 +45,11 @@ class _Tlog:
         self.mavs[component].send(msg)
 
 
-def _flight(path, yaw_rad=0.0, vel_ned=(0.0, 0.0, 0.0)):
+ROTOR_4_LOST = (m.MAV_CMD_M4_ROTOR_LOSS, 4, 1, m.M4_ROTOR_FAILURE_KIND_DEGRADED)
+
+
+def _flight(path, yaw_rad=0.0, vel_ned=(0.0, 0.0, 0.0), injection=ROTOR_4_LOST):
+    """injection: (command, its first three params) sent at 1 s and accepted."""
     log = _Tlog(path)
     for k in range(151):
         t_s = k * 0.02
@@ -65,8 +72,9 @@ def _flight(path, yaw_rad=0.0, vel_ned=(0.0, 0.0, 0.0)):
         for name, value in (("nmpc_ms", 1.0 + k % 3), ("ref_d", -2.0), ("step_ms", 2.0), ("nmpc_ok", 1.0)):
             log.send(191, m.MAVLink_named_value_float_message(t_ms, name.encode(), value))
         if k == 50:
-            log.send(190, m.MAVLink_command_long_message(1, 1, m.MAV_CMD_M4_ROTOR_LOSS, 0, 4, 1, 0, 0, 0, 0, 0))
-            log.send(1, m.MAVLink_command_ack_message(m.MAV_CMD_M4_ROTOR_LOSS, m.MAV_RESULT_ACCEPTED, 0, 0, 255, 190))
+            command, *params = injection
+            log.send(190, m.MAVLink_command_long_message(1, 1, command, 0, *params, 0, 0, 0, 0))
+            log.send(1, m.MAVLink_command_ack_message(command, m.MAV_RESULT_ACCEPTED, 0, 0, 255, 190))
         if k == 53:
             log.send(191, m.MAVLink_statustext_message(m.MAV_SEVERITY_CRITICAL, b"thrust loss rotor 4"))
     log.writer.close()
@@ -86,9 +94,16 @@ def test_the_tlog_reads_back_into_series_and_the_injected_fault(tlog):
     assert [(t, text) for t, _, _, text in record.statustext] == [(1.06, "thrust loss rotor 4")]
 
 
+@pytest.mark.parametrize("injection, fault", [
+    ((m.MAV_CMD_INJECT_FAILURE, m.FAILURE_UNIT_SYSTEM_MOTOR, m.FAILURE_TYPE_OFF, 4), Fault(FAULT_S, 4, 1.0, "motor")),
+    ((m.MAV_CMD_M4_ROTOR_LOSS, 2, 0.5, m.M4_ROTOR_FAILURE_KIND_DAMAGE), Fault(FAULT_S, 2, 0.5, "damage"))])
+def test_an_injected_fault_keeps_its_kind(tmp_path, injection, fault):
+    assert read_tlog(_flight(tmp_path / "flight.tlog", injection=injection)).injected == [fault]
+
+
 def test_metrics_from_telemetry(tlog):
     record = read_tlog(tlog)
-    metrics = telemetry_metrics(record, record.injected)
+    metrics = telemetry_metrics(record, record.injected, AF)
     [fault] = metrics["faults"]
     assert fault["detected_rotor"] == 4 and fault["latency_s"] == pytest.approx(DETECTED_S - FAULT_S)
     assert metrics["altitude_loss_m"] == pytest.approx(0.1, abs=1e-6)
@@ -110,7 +125,7 @@ def test_flying_north_while_facing_east_is_flying_to_the_left_in_the_body_frame(
 @pytest.mark.parametrize("fmt, magic", [("png", b"\x89PNG"), ("pdf", b"%PDF"), ("svg", b"<?xml")])
 def test_every_figure_in_every_format_with_legends_beside_the_data(tlog, tmp_path, fmt, magic):
     record = read_tlog(tlog)
-    faults = telemetry_metrics(record, record.injected)["faults"]
+    faults = telemetry_metrics(record, record.injected, AF)["faults"]
     paths = draw(record, tmp_path, "synthetic", faults, fmt)
     assert [p.name for p in paths] == [f"{n}.{fmt}" for n in ("trajectory", "velocities_rates", "actuators",
                                                                "yaw_rate")]
@@ -121,7 +136,7 @@ def test_legends_sit_outside_the_panels_and_name_fault_and_detection(tlog, tmp_p
     import matplotlib.pyplot as plt
 
     record = read_tlog(tlog)
-    faults = telemetry_metrics(record, record.injected)["faults"]
+    faults = telemetry_metrics(record, record.injected, AF)["faults"]
     seen = []
     monkeypatch.setattr(plt, "close", lambda fig: seen.append(fig))
     draw(record, tmp_path, "synthetic", faults)

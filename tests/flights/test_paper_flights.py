@@ -10,8 +10,15 @@ import json
 import numpy as np
 import pytest
 
+from analysis.flight_metrics import telemetry_metrics
+from analysis.tlog_reader import read_tlog
+from m4.airframe import load_airframe
 from sitl import scenarios
+from sitl.figures import flight_tlog
+from sitl.flight_run import FlightFiles
 from sitl.fly import fly
+from sitl.metrics import detection_faults
+from sitl.scenario import load_scenario
 from sitl.truth import load_truth
 
 pytestmark = pytest.mark.flight
@@ -75,3 +82,16 @@ def test_waypoint_tracking_through_three_losses_of_effectiveness_lands_softly(fl
     _assert_survived_with_prompt_detection(m)
     assert m["position_rmse_m"] < 0.3
     assert m["landed"] and m["touchdown_speed_m_s"] <= 1.0
+
+
+def test_the_tlogs_metrics_find_each_detection_where_the_simulators_metrics_do(flown):
+    """`m4-companion plot` on the companion's log and on the SITL's, given the scenario's faults:
+    a confirmation that still sizes the previous loss of effectiveness detects no later one."""
+    m, out = flown("waypoint-loe")
+    files = FlightFiles(out)
+    faults = detection_faults(load_scenario(files.scenario))
+    for tlog in (flight_tlog(files), files.tlog):
+        found = telemetry_metrics(read_tlog(tlog), faults, load_airframe())["faults"]
+        assert [(f["kind"], f["detected_at_s"], f["detected_rotor"]) for f in found] == \
+            [(f["kind"], f["detected_at_s"], f["detected_rotor"]) for f in m["faults"]], tlog
+        assert [f["latency_s"] for f in found] == pytest.approx([f["latency_s"] for f in m["faults"]])

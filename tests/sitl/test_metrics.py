@@ -5,11 +5,15 @@ import math
 import numpy as np
 import pytest
 
+from analysis import flight_metrics
+from analysis.tlog_reader import read_tlog
 from m4.airframe import load_airframe
+from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
+from m4.mavlink.tlog import TlogWriter
 from m4.mission import Landing, Mission, Waypoint
 from sitl.scenario import Fault, Scenario, Start
 from sitl import metrics
-from sitl.records import FaultStatusLog, NmpcLog
+from sitl.records import FaultStatusLog, NmpcLog, read_fault_status
 from sitl.thruster import FailureKind
 from sitl.truth import Truth
 
@@ -97,16 +101,40 @@ def test_yaw_saturation_time_is_when_the_spin_reaches_90_percent_of_its_final_ra
     assert metrics.time_to_yaw_saturation(t, 0.1 * r, 1.0, 0.1 * final) is None     # 1 rad/s: not a spin
 
 
+LOE = Scenario(name="loe", duration_s=30.0, faults=(Fault(7.0, 4, 0.33), Fault(14.0, 4, 0.66), Fault(21.0, 4, 1.0)))
+LOE_STATUS = [(7.1, 4, 1, AF.thrust_max_n), (7.3, 4, 2, 0.67 * HOVER_N), (14.0, 4, 2, 0.67 * HOVER_N),
+              (14.6, 4, 2, 0.34 * HOVER_N), (21.0, 4, 2, 0.34 * HOVER_N), (21.4, 4, 2, 0.02)]
+
+
 def test_each_loss_of_effectiveness_is_detected_when_the_bound_reflects_it():
-    scenario = Scenario(name="loe", duration_s=30.0, faults=(Fault(7.0, 4, 0.33), Fault(14.0, 4, 0.66),
-                                                             Fault(21.0, 4, 1.0)))
-    status = _status([(7.1, 4, 1, AF.thrust_max_n), (7.3, 4, 2, 0.67 * HOVER_N), (14.2, 4, 2, 0.67 * HOVER_N),
-                      (14.6, 4, 2, 0.34 * HOVER_N), (21.4, 4, 2, 0.02)])
-    found = metrics.detections(scenario, status, AF)
+    """A confirmation still sizing the previous loss is no detection of the next."""
+    found = metrics.detections(LOE, _status(LOE_STATUS), AF)
     assert [f["detected_at_s"] for f in found] == [7.3, 14.6, 21.4]
     assert {f["detected_rotor"] for f in found} == {4}
-    missed = metrics.detections(scenario, _status([(7.3, 2, 2, 0.67 * HOVER_N)]), AF)
+    missed = metrics.detections(LOE, _status([(7.3, 2, 2, 0.67 * HOVER_N)]), AF)
     assert missed[0]["detected_rotor"] == 2 and missed[1]["detected_at_s"] is None
+
+
+def _status_tlog(path, rows):
+    """The companion's M4_FAULT_STATUS of `rows` (as _status's) in a tlog."""
+    status = _status(rows)
+    mav = new_mav(None, FC_SYSTEM_ID, COMPANION_COMPONENT_ID)
+    with TlogWriter(path) as tlog:
+        for k, t_s in enumerate(status.time_s):
+            t_ms = round(t_s * 1000)
+            msg = mavlink.MAVLink_m4_fault_status_message(t_ms, int(status.rotor[k]),
+                                                          status.thrust_max_estimate_n[k].tolist(), t_ms,
+                                                          int(status.state[k]))
+            tlog.record(msg.pack(mav))
+    return path
+
+
+def test_a_tlog_alone_finds_the_detections_the_simulators_metrics_find(tmp_path):
+    tlog = _status_tlog(tmp_path / "status.tlog", LOE_STATUS)
+    truth_path = metrics.detections(LOE, read_fault_status(tlog), AF)
+    tlog_path = flight_metrics.detections(read_tlog(tlog), metrics.detection_faults(LOE), HOVER_N)
+    assert [f["detected_at_s"] for f in truth_path] == [7.3, 14.6, 21.4]
+    assert tlog_path == truth_path
 
 
 @pytest.mark.parametrize("kind, detected_at_s", [(FailureKind.DAMAGE, 2.1), (FailureKind.DEGRADED, 2.5),
