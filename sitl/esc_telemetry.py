@@ -105,17 +105,17 @@ class EscTelemetry:
         dt_s = 0.0 if self._last_ms is None else (now_ms - self._last_ms) / 1000.0
         self._last_ms = now_ms
         decay = math.exp(-dt_s / af.esc_thermal_time_constant_s)
-        for i, current in enumerate(np.asarray(truth.esc_current_a, dtype=float).tolist()):
+        for i, current in enumerate(map(float, truth.esc_current_a)):
             current = max(current, 0.0)
             self._consumed_mah[i] += current * dt_s * _MAH_PER_AS
             steady = af.esc_ambient_temperature_c + af.esc_temperature_rise_c_per_a * current
             self._temperature_c[i] = steady + (self._temperature_c[i] - steady) * decay
 
     def _measured_rpm(self, truth: RotorState) -> list[int]:
-        rpm = np.asarray(truth.rotor_speed_rad_s) * RAD_S_TO_RPM
+        rpm = [w * RAD_S_TO_RPM for w in map(float, truth.rotor_speed_rad_s)]
         if self._noise:
-            rpm = rpm / (1.0 + self._rng.normal(0.0, self._af.esc_rpm_noise_fraction, ROTOR_COUNT))
-        return [min(int(_dshot_rpm(max(r, 0.0), self._af.motor_pole_pairs)), _UINT16) for r in rpm.tolist()]
+            rpm = (np.array(rpm) / (1.0 + self._rng.normal(0.0, self._af.esc_rpm_noise_fraction, ROTOR_COUNT))).tolist()
+        return [min(int(_dshot_rpm(max(r, 0.0), self._af.motor_pole_pairs)), _UINT16) for r in rpm]
 
     def _serial_packet(self, i: int, truth: RotorState) -> tuple[int, int, int, int]:
         af = self._af

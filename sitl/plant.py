@@ -109,7 +109,8 @@ class Plant:
 
     def _apply_thrust(self) -> None:
         self._state = None
-        self._esc_cmd_n = np.clip(self._thrust_request_n, self.airframe.thrust_min_n, self._thrust_max_n)
+        lo_n, hi_n = self.airframe.thrust_min_n, self._thrust_max_n
+        self._esc_cmd_n = [min(max(t, lo_n), hi_n) for t in self._thrust_request_n.tolist()]   # np.clip, on floats
         self.thrusters.command(self._esc_cmd_n)
         self._update_rotors()
 
@@ -119,8 +120,7 @@ class Plant:
         k_t w_s^2 + 2 k_t w_s d exp(-t / tau) + k_t d^2 exp(-2 t / tau)."""
         rotors, d = self.thrusters, self.data
         rotors.update(self.battery.voltage_v)
-        rotor = list(zip(rotors.thrust_coefficient_n_s2.tolist(), rotors.settled_rad_s.tolist(),
-                         (rotors.speed_rad_s - rotors.settled_rad_s).tolist()))      # (k_t, w_s, gap): Python floats
+        rotor = [(k_t, w_s, w - w_s) for k_t, w_s, w in rotors.filter_inputs()]     # (k_t, w_s, gap): Python floats
         d.ctrl[self._thrust] = [k_t * (w_s * w_s) for k_t, w_s, _ in rotor]
         d.act[self._thrust_act] = [k_t * w_s * (w_s + 2.0 * gap) for k_t, w_s, gap in rotor]
         d.ctrl[self._thrust_sq] = 0.0
@@ -212,9 +212,9 @@ class Plant:
 
     def rotor_state(self) -> RotorState:
         """The rotors' part of state(), without computing the rest (the FC reads it every tick)."""
-        rotors = self.thrusters
-        return RotorState(rotor_speed_rad_s=rotors.speed_rad_s.copy(), esc_current_a=rotors.current_a,
-                          battery_voltage_v=self.battery.voltage_v, thrust_cmd_n=self._esc_cmd_n.copy())
+        speed_rad_s, current_a = self.thrusters.esc_readings()
+        return RotorState(rotor_speed_rad_s=speed_rad_s, esc_current_a=current_a,
+                          battery_voltage_v=self.battery.voltage_v, thrust_cmd_n=list(self._esc_cmd_n))
 
     def _compute_state(self) -> PlantState:
         m, d = self.model, self.data
@@ -229,11 +229,11 @@ class Plant:
             rates_frd_rad_s=frames.flip_vector(d.qvel[self._rates]),
             hip_rad=d.qpos[self._hip_qpos].copy(),
             hip_rate_rad_s=d.qvel[self._hip_qvel].copy(),
-            thrust_cmd_n=self._esc_cmd_n.copy(),
+            thrust_cmd_n=np.array(self._esc_cmd_n),
             thrust_n=d.act[self._thrust_act] + d.act[self._thrust_sq_act],
             thrust_limit_n=self.thrusters.thrust_ceiling_n(self._thrust_max_n),
             thrust_rated_max_n=np.full(ROTOR_COUNT, self._thrust_max_n),
-            rotor_speed_rad_s=self.thrusters.speed_rad_s.copy(),
+            rotor_speed_rad_s=self.thrusters.speed_rad_s,
             esc_current_a=self.thrusters.current_a,
             fault_kind=self.thrusters.kind.copy(),
             battery_voltage_v=self.battery.voltage_v,

@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from m4.airframe import ROTOR_COUNT, Airframe
 
 MIN_COMMAND_N = 3.0
@@ -33,8 +31,8 @@ class RotorWatch:
         """Feed the thrusts commanded (4,) and the speeds the ESCs report (4,); the lost rotor, if any."""
         if self.lost is not None:
             return self.lost
-        command = np.asarray(command_n, dtype=float).tolist()         # Python floats: four numbers
-        speed = np.asarray(speed_rad_s, dtype=float).tolist()
+        command = list(map(float, command_n))         # Python floats: four numbers
+        speed = list(map(float, speed_rad_s))
         for i in range(ROTOR_COUNT):
             expected = math.sqrt(max(command[i], 0.0) / self.k_n_s2)
             if not (command[i] >= MIN_COMMAND_N and speed[i] < SLOW_FRACTION * expected):

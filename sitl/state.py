@@ -34,8 +34,9 @@ class PlantState:
 @dataclass(frozen=True)
 class RotorState:
     """What the ESCs measure and are told, alone (truth; the names of PlantState's fields):
-    cheap to read at every FC tick, without the rest of the plant's state."""
-    rotor_speed_rad_s: np.ndarray  # (4,)
-    esc_current_a: np.ndarray      # (4,) drawn from the pack by each ESC
+    cheap to read at every FC tick, without the rest of the plant's state (Python floats,
+    not arrays: four numbers each)."""
+    rotor_speed_rad_s: list[float]  # (4,)
+    esc_current_a: list[float]      # (4,) drawn from the pack by each ESC
     battery_voltage_v: float
-    thrust_cmd_n: np.ndarray       # (4,) sent to the ESCs
+    thrust_cmd_n: list[float]       # (4,) sent to the ESCs

@@ -58,18 +58,25 @@ _MOTOR, _PROPELLER, _DAMAGE, _DEGRADED = (int(k) for k in (FailureKind.MOTOR, Fa
 
 
 class Thrusters:
+    """Per-rotor state on Python floats (lists of four): the FC commands the rotors at every
+    4 ms tick, a sagging pack at every physics step, and numpy on four-element arrays costs
+    more than the sums. The public arrays are built from them when asked for."""
+
     def __init__(self, af: Airframe, thrust_n: float, voltage_v: float):
         """Four healthy rotors settled at `thrust_n` each."""
         self._tau_s = af.motor_time_constant_s
         self._k_t, self._k_q = af.thrust_coefficient_n_s2, af.drag_torque_coefficient_n_m_s2
         self._k_e, self._r, self._i0 = af.motor_back_emf_v_s_rad, af.motor_resistance_ohm, af.motor_no_load_current_a
+        self._k_e_sq, self._k_e_4 = self._k_e ** 2, self._k_e ** 4
         self._hover_n = af.hover_thrust_per_rotor_n
         self.kind = np.full(ROTOR_COUNT, HEALTHY)
         self.loss = np.zeros(ROTOR_COUNT)
-        self._scale = np.ones(ROTOR_COUNT)                 # the propellers' k_t and k_q / the nominal ones
-        self._u_max_v = np.full(ROTOR_COUNT, np.inf)       # what each motor may be driven with
-        self._speed_cmd = np.full(ROTOR_COUNT, self.speed_for_thrust(thrust_n))
-        self.speed_rad_s = self._speed_cmd.copy()
+        self._scale = [1.0] * ROTOR_COUNT                  # the propellers' k_t and k_q / the nominal ones
+        self._k_t_now = [self._k_t] * ROTOR_COUNT          # k_t x scale: 0 without a propeller
+        self._u_max_v = [math.inf] * ROTOR_COUNT           # what each motor may be driven with
+        self._driven = [True] * ROTOR_COUNT                # False: motor or ESC dead, no current
+        self._speed_cmd = [float(self.speed_for_thrust(thrust_n))] * ROTOR_COUNT
+        self._speed = list(self._speed_cmd)                # rad/s
         self.voltage_v = voltage_v
         self._ceiling: tuple[float, float, np.ndarray] | None = None   # (thrust_max_n, voltage_v, ceiling)
         self.update(voltage_v)
@@ -80,8 +87,8 @@ class Thrusters:
         return np.sqrt(np.maximum(thrust_n, 0.0) / self._k_t)
 
     def command(self, thrust_n) -> None:
-        """The ESC commands: thrusts (N) through the nominal propeller. Call update() after."""
-        self._speed_cmd = self.speed_for_thrust(np.asarray(thrust_n, dtype=float))
+        """The ESC commands: thrusts (N, four) through the nominal propeller. Call update() after."""
+        self._speed_cmd = [math.sqrt(max(t, 0.0) / self._k_t) for t in thrust_n]
 
     def set_fault(self, index: int, kind: FailureKind, loss: float) -> None:
         """Rotor `index` (0..3) fails; loss 0 restores it. Call update() after."""
@@ -89,8 +96,10 @@ class Thrusters:
         self.kind[index] = kind = HEALTHY if restored else int(kind)
         self.loss[index] = loss = 0.0 if restored else loss
         self._scale[index] = {_PROPELLER: 0.0, _DAMAGE: 1.0 - loss}.get(kind, 1.0)
+        self._k_t_now[index] = self._k_t * self._scale[index]
         ceiling_v = float(self._drive_voltage(self.speed_for_thrust((1.0 - loss) * self._hover_n)))
-        self._u_max_v[index] = {_MOTOR: 0.0, _DEGRADED: ceiling_v}.get(kind, np.inf)
+        self._u_max_v[index] = {_MOTOR: 0.0, _DEGRADED: ceiling_v}.get(kind, math.inf)
+        self._driven[index] = kind != _MOTOR
         self._ceiling = None
 
     # -- the motor ------------------------------------------------------------------------
@@ -102,39 +111,43 @@ class Thrusters:
     def _settled_speed(self, u_v: float, k_q: float) -> float:
         """Root of k_q R w^2 + k_e^2 w - k_e (u - R i0) = 0 (0 when u cannot beat friction)."""
         drive = self._k_e * max(u_v - self._r * self._i0, 0.0)
-        return 2.0 * drive / (self._k_e ** 2 + math.sqrt(self._k_e ** 4 + 4.0 * k_q * self._r * drive))
+        return 2.0 * drive / (self._k_e_sq + math.sqrt(self._k_e_4 + 4.0 * k_q * self._r * drive))
 
-    def _settle(self, speed_cmd, voltage_v: float) -> tuple[np.ndarray, np.ndarray]:
-        """(ESC output voltage, settled speed) for the commanded speeds (4,), faults applied:
-        rotor by rotor on Python floats (the FC commands the rotors at every 4 ms tick, a sagging
-        pack at every physics step, and numpy on four-element arrays costs more than the sums)."""
-        u = [min(min(self._drive_voltage(w), voltage_v), u_max)
-             for w, u_max in zip(np.asarray(speed_cmd, dtype=float).tolist(), self._u_max_v.tolist())]
-        w = [self._settled_speed(u_v, self._k_q * scale) for u_v, scale in zip(u, self._scale.tolist())]
-        return np.array(u), np.array(w)
+    def _settle(self, speed_cmd: list[float], voltage_v: float) -> tuple[list[float], list[float]]:
+        """(ESC output voltage, settled speed) for the commanded speeds (four), faults applied."""
+        u = [min(min(self._drive_voltage(w), voltage_v), u_max) for w, u_max in zip(speed_cmd, self._u_max_v)]
+        w = [self._settled_speed(u_v, self._k_q * scale) for u_v, scale in zip(u, self._scale)]
+        return u, w
 
     def update(self, voltage_v: float) -> None:
         """Recompute what every rotor heads for, on pack voltage `voltage_v`."""
         self.voltage_v = voltage_v
-        self._u_v, self.settled_rad_s = self._settle(self._speed_cmd, voltage_v)
+        self._u_v, self._settled = self._settle(self._speed_cmd, voltage_v)
 
     def advance(self, dt_s: float) -> None:
         decay = math.exp(-dt_s / self._tau_s)
-        self.speed_rad_s = self.settled_rad_s + (self.speed_rad_s - self.settled_rad_s) * decay
+        self._speed = [w_s + (w - w_s) * decay for w_s, w in zip(self._settled, self._speed)]
 
     def advance_drawing(self, dt_s: float, steps: int) -> list[float]:
         """advance(dt_s) `steps` times (targets and pack voltage held); after each, what the
-        ESCs draw from the pack in all (current_a summed). On Python floats, in the order of
-        operations of advance() and current_a: the same numbers bit for bit, for a fraction of
-        the cost of numpy on four-element arrays once per physics step."""
+        ESCs draw from the pack in all (current_a summed, in its order of operations)."""
         decay = math.exp(-dt_s / self._tau_s)
-        settled, speed = self.settled_rad_s.tolist(), self.speed_rad_s.tolist()
+        settled, speed = self._settled, self._speed
         totals = []
         for _ in range(steps):
             speed = [w_s + (w - w_s) * decay for w_s, w in zip(settled, speed)]
             totals.append(sum(self._pack_currents(speed)))
-        self.speed_rad_s = np.array(speed)
+        self._speed = speed
         return totals
+
+    def esc_readings(self) -> tuple[list[float], list[float]]:
+        """(speed rad/s, draw from the pack A) of every rotor: what its ESC measures."""
+        return list(self._speed), self._pack_currents(self._speed)
+
+    def filter_inputs(self) -> list[tuple[float, float, float]]:
+        """(k_t N/(rad/s)^2, settled speed rad/s, speed rad/s) of every rotor: what the plant's
+        thrust filters are set from (sitl/plant.py)."""
+        return list(zip(self._k_t_now, self._settled, self._speed))
 
     # -- what the rotors do ---------------------------------------------------------------
     @property
@@ -142,9 +155,13 @@ class Thrusters:
         return self._tau_s
 
     @property
+    def speed_rad_s(self) -> np.ndarray:
+        return np.array(self._speed)
+
+    @property
     def thrust_coefficient_n_s2(self) -> np.ndarray:
         """Each rotor's k_t now (0 without its propeller)."""
-        return self._k_t * self._scale
+        return np.array(self._k_t_now)
 
     @property
     def thrust_n(self) -> np.ndarray:
@@ -152,22 +169,22 @@ class Thrusters:
 
     @property
     def motor_current_a(self) -> np.ndarray:
-        return np.array(self._motor_currents(self.speed_rad_s.tolist()))
+        return np.array(self._motor_currents(self._speed))
 
     @property
     def current_a(self) -> np.ndarray:
         """What each ESC draws from the pack."""
-        return np.array(self._pack_currents(self.speed_rad_s.tolist()))
+        return np.array(self._pack_currents(self._speed))
 
     def _motor_currents(self, speed_rad_s: list[float]) -> list[float]:
         k_e, r = self._k_e, self._r
-        return [0.0 if kind == _MOTOR else max((u - k_e * w) / r, 0.0)
-                for u, w, kind in zip(self._u_v.tolist(), speed_rad_s, self.kind.tolist())]
+        return [max((u - k_e * w) / r, 0.0) if driven else 0.0
+                for u, w, driven in zip(self._u_v, speed_rad_s, self._driven)]
 
     def _pack_currents(self, speed_rad_s: list[float]) -> list[float]:
         """Each ESC's draw from the pack: its motor's current scaled by its output voltage over the pack's."""
         voltage_v = self.voltage_v
-        return [u / voltage_v * i for u, i in zip(self._u_v.tolist(), self._motor_currents(speed_rad_s))]
+        return [u / voltage_v * i for u, i in zip(self._u_v, self._motor_currents(speed_rad_s))]
 
     @property
     def copper_loss_w(self) -> np.ndarray:
@@ -177,8 +194,8 @@ class Thrusters:
         """What each rotor settles at when commanded `thrust_max_n` now (truth: the fault and the
         pack voltage applied; computed again only when one of them changed)."""
         if self._ceiling is None or self._ceiling[:2] != (thrust_max_n, self.voltage_v):
-            _, w = self._settle(np.full(ROTOR_COUNT, self.speed_for_thrust(thrust_max_n)), self.voltage_v)
-            self._ceiling = (thrust_max_n, self.voltage_v, self.thrust_coefficient_n_s2 * w ** 2)
+            _, w = self._settle([float(self.speed_for_thrust(thrust_max_n))] * ROTOR_COUNT, self.voltage_v)
+            self._ceiling = (thrust_max_n, self.voltage_v, self.thrust_coefficient_n_s2 * np.array(w) ** 2)
         return self._ceiling[2].copy()
 
 
