@@ -48,7 +48,7 @@ class RateFeedback:
         """(4,) the feedback after the setpoint has been in force in_force_s (planned rates
         held after period_s), for the measured body rates; zeros when they are not finite."""
         rates = np.asarray(rates_frd_rad_s, dtype=float)
-        if not np.all(np.isfinite(rates)):
+        if not np.isfinite(rates).all():        # the array's method: np.all's wrapper costs more at every tick
             return np.zeros(4)
         ref = self.rates_ref_frd_rad_s + self.rates_ref_change_frd_rad_s2 * min(max(in_force_s, 0.0), period_s)
         return self.gain_n_per_rad_s @ (ref - rates)

@@ -142,8 +142,8 @@ class FlightController:
                                                        self.setpoint.period_ms / 1000.0)
         if sp.shortfall_cover is not None and self._shortfall_n is not None:
             change += sp.shortfall_cover.thrust_change_n(self._shortfall_n)
-        af = self.airframe
-        self.plant.command_thrust(np.clip(sp.thrust_n + change, af.thrust_min_n, af.thrust_max_n))
+        lo_n, hi_n = self.airframe.thrust_min_n, self.airframe.thrust_max_n
+        self.plant.command_thrust([min(max(t, lo_n), hi_n) for t in (sp.thrust_n + change).tolist()])   # np.clip
         self._measured = None
 
     def set_rotor_loss(self, rotor: int, loss: float, kind: FailureKind = FailureKind.DEGRADED) -> None:
