@@ -23,6 +23,7 @@ from pymavlink import mavutil
 
 from m4.log_limit import RepeatFilter
 from m4.mavlink import m4_generated as mavlink
+from m4.mavlink.frame_packer import x25_crc
 
 DIALECT = "m4"
 sys.modules[f"{_v20.__name__}.{DIALECT}"] = mavlink
@@ -31,6 +32,10 @@ mavutil.set_dialect(DIALECT)
 # pymavlink logs every rejected signature ("sig mismatch", "bad new stream") at INFO: a peer
 # with the wrong key would flood the log of any process that shows INFO.
 logging.getLogger(mavlink.__name__).addFilter(RepeatFilter())
+# Without fastcrc (not a dependency) the generated code checks and signs every packet's CRC
+# byte by byte in Python; its fast path takes any mcrf4xx(data, crc): binascii's is one.
+mavlink.mcrf4xx = x25_crc
+mavlink.x25crc = mavlink._x25crc_fast
 
 FC_SYSTEM_ID = 1
 FC_COMPONENT_ID = 1                                  # MAV_COMP_ID_AUTOPILOT1

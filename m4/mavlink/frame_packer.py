@@ -19,11 +19,15 @@ _CRC = struct.Struct("<H")
 _BITS_REVERSED = bytes(int(f"{b:08b}"[::-1], 2) for b in range(256))
 
 
-def x25_crc(data: bytes) -> int:
-    """MAVLink's checksum (CRC-16/MCRF4XX). binascii's CRC-CCITT is the same CRC with the bits
-    of every byte, and of the result, in the other order."""
-    crc = binascii.crc_hqx(data.translate(_BITS_REVERSED), 0xFFFF)
-    return _BITS_REVERSED[crc & 0xFF] << 8 | _BITS_REVERSED[crc >> 8]
+def x25_crc(data: bytes, crc: int = 0xFFFF) -> int:
+    """MAVLink's checksum (CRC-16/MCRF4XX) of `data`, going on from `crc` (default: the start
+    value). binascii's CRC-CCITT is the same CRC with the bits of every byte, of the running
+    value and of the result in the other order."""
+    return _reversed_bits16(binascii.crc_hqx(data.translate(_BITS_REVERSED), _reversed_bits16(crc)))
+
+
+def _reversed_bits16(value: int) -> int:
+    return _BITS_REVERSED[value & 0xFF] << 8 | _BITS_REVERSED[value >> 8]
 
 
 class FramePacker:

@@ -17,9 +17,18 @@ class _Sink:
         self.packets.append(bytes(packet))
 
 
-@given(st.binary(max_size=300))
-def test_the_checksum_is_mavlinks(data):
-    assert x25_crc(data) == mavlink.x25crc(data).crc
+@given(st.binary(max_size=300), st.integers(0, 0xFFFF))
+def test_the_checksum_is_mavlinks(data, crc):
+    slow = mavlink._x25crc_slow()              # pymavlink's own, byte by byte
+    slow.crc = crc
+    slow.accumulate(data)
+    assert x25_crc(data, crc) == slow.crc
+    assert x25_crc(data) == mavlink._x25crc_slow(data).crc
+
+
+def test_the_dialect_checks_crcs_with_it():
+    assert mavlink.x25crc(b"123456789").crc == x25_crc(b"123456789") == 0x6F91     # CRC-16/MCRF4XX's check value
+    assert mavlink.mcrf4xx is x25_crc
 
 
 @given(st.integers(0, 2**32 - 1), st.floats(width=32, allow_nan=False),
