@@ -275,7 +275,7 @@ class FlightController:
             return "too old"
         if self.setpoint is not None and msg.time_boot_ms < self.setpoint.time_ms:
             return "out of order"
-        if not np.all(np.isfinite(values)):
+        if not np.isfinite(values).all():
             return "not finite"
         if not self.armed:
             return "disarmed"

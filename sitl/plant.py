@@ -78,7 +78,7 @@ class Plant:
 
         self._thrust_max_n = airframe.thrust_max_n if options.thrust_max_n is None else options.thrust_max_n
         self.hover_thrust_n = m.body_subtreemass[self._hull] * airframe.gravity_m_s2 / ROTOR_COUNT
-        self._thrust_request_n = np.full(ROTOR_COUNT, self.hover_thrust_n)
+        self._thrust_request_n = [float(self.hover_thrust_n)] * ROTOR_COUNT
         self.battery = Battery(airframe, options.battery, options.battery_charge)
         self.thrusters = Thrusters(airframe, self.hover_thrust_n, self.battery.voltage_v)
         self._apply_thrust()
@@ -110,7 +110,7 @@ class Plant:
     def _apply_thrust(self) -> None:
         self._state = None
         lo_n, hi_n = self.airframe.thrust_min_n, self._thrust_max_n
-        self._esc_cmd_n = [min(max(t, lo_n), hi_n) for t in self._thrust_request_n.tolist()]   # np.clip, on floats
+        self._esc_cmd_n = [min(max(t, lo_n), hi_n) for t in self._thrust_request_n]   # np.clip, on floats
         self.thrusters.command(self._esc_cmd_n)
         self._update_rotors()
 
@@ -129,8 +129,8 @@ class Plant:
     def command_thrust(self, thrust_n) -> None:
         """Thrusts alone (N, rotors 1..4), the hips' targets kept: the FC's rate feedback
         between setpoints. Clamped as in command(); a non-finite entry keeps its value."""
-        thrust = _vector("thrust_n", thrust_n, ROTOR_COUNT)
-        self._thrust_request_n = np.where(np.isfinite(thrust), thrust, self._thrust_request_n)
+        thrust = _vector("thrust_n", thrust_n, ROTOR_COUNT).tolist()
+        self._thrust_request_n = [t if math.isfinite(t) else kept for t, kept in zip(thrust, self._thrust_request_n)]
         self._apply_thrust()
 
     def command(self, thrust_n, hip_rad, hip_rate_rad_s=None) -> None:

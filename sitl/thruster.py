@@ -132,11 +132,11 @@ class Thrusters:
         """advance(dt_s) `steps` times (targets and pack voltage held); after each, what the
         ESCs draw from the pack in all (current_a summed, in its order of operations)."""
         decay = math.exp(-dt_s / self._tau_s)
-        settled, speed = self._settled, self._speed
+        settled, speed, share = self._settled, self._speed, self._pack_share()
         totals = []
         for _ in range(steps):
             speed = [w_s + (w - w_s) * decay for w_s, w in zip(settled, speed)]
-            totals.append(sum(self._pack_currents(speed)))
+            totals.append(sum([s * i for s, i in zip(share, self._motor_currents(speed))]))
         self._speed = speed
         return totals
 
@@ -181,10 +181,13 @@ class Thrusters:
         return [max((u - k_e * w) / r, 0.0) if driven else 0.0
                 for u, w, driven in zip(self._u_v, speed_rad_s, self._driven)]
 
+    def _pack_share(self) -> list[float]:
+        """Each ESC's draw from the pack per ampere of its motor: its output voltage over the pack's."""
+        return [u / self.voltage_v for u in self._u_v]
+
     def _pack_currents(self, speed_rad_s: list[float]) -> list[float]:
         """Each ESC's draw from the pack: its motor's current scaled by its output voltage over the pack's."""
-        voltage_v = self.voltage_v
-        return [u / voltage_v * i for u, i in zip(self._u_v, self._motor_currents(speed_rad_s))]
+        return [s * i for s, i in zip(self._pack_share(), self._motor_currents(speed_rad_s))]
 
     @property
     def copper_loss_w(self) -> np.ndarray:
