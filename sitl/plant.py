@@ -81,6 +81,7 @@ class Plant:
         self._thrust_request_n = [float(self.hover_thrust_n)] * ROTOR_COUNT
         self.battery = Battery(airframe, options.battery, options.battery_charge)
         self.thrusters = Thrusters(airframe, self.hover_thrust_n, self.battery.voltage_v)
+        d.ctrl[self._thrust_sq] = 0.0        # the second thrust filter only decays from the state it is set to
         self._apply_thrust()
 
         d.qpos[self._pos] = frames.flip_vector(start)
@@ -123,7 +124,6 @@ class Plant:
         rotor = [(k_t, w_s, w - w_s) for k_t, w_s, w in rotors.filter_inputs()]     # (k_t, w_s, gap): Python floats
         d.ctrl[self._thrust] = [k_t * (w_s * w_s) for k_t, w_s, _ in rotor]
         d.act[self._thrust_act] = [k_t * w_s * (w_s + 2.0 * gap) for k_t, w_s, gap in rotor]
-        d.ctrl[self._thrust_sq] = 0.0
         d.act[self._thrust_sq_act] = [k_t * (gap * gap) for k_t, _, gap in rotor]
 
     def command_thrust(self, thrust_n) -> None:
@@ -227,8 +227,8 @@ class Plant:
             quat_wxyz=quat,
             euler_rad=euler_from_quat_wxyz(quat),
             rates_frd_rad_s=frames.flip_vector(d.qvel[self._rates]),
-            hip_rad=d.qpos[self._hip_qpos].copy(),
-            hip_rate_rad_s=d.qvel[self._hip_qvel].copy(),
+            hip_rad=d.qpos[self._hip_qpos],               # indexed by an array: a copy already
+            hip_rate_rad_s=d.qvel[self._hip_qvel],
             thrust_cmd_n=np.array(self._esc_cmd_n),
             thrust_n=d.act[self._thrust_act] + d.act[self._thrust_sq_act],
             thrust_limit_n=self.thrusters.thrust_ceiling_n(self._thrust_max_n),
