@@ -69,6 +69,12 @@ _ANNOUNCE = {
 }
 
 
+def _clip(values: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """np.clip(values, lo, hi) (NaN and -0.0 kept alike) on four floats, for a fraction of the
+    cost of np.clip's dispatch at every tick."""
+    return np.array([min(max(v, lo), hi) for v in values.tolist()])
+
+
 @dataclass(frozen=True)
 class ReceivedSetpoint:
     time_ms: int                  # the telemetry instant it answers (our clock)
@@ -142,8 +148,8 @@ class FlightController:
                                                        self.setpoint.period_ms / 1000.0)
         if sp.shortfall_cover is not None and self._shortfall_n is not None:
             change += sp.shortfall_cover.thrust_change_n(self._shortfall_n)
-        lo_n, hi_n = self.airframe.thrust_min_n, self.airframe.thrust_max_n
-        self.plant.command_thrust([min(max(t, lo_n), hi_n) for t in (sp.thrust_n + change).tolist()])   # np.clip
+        af = self.airframe
+        self.plant.command_thrust(_clip(sp.thrust_n + change, af.thrust_min_n, af.thrust_max_n))
         self._measured = None
 
     def set_rotor_loss(self, rotor: int, loss: float, kind: FailureKind = FailureKind.DEGRADED) -> None:
@@ -292,9 +298,9 @@ class FlightController:
         af = self.airframe
         thrust, hip, rate = values
         self.setpoint = ReceivedSetpoint(msg.time_boot_ms, msg.period_ms, Setpoint(
-            thrust_n=np.clip(thrust, af.thrust_min_n, af.thrust_max_n),
-            hip_rad=np.clip(hip, af.hip_min_rad, af.hip_max_rad),
-            hip_rate_rad_s=np.clip(rate, -af.hip_rate_max_rad_s, af.hip_rate_max_rad_s),
+            thrust_n=_clip(thrust, af.thrust_min_n, af.thrust_max_n),
+            hip_rad=_clip(hip, af.hip_min_rad, af.hip_max_rad),
+            hip_rate_rad_s=_clip(rate, -af.hip_rate_max_rad_s, af.hip_rate_max_rad_s),
             thrust_cut=bool(msg.flags & mavlink.M4_SETPOINT_FLAG_THRUST_CUT),
             rate_feedback=RateFeedback.from_fields(msg.rates_ref_frd_rad_s, msg.rates_ref_change_frd_rad_s2,
                                                    msg.rate_gain),
