@@ -20,6 +20,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from m4.mavlink.dialect import mavlink, new_mav
+from m4.mavlink.frame_reader import read_datagram
 from m4.mavlink.signing import SigningCounters, setup_signing
 from m4.mavlink.tlog import TlogWriter
 
@@ -206,7 +207,7 @@ class UdpLink(MavlinkLink):
 def parse_bytes(mav: mavlink.MAVLink, data: bytes, tlog: TlogWriter | None) -> tuple[list, int]:
     """(good messages, count of rejected or garbled packets) in `data`; everything to the tlog."""
     out, bad = [], 0
-    for msg in mav.parse_buffer(data) or ():
+    for msg in read_datagram(mav, data):
         if tlog is not None:
             tlog.record(msg.get_msgbuf() if msg.get_type() != "BAD_DATA" else bytes(msg.data))
         if msg.get_type() == "BAD_DATA":
