@@ -263,7 +263,7 @@ class Controller:
         if not usable or in_force is None:
             return self.detector.status, False
         cap = self.af.thrust_max_n
-        if limit_n is not None and np.any(np.isfinite(limit_n)):          # already a (4,) array (_thrust_telemetry)
+        if limit_n is not None and np.isfinite(limit_n).any():          # already a (4,) array (_thrust_telemetry)
             cap = float(np.clip(np.nanmax(limit_n), self.af.thrust_min_n, self.af.thrust_max_n))
         status = self.detector.update(time_s, x, in_force.thrust_n, np.full(ROTOR_COUNT, cap), esc)
         flight = self.flight
@@ -297,7 +297,7 @@ class Controller:
         """The NMPC's state: measured, but the hip goal in place of the measured joints."""
         hip = x_measured[rom.HIP]
         goal = self._hip_goal
-        if goal is None or not np.all(np.isfinite(goal.angle_rad)) or np.max(np.abs(goal.angle_rad - hip)) > HIP_RESYNC_RAD:
+        if goal is None or not np.isfinite(goal.angle_rad).all() or np.abs(goal.angle_rad - hip).max() > HIP_RESYNC_RAD:
             fixed = self.nmpc.config.fixed_hip_rad        # the fixed-posture variant: the legs go there
             start = np.clip(hip, self.af.hip_min_rad, self.af.hip_max_rad) if fixed is None else np.full(ROTOR_COUNT, fixed)
             goal = self._hip_goal = HipGoal(start, np.zeros(ROTOR_COUNT))

@@ -105,7 +105,7 @@ class LinkHealth:
 
 
 def _floats(values) -> list[float]:
-    return [float(v) for v in np.asarray(values, dtype=float).reshape(-1)]
+    return np.asarray(values, dtype=float).ravel().tolist()
 
 
 def _fault_status_message(time_ms: int, status: FaultStatus) -> mavlink.MAVLink_m4_fault_status_message:

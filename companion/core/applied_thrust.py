@@ -36,7 +36,7 @@ class AppliedThrust:
         """The FC's command at FC instant time_s (None or any non-finite entry: it cannot
         tell, which forgets what was reported)."""
         thrust = None if thrust_cmd_n is None else np.asarray(thrust_cmd_n, dtype=float).reshape(ROTOR_COUNT)
-        if thrust is None or not np.all(np.isfinite(thrust)):
+        if thrust is None or not np.isfinite(thrust).all():
             self.clear()
             return
         if self._newest is not None and time_s <= self._newest[0]:

@@ -72,11 +72,11 @@ def plausible_state(af: Airframe, x) -> bool:
     """Finite and physically possible (a state outside this is a broken measurement: the
     controller falls back instead of planning from it)."""
     x = np.asarray(x, dtype=float)
-    if not np.all(np.isfinite(x)):
+    if not np.isfinite(x).all():
         return False
     hip = x[rom.HIP]
-    hip_ok = np.all(hip >= af.hip_min_rad - _HIP_MARGIN_RAD) and np.all(hip <= af.hip_max_rad + _HIP_MARGIN_RAD)
-    return bool(hip_ok and np.all(np.abs(x) <= _PLAUSIBLE_ABS))
+    hip_ok = (hip >= af.hip_min_rad - _HIP_MARGIN_RAD).all() and (hip <= af.hip_max_rad + _HIP_MARGIN_RAD).all()
+    return bool(hip_ok and (np.abs(x) <= _PLAUSIBLE_ABS).all())
 
 
 def one_period_apart(earlier_s: float, later_s: float, period_s: float) -> bool:

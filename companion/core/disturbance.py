@@ -59,15 +59,15 @@ class DisturbanceEstimator:
         """New estimate (6,) after the robot went from x_prev to x_new under u_applied; the
         step is gain x gain_scale (in (0, 1]) of the innovation."""
         x_prev, u_applied, x_new = (np.asarray(v, dtype=float).ravel() for v in (x_prev, u_applied, x_new))
-        if not all(np.all(np.isfinite(v)) for v in (x_prev, u_applied, x_new)):
+        if not all(np.isfinite(v).all() for v in (x_prev, u_applied, x_new)):
             return self.estimate.copy()
         with np.errstate(over="ignore", invalid="ignore"):
             predicted, sensitivity = self._predict(x_prev, u_applied, self.estimate)
             innovation = x_new[_MEASURED] - predicted.ravel()
-            if not (np.all(np.isfinite(innovation)) and np.all(np.isfinite(sensitivity))):
+            if not (np.isfinite(innovation).all() and np.isfinite(sensitivity).all()):
                 return self.estimate.copy()           # a state too wild for the model to step
             correction = np.linalg.lstsq(sensitivity, innovation, rcond=None)[0]
-        if np.all(np.isfinite(correction)):
+        if np.isfinite(correction).all():
             step = self.gain * float(np.clip(gain_scale, 0.0, 1.0))
             self.estimate = np.clip(self.estimate + step * correction, -self.bound, self.bound)
         return self.estimate.copy()

@@ -210,7 +210,7 @@ class FaultDetector:
         skipped and restarts the evidence."""
         x = np.asarray(state_measured, dtype=float).reshape(rom.NX)
         cmd = np.asarray(thrust_cmd_n, dtype=float).reshape(ROTOR_COUNT)
-        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(cmd))):
+        if not (np.isfinite(x).all() and np.isfinite(cmd).all()):
             self._prev = None                  # a broken frame: restart the evidence at the next good one
             return self.status
         if thrust_limit_n is not None:
@@ -267,7 +267,7 @@ class FaultDetector:
                 or time_s - esc.time_s > self._c.esc_max_age_s):
             return None
         esc_dt, self._esc_time_s = esc.time_s - self._esc_time_s, esc.time_s
-        if not np.any(np.isfinite(esc.rpm)):
+        if not np.isfinite(esc.rpm).any():
             return None
         # Overspeed is judged against the most the rotor may have been asked: a rotor slowing
         # down after a command drop still turns faster than the lagged model says.

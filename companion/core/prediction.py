@@ -125,7 +125,7 @@ class Predictor:
                 u = np.concatenate([thrust + (command - thrust) * average, np.zeros(ROTOR_COUNT)])   # hips: on their goal
                 xk = np.asarray(self._flow(xk, u, disturbance, h)).ravel()
                 thrust = command + (thrust - command) * decay
-        if not np.all(np.isfinite(xk)):
+        if not np.isfinite(xk).all():
             return x.copy()
         xk[rom.HIP], xk[rom.HIP_RATE] = x[rom.HIP], x[rom.HIP_RATE]
         return xk

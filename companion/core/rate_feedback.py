@@ -55,13 +55,13 @@ class RateFeedbackDesign:
         cannot take)."""
         live = np.asarray(thrust_bound_n, dtype=float) > LIVE_SHARE * self.af.hover_thrust_per_rotor_n
         hip = np.asarray(hip_rad, dtype=float)
-        if self.bandwidth_rad_s <= 0 or live.sum() < 3 or not np.all(np.isfinite(hip)):
+        if self.bandwidth_rad_s <= 0 or live.sum() < 3 or not np.isfinite(hip).all():
             return None
         allocation, inertia = self._allocation(hip)
         torque_per_error = self.bandwidth_rad_s * inertia[:2, :2]
         gain = np.zeros((ROTOR_COUNT, 3))
         gain[live, :2] = np.linalg.pinv(allocation[:, live])[:, :2] @ torque_per_error
-        if not np.all(np.isfinite(gain)) or np.max(np.abs(gain)) > RATE_GAIN_MAX_N_PER_RAD_S:
+        if not np.isfinite(gain).all() or np.abs(gain).max() > RATE_GAIN_MAX_N_PER_RAD_S:
             return None
         return gain
 
@@ -69,7 +69,7 @@ class RateFeedbackDesign:
         """The other rotors' cover for each rotor's shortfall at posture hip_rad; None when
         switched off, a fault is confirmed, or the posture cannot keep sum and torque."""
         hip = np.asarray(hip_rad, dtype=float)
-        if not self.shortfall_cover or fault_confirmed or not np.all(np.isfinite(hip)):
+        if not self.shortfall_cover or fault_confirmed or not np.isfinite(hip).all():
             return None
         allocation, _ = self._allocation(hip)
         gain = np.zeros((ROTOR_COUNT, ROTOR_COUNT))
@@ -79,7 +79,7 @@ class RateFeedbackDesign:
                 gain[others, short] = np.linalg.solve(allocation[:, others], allocation[:, short])
             except np.linalg.LinAlgError:
                 return None
-        if not np.all(np.isfinite(gain)) or np.max(np.abs(gain)) > SHORTFALL_GAIN_MAX:
+        if not np.isfinite(gain).all() or np.abs(gain).max() > SHORTFALL_GAIN_MAX:
             return None
         return ShortfallCover(np.asarray(gain, dtype=np.float32).astype(float))     # as MAVLink carries it
 
@@ -99,7 +99,7 @@ class RateFeedbackDesign:
             return None
         start, after = np.asarray(x_start)[rom.RATES], np.asarray(x_next)[rom.RATES]
         change = (after - start) / dt_s
-        if not (np.all(np.isfinite(start)) and np.all(np.isfinite(change))):
+        if not (np.isfinite(start).all() and np.isfinite(change).all()):
             return None
         f32 = lambda v: np.asarray(v, dtype=np.float32).astype(float)     # as MAVLink carries them
         return RateFeedback(f32(start), f32(change), f32(gain))

@@ -182,7 +182,7 @@ def _floats(name: str, value, length: int, scale: float = 1.0) -> list[float | N
     array = np.asarray(value, dtype=float).reshape(-1)
     if array.size != length:
         raise ValueError(f"{name} must have {length} values, got {array.size}")
-    return [float(v) * scale if math.isfinite(v) else None for v in array]
+    return [v * scale if math.isfinite(v) else None for v in array.tolist()]
 
 
 def _optional_float(name: str, value) -> float | None:
