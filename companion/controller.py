@@ -299,7 +299,7 @@ class Controller:
         goal = self._hip_goal
         if goal is None or not np.isfinite(goal.angle_rad).all() or np.abs(goal.angle_rad - hip).max() > HIP_RESYNC_RAD:
             fixed = self.nmpc.config.fixed_hip_rad        # the fixed-posture variant: the legs go there
-            start = np.clip(hip, self.af.hip_min_rad, self.af.hip_max_rad) if fixed is None else np.full(ROTOR_COUNT, fixed)
+            start = hip.clip(self.af.hip_min_rad, self.af.hip_max_rad) if fixed is None else np.full(ROTOR_COUNT, fixed)
             goal = self._hip_goal = HipGoal(start, np.zeros(ROTOR_COUNT))
         x = x_measured.copy()
         x[rom.HIP], x[rom.HIP_RATE] = goal.angle_rad, goal.rate_rad_s
@@ -312,8 +312,8 @@ class Controller:
         accel = res.u[rom.HIP_ACCEL]
         planned = x[rom.HIP] + x[rom.HIP_RATE] * tau + 0.5 * accel * tau**2
         sp = safe_setpoint(af, res.u[rom.THRUST], x[rom.HIP], (planned - x[rom.HIP]) / tau, thrust_max_n, x[rom.HIP])
-        next_rate = np.clip(x[rom.HIP_RATE] + accel * tau, -af.hip_rate_max_rad_s, af.hip_rate_max_rad_s)
-        self._hip_goal = HipGoal(np.clip(sp.hip_rad + sp.hip_rate_rad_s * tau, af.hip_min_rad, af.hip_max_rad),
+        next_rate = (x[rom.HIP_RATE] + accel * tau).clip(-af.hip_rate_max_rad_s, af.hip_rate_max_rad_s)
+        self._hip_goal = HipGoal((sp.hip_rad + sp.hip_rate_rad_s * tau).clip(af.hip_min_rad, af.hip_max_rad),
                                  np.where(np.isfinite(next_rate), next_rate, 0.0))
         return sp
 

@@ -110,7 +110,8 @@ def _floats(values) -> list[float]:
 
 def _fault_status_message(time_ms: int, status: FaultStatus) -> mavlink.MAVLink_m4_fault_status_message:
     detected_ms = 0 if status.detected_at_s is None else round(status.detected_at_s * 1000)
-    estimate = np.nan_to_num(status.thrust_max_estimate_n, nan=0.0, posinf=0.0, neginf=0.0)
+    estimate = np.asarray(status.thrust_max_estimate_n, dtype=float)
+    estimate = np.where(np.isfinite(estimate), estimate, 0.0)
     return mavlink.MAVLink_m4_fault_status_message(
         int(time_ms), status.rotor or 0, _floats(estimate), detected_ms, int(status.state), int(status.kind))
 

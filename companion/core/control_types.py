@@ -90,7 +90,7 @@ def thrust_bounds(af: Airframe, thrust_max_n) -> np.ndarray:
     t_max = np.asarray(thrust_max_n, dtype=float).reshape(-1)
     if t_max.size != ROTOR_COUNT:
         raise ValueError(f"thrust_max_n must have {ROTOR_COUNT} entries, got {t_max.size}")
-    return np.clip(np.where(np.isfinite(t_max), t_max, af.thrust_max_n), af.thrust_min_n, af.thrust_max_n)
+    return np.where(np.isfinite(t_max), t_max, af.thrust_max_n).clip(af.thrust_min_n, af.thrust_max_n)
 
 
 def safe_setpoint(af: Airframe, thrust_n, hip_rad, hip_rate_rad_s, thrust_max_n, measured_hip_rad=None,
@@ -98,7 +98,7 @@ def safe_setpoint(af: Airframe, thrust_n, hip_rad, hip_rate_rad_s, thrust_max_n,
     """A setpoint that is finite and within every bound, whatever goes in (NaN, inf, out of range)."""
     bound = thrust_bounds(af, thrust_max_n)
     thrust = np.asarray(thrust_n, dtype=float).reshape(ROTOR_COUNT)
-    thrust = np.clip(np.where(np.isfinite(thrust), thrust, af.hover_thrust_per_rotor_n), af.thrust_min_n, bound)
+    thrust = np.where(np.isfinite(thrust), thrust, af.hover_thrust_per_rotor_n).clip(af.thrust_min_n, bound)
     if thrust_cut:
         thrust = np.zeros(ROTOR_COUNT)
     fallback_hip = np.full(ROTOR_COUNT, af.nominal_hip_rad)
@@ -106,13 +106,13 @@ def safe_setpoint(af: Airframe, thrust_n, hip_rad, hip_rate_rad_s, thrust_max_n,
         measured = np.asarray(measured_hip_rad, dtype=float).reshape(ROTOR_COUNT)
         fallback_hip = np.where(np.isfinite(measured), measured, fallback_hip)
     hip = np.asarray(hip_rad, dtype=float).reshape(ROTOR_COUNT)
-    hip = np.clip(np.where(np.isfinite(hip), hip, fallback_hip), af.hip_min_rad, af.hip_max_rad)
+    hip = np.where(np.isfinite(hip), hip, fallback_hip).clip(af.hip_min_rad, af.hip_max_rad)
     for pair in af.same_side_pairs:
         excess = hip[list(pair)].sum() - af.same_side_sum_max_rad
         if excess > 0:
             hip[list(pair)] = np.maximum(hip[list(pair)] - excess / 2, af.hip_min_rad)
     rate = np.asarray(hip_rate_rad_s, dtype=float).reshape(ROTOR_COUNT)
-    rate = np.clip(np.where(np.isfinite(rate), rate, 0.0), -af.hip_rate_max_rad_s, af.hip_rate_max_rad_s)
+    rate = np.where(np.isfinite(rate), rate, 0.0).clip(-af.hip_rate_max_rad_s, af.hip_rate_max_rad_s)
     return Setpoint(thrust_n=_float32_within(thrust, 0.0 if thrust_cut else af.thrust_min_n, bound),
                     hip_rad=_float32_within(hip, af.hip_min_rad, hip),
                     hip_rate_rad_s=_float32_within(rate, -af.hip_rate_max_rad_s, af.hip_rate_max_rad_s),

@@ -69,5 +69,5 @@ class DisturbanceEstimator:
             correction = np.linalg.lstsq(sensitivity, innovation, rcond=None)[0]
         if np.isfinite(correction).all():
             step = self.gain * float(np.clip(gain_scale, 0.0, 1.0))
-            self.estimate = np.clip(self.estimate + step * correction, -self.bound, self.bound)
+            self.estimate = (self.estimate + step * correction).clip(-self.bound, self.bound)
         return self.estimate.copy()

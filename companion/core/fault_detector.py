@@ -216,7 +216,7 @@ class FaultDetector:
         if thrust_limit_n is not None:
             limit = np.asarray(thrust_limit_n, dtype=float).reshape(ROTOR_COUNT)
             self._limit_n = np.where(np.isfinite(limit), limit, self._af.thrust_max_n)
-        asked_before, asked = self._asked_n, np.clip(cmd, self._af.thrust_min_n, self._limit_n)
+        asked_before, asked = self._asked_n, cmd.clip(self._af.thrust_min_n, self._limit_n)
         self._asked_n = asked
         target = self._expected_response(asked)
         prev, self._prev = self._prev, (time_s, x)

@@ -138,7 +138,7 @@ class Predictor:
         thrust = sent.thrust_n
         if sent.feedback is not None:
             thrust = thrust + sent.feedback.thrust_change_n(x[rom.RATES], acting_s, self._period_s)
-        thrust = np.clip(thrust, af.thrust_min_n, af.thrust_max_n)
+        thrust = thrust.clip(af.thrust_min_n, af.thrust_max_n)
         if sent.cover is not None:
             thrust = thrust + sent.cover.thrust_change_n(np.maximum(thrust - bound, 0.0))
-        return np.clip(thrust, af.thrust_min_n, bound)
+        return thrust.clip(af.thrust_min_n, bound)

@@ -83,6 +83,7 @@ class ZenohSink:
 
     def __init__(self, session: zenoh.Session, vehicle: str):
         self._session = session
+        self._encoder = json.JSONEncoder(allow_nan=False, separators=(",", ":"))    # json.dumps builds one a call
         self._publishers = {
             topic: session.declare_publisher(
                 key_for(vehicle, topic),
@@ -102,8 +103,7 @@ class ZenohSink:
             raise FeedError(f"cannot declare the feed's publishers: {zenoh_error_text(e)}") from None
 
     def put(self, topic: str, payload: dict[str, Any]) -> None:
-        data = json.dumps(payload, allow_nan=False, separators=(",", ":"))
-        self._publishers[topic].put(data.encode())
+        self._publishers[topic].put(self._encoder.encode(payload).encode())
 
     def close(self) -> None:
         self._session.close()
