@@ -129,8 +129,9 @@ class StateRows:
         c[self.paired] += flat[self.second]
         return c
 
-    def jacobian(self, gamma: np.ndarray) -> np.ndarray:
-        rows = gamma[self.first]
+    def jacobian(self, gamma: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """The rows' derivatives in dU, from Gamma (N*20, N*8); into `out` (m, N*8) if given."""
+        rows = np.take(gamma, self.first, axis=0, out=out)
         rows[self.paired] += gamma[self.second]
         return rows
 

@@ -86,6 +86,11 @@ class Nmpc:
             self.first_rows = FirstPeriodHipRows.build(n, tau, hip_bounds, airframe.same_side_pairs,
                                                        airframe.same_side_sum_max_rad)
         row_count = self.rows.count + (0 if self.first_rows is None else self.first_rows.count)
+        # The QP's constraint matrix, rewritten every iteration: the state rows on top, the
+        # first period's rows (constant) below.
+        self._row_jac = np.zeros((row_count, n * NU))
+        if self.first_rows is not None:
+            self._row_jac[self.rows.count:] = self.first_rows.jac
         w = config.weights
         state_w = np.tile(w.state_diag(), (n + 1, 1))
         state_w[-1] *= w.terminal_scale
@@ -152,13 +157,13 @@ class Nmpc:
     def _constraint_rows(self, x0, xs, us, gamma):
         """(rows (m, N*8), lower, upper) of the QP's general constraints on the step dU."""
         c = self.rows.values(xs)
-        jac, lower, upper = self.rows.jacobian(gamma), self.rows.lo - c, self.rows.hi - c
+        self.rows.jacobian(gamma, out=self._row_jac[:self.rows.count])
+        lower, upper = self.rows.lo - c, self.rows.hi - c
         if self.first_rows is not None:
             c0 = self.first_rows.values(x0, us)
-            jac = np.vstack([jac, self.first_rows.jac])
             lower = np.concatenate([lower, self.first_rows.lo - c0])
             upper = np.concatenate([upper, self.first_rows.hi - c0])
-        return jac, np.maximum(lower, -_BIG), np.minimum(upper, _BIG)
+        return self._row_jac, np.maximum(lower, -_BIG), np.minimum(upper, _BIG)
 
     def _initial_guess(self, u_ref, lo, hi) -> np.ndarray:
         if self._guess is None:
@@ -174,19 +179,19 @@ class Nmpc:
         merit = self._merit(x0, xs, us, ref, u_ref)
         status, it = "max_iterations", 0
         budget_s = self.config.time_budget_s
-        lo_all, hi_all = np.tile(lo, n), np.tile(hi, n)
+        lo_all, hi_all = np.concatenate((lo,) * n), np.concatenate((hi,) * n)
         for it in range(1, self.config.max_iterations + 1):
-            if not (np.isfinite(merit) and np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+            if not (np.isfinite(merit) and np.isfinite(a).all() and np.isfinite(b).all()):
                 return self._fallback(x0, lo, hi, "qp_failed", it, t0)
             gamma = sensitivities(a, b)
             hess, grad = self.cost.gauss_newton(gamma, xs, us, ref, u_ref)
-            hess[self._diagonal] += _LEVENBERG * np.max(np.diag(hess))
+            hess[self._diagonal] += _LEVENBERG * hess[self._diagonal].max()
             rows, row_lo, row_hi = self._constraint_rows(x0, xs, us, gamma)
             upper = np.concatenate([hi_all - us.ravel(), row_hi])
             lower = np.concatenate([lo_all - us.ravel(), row_lo])
             step, _, flag, info = daqp.solve(hess, grad, rows, upper, lower, self._sense,
                                              dual_start=self._duals, iter_limit=_DAQP_ITER_LIMIT)
-            if flag not in _DAQP_OK or not np.all(np.isfinite(step)):
+            if flag not in _DAQP_OK or not np.isfinite(step).all():
                 return self._fallback(x0, lo, hi, "qp_failed", it, t0)
             self._duals = np.asarray(info["lam"])
             step = np.asarray(step).reshape(n, NU)
@@ -210,7 +215,7 @@ class Nmpc:
                     (time.perf_counter() - t0) * (it + 1) / it > budget_s:     # the next one would end too late
                 status = "time_budget"
                 break
-        if not (np.all(np.isfinite(xs)) and np.isfinite(merit)):
+        if not (np.isfinite(xs).all() and np.isfinite(merit)):
             return self._fallback(x0, lo, hi, "qp_failed", it, t0)
         self._guess = us.copy()
         cost = self.cost.value(xs, us, ref, u_ref)
