@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -26,9 +30,18 @@ def test_the_checksum_is_mavlinks(data, crc):
     assert x25_crc(data) == mavlink._x25crc_slow(data).crc
 
 
-def test_the_dialect_checks_crcs_with_it():
-    assert mavlink.x25crc(b"123456789").crc == x25_crc(b"123456789") == 0x6F91     # CRC-16/MCRF4XX's check value
-    assert mavlink.mcrf4xx is x25_crc
+def test_the_dialect_checks_crcs_in_c_with_fastcrc_where_pymavlink_has_it():
+    fastcrc = pytest.importorskip("fastcrc")
+    assert mavlink.x25crc is mavlink._x25crc_fast and mavlink.mcrf4xx is fastcrc.crc16.mcrf4xx
+
+
+def test_without_fastcrc_the_dialect_checks_crcs_with_binascii():
+    probe = ("import sys; sys.modules['fastcrc'] = None\n"          # as if pymavlink had found no fastcrc
+             "from m4.mavlink import mavlink\n"
+             "from m4.mavlink.frame_packer import x25_crc\n"
+             "assert mavlink.mcrf4xx is x25_crc and mavlink.x25crc is mavlink._x25crc_fast\n"
+             "assert mavlink.x25crc(b'123456789').crc == 0x6F91\n")    # CRC-16/MCRF4XX's check value
+    subprocess.run([sys.executable, "-c", probe], check=True, timeout=60)
 
 
 @given(st.integers(0, 2**32 - 1), st.floats(width=32, allow_nan=False),
