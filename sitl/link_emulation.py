@@ -41,7 +41,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from m4.mavlink import mavlink, new_mav
-from m4.mavlink.link import UdpLink
+from m4.mavlink.link import UdpLink, drop_cut_frame
 from m4.mavlink.signing import setup_signing
 
 DELAY_MAX_MS = 2000.0
@@ -188,6 +188,7 @@ class EmulatedLink(UdpLink):
         is drawn and held by its instant t; anything else by the instant it came."""
         self.counters.received += 1
         msgs = [m for m in self._reader.parse_buffer(data) or () if m.get_type() != "BAD_DATA"]
+        drop_cut_frame(self._reader)
         at_ms = now_ms
         if self.lockstep and msgs and msgs[0].get_msgId() in _ANSWERS and self.peer_filter(msgs[0]):
             at_ms = min(int(msgs[0].time_boot_ms), now_ms)

@@ -187,7 +187,7 @@ class UdpLink(MavlinkLink):
             self.foreign_datagrams += 1
             return []
         out, bad = parse_bytes(self.mav, data, self.tlog)
-        self.bad_packets += bad
+        self.bad_packets += bad + drop_cut_frame(self.mav)
         if self.endpoint.mode == "udpin" and not others and any(map(self.peer_filter, out)):
             self.peer = sender
         return out
@@ -215,6 +215,19 @@ def parse_bytes(mav: mavlink.MAVLink, data: bytes, tlog: TlogWriter | None) -> t
         else:
             out.append(msg)
     return out, bad
+
+
+def drop_cut_frame(mav: mavlink.MAVLink) -> int:
+    """Forget a frame the datagram just parsed cut short (1: there was one, 0: none). Over UDP a
+    datagram holds whole frames (every autopilot and router sends them so); kept, a cut frame
+    would swallow the next datagrams as its missing bytes, so two bytes from anyone on the
+    network (a MAVLink 2 start and a length of 255) silenced the link for the next ~270 bytes,
+    before any signature could be checked."""
+    if mav.buf_len() == 0:
+        return 0
+    mav.buf, mav.buf_index = bytearray(), 0
+    mav.expected_length = mavlink.HEADER_LEN_V1 + 2        # what a new parser expects first
+    return 1
 
 
 def wait_readable(links, timeout_s: float) -> bool:

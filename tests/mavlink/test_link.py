@@ -73,3 +73,20 @@ def test_send_all_packs_messages_into_datagrams_below_the_mtu():
             got += parser.parse_buffer(datagrams[-1]) or []
     assert [m.time_boot_ms for m in got] == list(range(100))
     assert 1 < len(datagrams) < 100 and max(map(len, datagrams)) <= DATAGRAM_PAYLOAD_MAX
+
+
+def test_a_frame_cut_short_by_its_datagram_does_not_swallow_the_next_ones():
+    """Two bytes from a stranger (a MAVLink 2 start, length 255) used to make the parser wait
+    for 267 bytes and eat the FC's next datagrams; a datagram holds whole frames."""
+    fc = UdpLink("udpin:127.0.0.1:0", 1, 1)
+    companion = UdpLink(f"udpout:127.0.0.1:{fc.local_port}", 1, 191)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as stranger:
+        stranger.sendto(bytes([mavlink.PROTOCOL_MARKER_V2, 255]), ("127.0.0.1", fc.local_port))
+        assert _receive(fc, 1, timeout_s=0.3) == []
+        for t in (20, 40):
+            companion.send(mavlink.MAVLink_attitude_message(t, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0))
+        got = _receive(fc, 2)
+    fc.close()
+    companion.close()
+    assert [m.time_boot_ms for m in got] == [20, 40]
+    assert fc.bad_packets == 1
