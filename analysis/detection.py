@@ -1,11 +1,12 @@
 """When a fault counts as detected: one rule for the simulator's truth (sitl.metrics) and for a
 tlog alone (analysis.flight_metrics), on plain arrays of the companion's M4_FAULT_STATUS.
 
-A fault is detected at the first status in [its at_s, the next fault's at_s) that is CONFIRMED
-and names a rotor whose thrust ceiling estimate reflects this fault: at most the ceiling the
-fault leaves its rotor + DETECTION_MARGIN x hover thrust per rotor. The rotor named need not be
-the fault's (detected_rotor says which). A fault whose ceiling is unknown (None) is detected at
-the first confirmation naming a rotor.
+A fault is detected at the first status in [its at_s, the next later fault's at_s) that is
+CONFIRMED and names a rotor whose thrust ceiling estimate reflects this fault: at most the
+ceiling the fault leaves its rotor + DETECTION_MARGIN x hover thrust per rotor. The rotor named
+need not be the fault's (detected_rotor says which). Faults that start at one instant share
+their window. A fault whose ceiling is unknown (None) is detected at the first confirmation
+naming a rotor, whatever its estimate.
 
 The ceiling comes from whoever knows it: the simulator from its motor model
 (sitl.thruster.fault_ceiling_n), a tlog from the fault's kind and loss (stated_ceiling_n).
@@ -53,11 +54,13 @@ def first_confirmation_s(time_s: np.ndarray, state: np.ndarray) -> float | None:
 
 
 def _first_detection(time_s: np.ndarray, state: np.ndarray, rotor: np.ndarray, thrust_max_estimate_n: np.ndarray,
-                     from_s: float, until_s: float, bound_n: float) -> tuple[float, int] | None:
-    """(instant, rotor) of the first confirmation in [from_s, until_s) sizing its rotor at most bound_n."""
+                     from_s: float, until_s: float, bound_n: float | None) -> tuple[float, int] | None:
+    """(instant, rotor) of the first confirmation in [from_s, until_s) sizing its rotor at most
+    bound_n (None: naming a rotor is enough)."""
     for k in np.flatnonzero((state == CONFIRMED) & (time_s >= from_s) & (time_s < until_s)):
         named = int(rotor[k])
-        if 1 <= named <= thrust_max_estimate_n.shape[1] and thrust_max_estimate_n[k, named - 1] <= bound_n:
+        if 1 <= named <= thrust_max_estimate_n.shape[1] and (bound_n is None
+                                                              or thrust_max_estimate_n[k, named - 1] <= bound_n):
             return float(time_s[k]), named
     return None
 
@@ -68,10 +71,11 @@ def detections(faults: Sequence[Fault], ceilings_n: Sequence[float | None], hove
     """Each fault (in time order, with the ceiling it leaves its rotor) and its detection, from the
     companion's statuses: time_s, state, rotor (n,) and thrust_max_estimate_n (n, 4)."""
     margin_n = DETECTION_MARGIN * hover_thrust_per_rotor_n
-    ends_s = [f.at_s for f in faults[1:]] + [math.inf]
+    ends_s = [min((later.at_s for later in faults[i + 1:] if later.at_s > fault.at_s), default=math.inf)
+              for i, fault in enumerate(faults)]
     out = []
     for fault, ceiling_n, end_s in zip(faults, ceilings_n, ends_s):
-        bound_n = math.inf if ceiling_n is None else ceiling_n + margin_n
+        bound_n = None if ceiling_n is None else ceiling_n + margin_n
         hit = _first_detection(time_s, state, rotor, thrust_max_estimate_n, fault.at_s, end_s, bound_n)
         out.append({"at_s": fault.at_s, "rotor": fault.rotor, "loss": fault.loss, "kind": fault.kind,
                     "until_s": fault.until_s, "detected_at_s": None if hit is None else hit[0],

@@ -19,8 +19,8 @@ Definitions (times in the scenario's clock, positions of the centre of mass, NED
   YAW_SATURATION_FRACTION of its final value
   (None when the final rate is below YAW_SPIN_MIN_RAD_S: the robot does not spin).
 - faults[i].detected_at_s, detected_rotor, latency_s: analysis.detection's rule (the tlog's
-  metrics use it too): the first instant in [at_s, next fault's at_s) at which the companion's
-  fault status is confirmed with a thrust estimate on the named rotor that reflects this fault:
+  metrics use it too): the first instant in [at_s, the next later fault's at_s) at which the
+  companion's fault status is confirmed with a thrust estimate on the named rotor that reflects this fault:
   at most the ceiling the fault leaves the rotor (its kind and loss, sitl.thruster.fault_ceiling_n:
   0 for a stopped motor or a lost propeller, (1 - loss) x hover thrust for a degraded motor,
   about (1 - loss) x the rotor's limit for a damaged propeller) + DETECTION_MARGIN x hover

@@ -46,8 +46,15 @@ def test_each_fault_is_looked_for_only_until_the_next_one():
     assert _found(faults, [0.0, 0.0], rows) == [(None, None), (2.0, 4)]
 
 
-def test_an_unknown_ceiling_takes_the_first_confirmation_naming_a_rotor():
-    rows = [(1.1, CONFIRMED, 0, 0.0), (1.2, CONFIRMED, 2, MAX_N)]
+def test_faults_starting_at_one_instant_share_their_window():
+    faults = [Fault(1.0, 2, 1.0), Fault(1.0, 4, 1.0), Fault(3.0, 1, 1.0)]
+    rows = [(1.1, CONFIRMED, 4, 0.0), (3.1, CONFIRMED, 1, 0.0)]
+    assert _found(faults, [0.0, 0.0, 0.0], rows) == [(1.1, 4), (1.1, 4), (3.1, 1)]
+
+
+@pytest.mark.parametrize("estimate_n", [MAX_N, np.nan])
+def test_an_unknown_ceiling_takes_the_first_confirmation_naming_a_rotor(estimate_n):
+    rows = [(1.1, CONFIRMED, 0, 0.0), (1.2, CONFIRMED, 2, estimate_n)]
     assert _found([Fault(1.0, 2, 0.5, "damage")], [None], rows) == [(1.2, 2)]
 
 
