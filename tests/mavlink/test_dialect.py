@@ -9,16 +9,10 @@ from pathlib import Path
 
 from m4.mavlink import COMPANION_COMPONENT_ID, DIALECT, mavlink, mavutil, new_mav
 from m4.mavlink.generate import GENERATED_PATH, PYMAVLINK_V20_DIR, XML_PATH, generate
+from tests.support.packets import packed
 
 OUR_IDS = range(48000, 48100)
 
-
-class _Sink:
-    def __init__(self):
-        self.packets = []
-
-    def write(self, packet):
-        self.packets.append(bytes(packet))
 
 
 def test_generated_module_is_what_the_xml_generates(tmp_path):
@@ -36,11 +30,9 @@ def test_mavlink2_is_set_before_pymavlink_chooses():
 
 
 def test_a_message_id_above_255_round_trips():
-    sink = _Sink()
-    sender = new_mav(sink, 1, COMPANION_COMPONENT_ID)
-    sender.send(mavlink.MAVLink_m4_setpoint_message(1, 1, 1234, 20, [1.0, 2.0, 3.0, 4.0], [0.1, 0.2, 0.3, 0.4],
-                                                    [0.0, 0.5, 0.0, -0.5], mavlink.M4_SETPOINT_FLAG_THRUST_CUT))
-    (packet,) = sink.packets
+    (packet,) = packed([mavlink.MAVLink_m4_setpoint_message(1, 1, 1234, 20, [1.0, 2.0, 3.0, 4.0], [0.1, 0.2, 0.3, 0.4],
+                                                           [0.0, 0.5, 0.0, -0.5], mavlink.M4_SETPOINT_FLAG_THRUST_CUT)],
+                       1, COMPANION_COMPONENT_ID)
     assert packet[0] == mavlink.PROTOCOL_MARKER_V2
     (msg,) = new_mav(None, 1, 1).parse_buffer(packet)
     assert msg.get_msgId() == mavlink.MAVLINK_MSG_ID_M4_SETPOINT
@@ -53,9 +45,8 @@ def test_a_message_id_above_255_round_trips():
 
 def test_mavutil_connections_use_the_projects_dialect_module(tmp_path):
     log = tmp_path / "x.tlog"
-    sink = _Sink()
-    new_mav(sink, 1, 1).send(mavlink.MAVLink_m4_joint_state_message(5, [0.1] * 4, [0.0] * 4))
-    log.write_bytes(bytes(8) + sink.packets[0])
+    (packet,) = packed([mavlink.MAVLink_m4_joint_state_message(5, [0.1] * 4, [0.0] * 4)])
+    log.write_bytes(bytes(8) + packet)
     conn = mavutil.mavlink_connection(str(log), dialect=DIALECT)
     msg = conn.recv_match(blocking=False)
     assert msg.get_type() == "M4_JOINT_STATE"

@@ -11,14 +11,8 @@ from hypothesis import strategies as st
 
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
 from m4.mavlink.frame_packer import FramePacker, x25_crc
+from tests.support.packets import PacketSink
 
-
-class _Sink:
-    def __init__(self):
-        self.packets = []
-
-    def write(self, packet):
-        self.packets.append(bytes(packet))
 
 
 @given(st.binary(max_size=300), st.integers(0, 0xFFFF))
@@ -47,7 +41,7 @@ def test_without_fastcrc_the_dialect_checks_crcs_with_binascii():
 @given(st.integers(0, 2**32 - 1), st.floats(width=32, allow_nan=False),
        st.binary(max_size=10).map(lambda b: b.rstrip(b"\0")), st.integers(0, 1000))
 def test_named_value_floats_are_packed_as_pymavlink_packs_them(time_ms, value, name, seq):
-    sink = _Sink()
+    sink = PacketSink()
     mav = new_mav(sink, FC_SYSTEM_ID, COMPANION_COMPONENT_ID)
     mav.seq = seq % 256
     mav.named_value_float_send(time_ms, name, value)

@@ -10,18 +10,12 @@ from hypothesis import strategies as st
 from m4.mavlink import mavlink, new_mav
 from m4.mavlink.frame_reader import read_datagram
 from m4.mavlink.signing import setup_signing
+from tests.support.packets import packed
 
 KEY = bytes(range(32))
 _floats = st.floats(width=32)
 _four = st.lists(_floats, min_size=4, max_size=4)
 
-
-class _Sink:
-    def __init__(self):
-        self.packets = []
-
-    def write(self, packet):
-        self.packets.append(bytes(packet))
 
 
 _messages = st.one_of(
@@ -42,13 +36,7 @@ _messages = st.one_of(
 
 
 def _datagram(msgs, key=None) -> bytes:
-    sink = _Sink()
-    mav = new_mav(sink, 1, 1)
-    if key is not None:
-        setup_signing(mav, key)
-    for msg in msgs:
-        mav.send(msg)
-    return b"".join(sink.packets)
+    return b"".join(packed(msgs, key=key))
 
 
 def _same_value(a, b) -> bool:

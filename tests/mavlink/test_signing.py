@@ -9,16 +9,10 @@ import pytest
 from m4.mavlink import mavlink, new_mav
 from m4.mavlink.signing import SigningCounters, load_key, setup_signing
 from m4.toml_fields import ConfigError
+from tests.support.packets import packed
 
 KEY = bytes(range(32))
 
-
-class _Sink:
-    def __init__(self):
-        self.packets = []
-
-    def write(self, packet):
-        self.packets.append(bytes(packet))
 
 
 def _setpoint():
@@ -31,13 +25,7 @@ def _heartbeat():
 
 
 def _packets(key, *msgs):
-    sink = _Sink()
-    mav = new_mav(sink, 1, 191)
-    if key is not None:
-        setup_signing(mav, key)
-    for msg in msgs:
-        mav.send(msg)
-    return sink.packets
+    return packed(msgs, 1, 191, key)
 
 
 def _receiver():

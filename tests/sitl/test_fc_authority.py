@@ -11,34 +11,22 @@ import time
 
 import pytest
 
-from m4.mavlink import mavlink, new_mav
+from m4.mavlink import mavlink
 from m4.mavlink.link import UdpLink
-from m4.mavlink.signing import setup_signing
 from sitl.scenario import Scenario
 from sitl.serve import ServeOptions, Server
 from sitl.standin import StandInCompanion, served
+from tests.support.packets import packed
 
 m = mavlink
 KEY = bytes(range(7, 39))
 HOVER = Scenario(name="hover", duration_s=60.0)
 
 
-class _Sink:
-    def __init__(self):
-        self.packets: list[bytes] = []
-
-    def write(self, packet):
-        self.packets.append(bytes(packet))
-
 
 def _packet(msg, system=1, component=191, key=None) -> bytes:
     """`msg` packed as `system/component` would send it (signed with `key`)."""
-    sink = _Sink()
-    mav = new_mav(sink, system, component)
-    if key is not None:
-        setup_signing(mav, key)
-    mav.send(msg)
-    return sink.packets[0]
+    return packed([msg], system, component, key)[0]
 
 
 def _setpoint(t_ms, period_ms=20, thrust=14.7):

@@ -11,6 +11,7 @@ from m4.mavlink import mavlink, new_mav
 from sitl.flight_controller import TICK_MS
 from sitl.scenario import Scenario
 from sitl.vehicle import Vehicle
+from tests.support.packets import packed
 
 AF = load_airframe()
 THRUST_N = 14.7
@@ -18,19 +19,10 @@ GAIN = np.zeros((4, 3))
 GAIN[0, 0], GAIN[1, 0] = 2.0, -2.0          # N per rad/s of roll-rate error: rotors 1 and 2
 
 
-class _Sink:
-    def __init__(self):
-        self.packets: list[bytes] = []
-
-    def write(self, packet):
-        self.packets.append(bytes(packet))
-
 
 def _from_companion(msg):
     """msg as the paired companion (1/191) sends it, decoded as the FC receives it."""
-    sink = _Sink()
-    new_mav(sink, 1, 191).send(msg)
-    return new_mav(None, 1, 1).parse_buffer(sink.packets[0])[0]
+    return new_mav(None, 1, 1).parse_buffer(packed([msg], 1, 191)[0])[0]
 
 
 def _fly_one_setpoint(*feedback):

@@ -9,20 +9,15 @@ from m4.airframe import load_airframe
 from m4.mavlink import mavlink, mavutil, new_mav
 from sitl.modes import MODES, FcMode, available_modes, base_mode
 from sitl.telemetry import Snapshot, Telemetry
+from tests.support.packets import packed
 
 m = mavlink
 
 
-class _Sink:
-    def write(self, packet):
-        self.packet = bytes(packet)
-
 
 def _heartbeat_as_received(mode: FcMode, armed: bool):
-    sink = _Sink()
-    mav = new_mav(sink, 1, 1)
-    mav.send(Telemetry(load_airframe()).heartbeat(Snapshot(0, None, int(mode), armed, not armed)))
-    return new_mav(None, 255, 190).parse_char(sink.packet)
+    (packet,) = packed([Telemetry(load_airframe()).heartbeat(Snapshot(0, None, int(mode), armed, not armed))])
+    return new_mav(None, 255, 190).parse_char(packet)
 
 
 @pytest.mark.parametrize("mode", list(FcMode))
