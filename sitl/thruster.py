@@ -136,13 +136,13 @@ class Thrusters:
         totals = []
         for _ in range(steps):
             speed = [w_s + (w - w_s) * decay for w_s, w in zip(settled, speed)]
-            totals.append(sum([s * i for s, i in zip(share, self._motor_currents(speed))]))
+            totals.append(sum(self._pack_currents(speed, share)))
         self._speed = speed
         return totals
 
     def esc_readings(self) -> tuple[list[float], list[float]]:
         """(speed rad/s, draw from the pack A) of every rotor: what its ESC measures."""
-        return list(self._speed), self._pack_currents(self._speed)
+        return list(self._speed), self._pack_currents(self._speed, self._pack_share())
 
     def filter_inputs(self) -> list[tuple[float, float, float]]:
         """(k_t N/(rad/s)^2, settled speed rad/s, speed rad/s) of every rotor: what the plant's
@@ -174,7 +174,7 @@ class Thrusters:
     @property
     def current_a(self) -> np.ndarray:
         """What each ESC draws from the pack."""
-        return np.array(self._pack_currents(self._speed))
+        return np.array(self._pack_currents(self._speed, self._pack_share()))
 
     def _motor_currents(self, speed_rad_s: list[float]) -> list[float]:
         k_e, r = self._k_e, self._r
@@ -185,9 +185,9 @@ class Thrusters:
         """Each ESC's draw from the pack per ampere of its motor: its output voltage over the pack's."""
         return [u / self.voltage_v for u in self._u_v]
 
-    def _pack_currents(self, speed_rad_s: list[float]) -> list[float]:
-        """Each ESC's draw from the pack: its motor's current scaled by its output voltage over the pack's."""
-        return [s * i for s, i in zip(self._pack_share(), self._motor_currents(speed_rad_s))]
+    def _pack_currents(self, speed_rad_s: list[float], share: list[float]) -> list[float]:
+        """Each ESC's draw from the pack: its motor's current times its share (_pack_share)."""
+        return [s * i for s, i in zip(share, self._motor_currents(speed_rad_s))]
 
     @property
     def copper_loss_w(self) -> np.ndarray:
