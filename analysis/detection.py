@@ -1,4 +1,4 @@
-"""When a fault counts as detected: one rule for the simulator's truth (sitl.metrics) and for a
+"""When a fault counts as detected: one rule for the simulator's truth (sitl.flights.metrics) and for a
 tlog alone (analysis.flight_metrics), on plain arrays of the companion's M4_FAULT_STATUS.
 
 A fault is detected at the first status in [its at_s, the next later fault's at_s) that is
@@ -39,7 +39,7 @@ class Fault:
 def stated_ceiling_n(fault: Fault, hover_thrust_per_rotor_n: float) -> float | None:
     """The ceiling the fault leaves its rotor as far as its kind and loss say: 0 for a stopped
     motor or a lost propeller, (1 - loss) x hover thrust for a degraded motor; None for a
-    restore and for a damaged propeller (its ceiling depends on the motor: sitl.thruster)."""
+    restore and for a damaged propeller (its ceiling depends on the motor: sitl.plant.thrusters)."""
     if fault.loss == 0.0:
         return None
     if fault.kind in _TOTAL_KINDS:

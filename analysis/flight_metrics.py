@@ -2,7 +2,7 @@
 controller measured and what the companion did, no simulator truth.
 
 Positions are the hull's (the IMU's, LOCAL_POSITION_NED) unless the companion's log holds its
-centre of mass and reference (NAMED_VALUE_FLOAT com_*, ref_*). Definitions as sitl.metrics
+centre of mass and reference (NAMED_VALUE_FLOAT com_*, ref_*). Definitions as sitl.flights.metrics
 where both have them (analysis.measures):
 - faults: those injected by command (or given), each with its detection as analysis.detection
   defines it (detected_at_s, detected_rotor, latency_s), judged against the ceiling the fault's

@@ -1,5 +1,5 @@
 """Measures of a flight's attitude and spin from arrays: the same definitions for the
-simulator's truth (sitl.metrics) and for any tlog (analysis.flight_metrics)."""
+simulator's truth (sitl.flights.metrics) and for any tlog (analysis.flight_metrics)."""
 
 from __future__ import annotations
 

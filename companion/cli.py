@@ -11,28 +11,16 @@ import argparse
 import json
 import os
 
-
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    value = float(text)
-    if not value > 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
-    return value
+from m4.arguments import positive_int, positive_number
 
 
 def _add_bench(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="time warm-started NMPC solves beside IPOPT on the same problems")
-    p.add_argument("--horizon", type=_positive_int, default=5, help="NMPC horizon N (default 5)")
-    p.add_argument("--dt", type=_positive_float, default=0.1, help="NMPC step in seconds (default 0.1)")
-    p.add_argument("--period", type=_positive_float, default=None,
+    p.add_argument("--horizon", type=positive_int, default=5, help="NMPC horizon N (default 5)")
+    p.add_argument("--dt", type=positive_number, default=0.1, help="NMPC step in seconds (default 0.1)")
+    p.add_argument("--period", type=positive_number, default=None,
                    help="control period in seconds, one solve each (default: the NMPC step)")
-    p.add_argument("--solves", type=_positive_int, default=300, help="solves in the sequence (default 300)")
+    p.add_argument("--solves", type=positive_int, default=300, help="solves in the sequence (default 300)")
     p.add_argument("--seed", type=int, default=0, help="seed of the kicks and noise")
     p.add_argument("--json", action="store_true", help="print one JSON object on one line")
     p.set_defaults(func=_run_bench)

@@ -31,7 +31,8 @@ from m4.mavlink.signing import load_key
 from sitl.scenario import Scenario
 from m4.toml_fields import ConfigError
 from sitl import flight_cli, scenarios
-from sitl.cli_args import BadInput, Parser, add_link_arguments, link_of, positive_number, seed_number
+from m4.arguments import positive_number, seed_number
+from sitl.cli_args import BadInput, Parser, add_link_arguments, link_of
 
 EXIT_BAD_INPUT = 2
 DEFAULT_URL = "udpout:127.0.0.1:14550"

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import argparse
 
-from sitl.link_emulation import DELAY_MAX_MS, LinkEmulation
+from m4.arguments import number
+from sitl.links.emulation import DELAY_MAX_MS, LinkEmulation
 
 
 class BadInput(Exception):
@@ -15,30 +16,6 @@ class BadInput(Exception):
 class Parser(argparse.ArgumentParser):
     def error(self, message):              # one line, not the usage block
         raise BadInput(f"{self.prog}: {message}")
-
-
-def number(text: str) -> float:
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-
-
-def positive_number(text: str) -> float:
-    value = number(text)
-    if not value > 0.0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return value
-
-
-def seed_number(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return value
 
 
 def link_delay_ms(text: str) -> float:

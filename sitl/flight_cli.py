@@ -13,8 +13,9 @@ import sys
 from pathlib import Path
 
 from sitl import scenarios
-from sitl.cli_args import BadInput, add_link_arguments, link_of, number, positive_number, seed_number
-from sitl.flight_run import CONTROLLERS, FlightError, FlightOptions, make_output_dir
+from m4.arguments import number, positive_number, seed_number
+from sitl.cli_args import BadInput, add_link_arguments, link_of
+from sitl.flights.flight_run import CONTROLLERS, FlightError, FlightOptions, make_output_dir
 
 EXIT_FLIGHTS_NOT_RUN = 1
 
@@ -45,7 +46,7 @@ def add_fly(sub) -> None:
                    help="then render the flight offscreen: flight.mp4 (chase camera, real time) and snapshots_render.png")
     p.add_argument("--video-size", type=_video_size, default=(640, 360), metavar="WxH",
                    help="with --video: frame size in pixels (default 640x360)")
-    add_link_arguments(p, "with --realtime through a loopback proxy (sitl/netem.py) instead")
+    add_link_arguments(p, "with --realtime through a loopback proxy (sitl/links/netem_proxy.py) instead")
     p.set_defaults(func=_fly)
 
 
@@ -60,7 +61,7 @@ def _video_size(text: str) -> tuple[int, int]:
 
 
 def _fly(args) -> int:
-    from sitl.fly import default_out_dir, fly, summary_line
+    from sitl.flights.fly import default_out_dir, fly, summary_line
 
     options = FlightOptions(controller=args.controller, seed=args.seed, realtime=args.realtime, viewer=args.viewer,
                             port=args.port, rate_hz=args.rate_hz, link=link_of(args))
@@ -71,7 +72,7 @@ def _fly(args) -> int:
         raise BadInput(str(e)) from None
     print(summary_line(metrics, out))
     if args.video:
-        from sitl.video import VideoError, VideoOptions, make_video
+        from sitl.flights.video import VideoError, VideoOptions, make_video
 
         try:
             paths = make_video(out, VideoOptions(width=args.video_size[0], height=args.video_size[1]))
@@ -82,7 +83,7 @@ def _fly(args) -> int:
 
 
 def add_compare(sub) -> None:
-    from sitl.compare import DEFAULT_OUT
+    from sitl.flights.compare import DEFAULT_OUT
 
     p = sub.add_parser("compare", help="posture manipulation vs fixed posture on the paper's scenarios: a Markdown table")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, metavar="DIR", help=f"output folder (default {DEFAULT_OUT})")
@@ -93,7 +94,7 @@ def add_compare(sub) -> None:
 
 
 def _compare(args) -> int:
-    from sitl.compare import compare
+    from sitl.flights.compare import compare
 
     try:
         make_output_dir(args.out)
@@ -105,9 +106,9 @@ def _compare(args) -> int:
 
 
 def add_campaign(sub) -> None:
-    from sitl.campaign import DEFAULT_OUT
-    from sitl.detection_campaign import DEFAULT_OUT as DETECTION_OUT, KINDS
-    from sitl.parallel import ENGINES
+    from sitl.campaigns.campaign import DEFAULT_OUT
+    from sitl.campaigns.detection_campaign import DEFAULT_OUT as DETECTION_OUT, KINDS
+    from sitl.campaigns.parallel import ENGINES
 
     p = sub.add_parser("campaign", help="many faulted flights in parallel: survival, altitude loss, detection")
     p.add_argument("--out", type=Path, metavar="DIR",
@@ -154,8 +155,8 @@ def _speeds(text: str) -> tuple[float, ...]:
 
 
 def _campaign(args) -> int:
-    from sitl.campaign import DEFAULT_OUT, LOSS_LEVELS, run_campaign
-    from sitl.detection_campaign import DEFAULT_OUT as DETECTION_OUT, run_detection_campaign
+    from sitl.campaigns.campaign import DEFAULT_OUT, LOSS_LEVELS, run_campaign
+    from sitl.campaigns.detection_campaign import DEFAULT_OUT as DETECTION_OUT, run_detection_campaign
 
     losses = tuple(args.loss) if args.loss else LOSS_LEVELS
     out = args.out or (DETECTION_OUT if args.kind else DEFAULT_OUT)

@@ -15,14 +15,14 @@ from pathlib import Path
 from m4.airframe import ROTOR_COUNT
 from m4.mission import Mission, ned_position, parse_mission
 from m4.toml_fields import ConfigError, Table, load_toml
-from sitl.thruster import FailureKind
+from sitl.plant.thrusters import FailureKind
 
 
 @dataclass(frozen=True)
 class Fault:
     at_s: float
     rotor: int                # 1..4
-    loss: float               # DEGRADED: max thrust becomes (1 - loss) x hover thrust; see sitl/thruster.py
+    loss: float               # DEGRADED: max thrust becomes (1 - loss) x hover thrust; see sitl/plant/thrusters.py
     kind: FailureKind = FailureKind.DEGRADED
     until_s: float | None = None       # the fault ends here (None: never)
 
@@ -46,7 +46,7 @@ class PlantOptions:
     thrust_max_n: float | None = None     # None: the airframe's thrust_max_n
     sensor_noise: bool = False
     esc_telemetry: bool = True            # False: the FC has no ESC telemetry and never sends it
-    battery: bool = False                 # True: the pack sags over the flight (sitl/battery.py)
+    battery: bool = False                 # True: the pack sags over the flight (sitl/plant/battery.py)
     battery_charge: float = 1.0           # state of charge at t = 0 when the pack sags
 
 

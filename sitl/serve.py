@@ -7,7 +7,7 @@ sending the frame again every `RESEND_S` so a companion that starts late still g
 companion silent for `lockstep_timeout_s` is logged and the simulation goes on without
 waiting, in the FC's failsafe, until a setpoint comes again.
 
-Link delay and loss (`link`, sitl/link_emulation.py): the companion's link (the first URL)
+Link delay and loss (`link`, sitl/links/emulation.py): the companion's link (the first URL)
 is impaired in simulated time, in lockstep and in real time alike. With delay D each way and
 loss p, in lockstep:
 - every datagram the FC sends on it at instant t is lost with probability p, else delivered
@@ -25,7 +25,7 @@ the same frames and setpoints. Other links (a ground station's) are not impaired
 
 Real time (`realtime=True`): the simulated clock follows the wall clock; messages are handled
 as they arrive (with `link`, 2 D later). Every packet in and out goes to the tlog when one is asked for. With several
-links, what arrives on one is routed to the others as an autopilot does (sitl/routing.py).
+links, what arrives on one is routed to the others as an autopilot does (sitl/fc/routing.py).
 
 A flood cannot stall the simulation: one poll reads at most `POLL_DATAGRAMS` datagrams per
 link (the rest waits in the socket, and the kernel drops what does not fit), so the plant
@@ -46,10 +46,10 @@ from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID
 from m4.mavlink.link import UdpLink, wait_readable
 from m4.mavlink.signing import StreamTimestamps
 from m4.mavlink.tlog import TlogWriter
-from sitl.link_emulation import EmulatedLink, LinkEmulation
-from sitl.routing import Router
+from sitl.links.emulation import EmulatedLink, LinkEmulation
+from sitl.fc.routing import Router
 from sitl.scenario import Scenario
-from sitl.truth import TruthRecorder
+from sitl.plant.truth import TruthRecorder
 from sitl.vehicle import Vehicle, log
 
 RESEND_S = 1.0
@@ -70,7 +70,7 @@ class ServeOptions:
     seed: int = 0
     duration_s: float | None = None            # None: until interrupted
     lockstep_timeout_s: float = 5.0
-    truth_log_path: Path | None = None         # the plant's true state (sitl.truth), written on close
+    truth_log_path: Path | None = None         # the plant's true state (sitl.plant.truth), written on close
     companion_ids: tuple[int, int] = (FC_SYSTEM_ID, COMPANION_COMPONENT_ID)   # the paired companion
     signing_state_path: Path | None = None     # signing timestamps kept across restarts (with a key)
     link: LinkEmulation | None = None          # delay and loss on the first link (the companion's)

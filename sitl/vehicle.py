@@ -18,17 +18,17 @@ from typing import Protocol
 from m4.airframe import Airframe
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from sitl.scenario import Fault, Scenario
-from sitl.esc_telemetry import EscTelemetry
-from sitl.flight_controller import TICK_MS, FlightController
-from sitl.plant import Plant
-from sitl.streams import FRAME
-from sitl.truth import DEFAULT_PERIOD_MS as OBSERVED_GRID_MS
+from sitl.fc.esc_telemetry import EscTelemetry
+from sitl.fc.flight_controller import TICK_MS, FlightController
+from sitl.plant.mujoco_plant import Plant
+from sitl.fc.streams import FRAME
+from sitl.plant.truth import DEFAULT_PERIOD_MS as OBSERVED_GRID_MS
 
 Send = Callable[[Iterable[mavlink.MAVLink_message]], None]
 
 
 class Inbox(Protocol):
-    """Messages held for later instants (sitl/link_emulation.py through sitl/serve.py)."""
+    """Messages held for later instants (sitl/links/emulation.py through sitl/serve.py)."""
 
     def next_delivery_ms(self) -> int | None: ...      # when the next is due (None: none held)
 

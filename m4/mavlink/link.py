@@ -129,7 +129,7 @@ class UdpLink(MavlinkLink):
 
     def send_datagram(self, packets: list[bytes]) -> None:
         """Put packed packets on the wire as one datagram (a subclass may impair the wire:
-        sitl/link_emulation.py)."""
+        sitl/links/emulation.py)."""
         if self.peer is None:
             return
         try:

@@ -1,5 +1,5 @@
 """The setpoints' lead and the link's round trip, measured with TIMESYNC through a loopback
-proxy that delays every datagram 50 ms each way (sitl.netem)."""
+proxy that delays every datagram 50 ms each way (sitl.links.netem_proxy)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from companion.link_delay import LinkDelay
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from m4.mavlink.link import UdpLink
 from m4.setpoint import Setpoint
-from sitl.netem import Impairment, Netem
+from sitl.links.netem_proxy import Impairment, Netem
 
 SETPOINT = Setpoint(thrust_n=np.full(4, 14.7), hip_rad=np.full(4, 0.8), hip_rate_rad_s=np.zeros(4))
 

@@ -23,7 +23,7 @@ from companion.core.reference import MissionReference
 from m4.mission import Mission, Waypoint
 from sitl.scenario import PlantOptions
 from companion.telemetry import VehicleSnapshot, rom_state
-from sitl.plant import Plant
+from sitl.plant.mujoco_plant import Plant
 
 AF = load_airframe()
 HOVER_N = AF.hover_thrust_per_rotor_n

@@ -4,7 +4,7 @@ from m4.mission import load_mission
 from sitl.scenario import load_scenario
 from m4.toml_fields import ConfigError
 from sitl.scenarios import builtin_names, resolve, scenario_path
-from sitl.thruster import FailureKind
+from sitl.plant.thrusters import FailureKind
 
 GOOD = """
 name = "t"

@@ -8,10 +8,10 @@ from __future__ import annotations
 import pytest
 
 from m4.airframe import load_airframe
-from sitl.flight_run import FlightFiles
-from sitl.fly import fly
-from sitl.fly_bench import loop_costs
-from sitl.records import read_feed
+from sitl.flights.flight_run import FlightFiles
+from sitl.flights.fly import fly
+from benchmarks.fly import loop_costs
+from sitl.flights.records import read_feed
 
 pytestmark = pytest.mark.flight
 
@@ -31,7 +31,7 @@ def test_the_rotor_is_found_within_the_target_and_the_robot_survives(tmp_path, s
     assert fault["detected_rotor"] == fault["rotor"]
     assert 0.0 < fault["detected_at_s"] - fault["at_s"] <= latency_max_s
     assert _confirmed_messages(tmp_path)[-1] == message       # the kind as the evidence settles it
-    costs = loop_costs(FlightFiles(tmp_path))                 # what python -m sitl.fly_bench reads
+    costs = loop_costs(FlightFiles(tmp_path))                 # what python -m benchmarks.fly reads
     assert costs is not None and costs.sitl_cpu_s > 0.0 and 0.0 < costs.answer_ms and 0.0 < costs.companion_cpu_ms
 
 

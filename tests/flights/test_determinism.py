@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sitl.flight_run import FlightOptions
-from sitl.fly import fly
-from sitl.link_emulation import LinkEmulation
-from sitl.truth import load_truth
+from sitl.flights.flight_run import FlightOptions
+from sitl.flights.fly import fly
+from sitl.links.emulation import LinkEmulation
+from sitl.plant.truth import load_truth
 
 pytestmark = pytest.mark.flight
 

@@ -7,7 +7,7 @@ import pytest
 from PIL import Image
 
 from sitl.cli import main
-from sitl.video import SNAPSHOT_OFFSETS_S
+from sitl.flights.video import SNAPSHOT_OFFSETS_S
 
 pytestmark = pytest.mark.flight
 

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import pytest
 
-from sitl.flight_run import FlightOptions
-from sitl.fly import fly
-from sitl.link_emulation import LinkEmulation
+from sitl.flights.flight_run import FlightOptions
+from sitl.flights.fly import fly
+from sitl.links.emulation import LinkEmulation
 
 pytestmark = pytest.mark.flight
 
@@ -27,7 +27,7 @@ def test_the_hover_rotor_loss_survives_50_ms_each_way_and_20_percent_loss(tmp_pa
 
 
 def test_and_in_real_time_through_the_loopback_proxy(tmp_path):
-    """The same through sitl/netem.py, paced by the wall clock: the lead jitters with the
+    """The same through sitl/links/netem_proxy.py, paced by the wall clock: the lead jitters with the
     companion's step and setpoints land between the FC's frames. Both processes in
     SCHED_FIFO, as deployed, so other work on the machine does not decide the flight."""
     options = FlightOptions(realtime=True, link=LinkEmulation(delay_ms=50, loss=0.2), companion_priority=40,

@@ -14,12 +14,12 @@ from analysis.flight_metrics import telemetry_metrics
 from analysis.tlog_reader import read_tlog
 from m4.airframe import load_airframe
 from sitl import scenarios
-from sitl.figures import flight_tlog
-from sitl.flight_run import FlightFiles
-from sitl.fly import fly
-from sitl.metrics import detection_faults
+from sitl.flights.figures import flight_tlog
+from sitl.flights.flight_run import FlightFiles
+from sitl.flights.fly import fly
+from sitl.flights.metrics import detection_faults
 from sitl.scenario import load_scenario
-from sitl.truth import load_truth
+from sitl.plant.truth import load_truth
 
 pytestmark = pytest.mark.flight
 

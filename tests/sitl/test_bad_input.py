@@ -10,7 +10,7 @@ import pytest
 from companion.cli import main as companion_main
 from sitl import scenarios
 from sitl.cli import main as sitl_main
-from sitl.truth import TruthRecorder
+from sitl.plant.truth import TruthRecorder
 
 
 @pytest.fixture(autouse=True)

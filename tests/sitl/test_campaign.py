@@ -8,9 +8,10 @@ import numpy as np
 
 from m4.airframe import ROTOR_COUNT, load_airframe
 from sitl.scenario import parse_scenario
-from sitl import campaign, detection_campaign, metrics
-from sitl.records import FaultStatusLog
-from sitl.compare import markdown_table
+from sitl.campaigns import campaign, detection_campaign
+from sitl.flights import metrics
+from sitl.flights.records import FaultStatusLog
+from sitl.flights.compare import markdown_table
 
 AF = load_airframe()
 

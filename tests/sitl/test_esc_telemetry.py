@@ -9,12 +9,12 @@ import pytest
 
 from m4.airframe import load_airframe
 from m4.mavlink import mavlink
-from sitl.esc_telemetry import EscTelemetry, dshot_rpm
-from sitl.plant import Plant
+from sitl.fc.esc_telemetry import EscTelemetry, dshot_rpm
+from sitl.plant.mujoco_plant import Plant
 from sitl.scenario import Fault, PlantOptions, Scenario
 from sitl.serve import ServeOptions
-from sitl.standin import StandInCompanion, served
-from sitl.thruster import RAD_S_TO_RPM, FailureKind
+from sitl.standin_companion import StandInCompanion, served
+from sitl.plant.thrusters import RAD_S_TO_RPM, FailureKind
 
 AF = load_airframe()
 m = mavlink

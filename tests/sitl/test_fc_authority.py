@@ -15,7 +15,7 @@ from m4.mavlink import mavlink
 from m4.mavlink.link import UdpLink
 from sitl.scenario import Scenario
 from sitl.serve import ServeOptions, Server
-from sitl.standin import StandInCompanion, served
+from sitl.standin_companion import StandInCompanion, served
 from tests.support.packets import packed
 
 m = mavlink

@@ -11,8 +11,8 @@ from m4.airframe import load_airframe
 from m4.mavlink import mavlink
 from sitl.scenario import Scenario
 from sitl.serve import ServeOptions
-from sitl.standin import StandInCompanion, served
-from sitl.telemetry import Home
+from sitl.standin_companion import StandInCompanion, served
+from sitl.fc.telemetry import Home
 
 m = mavlink
 

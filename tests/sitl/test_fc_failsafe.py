@@ -10,10 +10,10 @@ import pytest
 
 from m4.airframe import load_airframe
 from sitl.scenario import PlantOptions, Scenario, Start
-from sitl.failsafe import LAND_AFTER_S, LAND_SPEED_M_S
-from sitl.flight_controller import STALE_MIN_MS, FcMode
+from sitl.fc.failsafe import LAND_AFTER_S, LAND_SPEED_M_S
+from sitl.fc.flight_controller import STALE_MIN_MS, FcMode
 from sitl.serve import ServeOptions
-from sitl.standin import StandInCompanion, served
+from sitl.standin_companion import StandInCompanion, served
 from sitl.vehicle import Vehicle
 
 STOP_MS = 1000

@@ -17,12 +17,12 @@ import pytest
 
 from m4.airframe import load_airframe
 from m4.mavlink import mavlink
-from sitl.flight_controller import FcMode
-from sitl.flight_run import free_port
+from sitl.fc.flight_controller import FcMode
+from sitl.flights.flight_run import free_port
 from sitl.scenario import Fault, Scenario
 from sitl.serve import ServeOptions, Server
-from sitl.standin import StandInCompanion, served
-from sitl.truth import load_truth
+from sitl.standin_companion import StandInCompanion, served
+from sitl.plant.truth import load_truth
 
 m = mavlink
 pytestmark = pytest.mark.flight

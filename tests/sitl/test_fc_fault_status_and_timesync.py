@@ -8,7 +8,7 @@ import time
 from m4.mavlink import mavlink
 from sitl.scenario import Scenario
 from sitl.serve import ServeOptions
-from sitl.standin import StandInCompanion, served
+from sitl.standin_companion import StandInCompanion, served
 
 m = mavlink
 

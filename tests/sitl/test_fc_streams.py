@@ -11,7 +11,7 @@ from m4.airframe import load_airframe
 from m4.mavlink import mavlink
 from sitl.scenario import Scenario
 from sitl.serve import ServeOptions
-from sitl.standin import StandInCompanion, served
+from sitl.standin_companion import StandInCompanion, served
 
 HOVER = Scenario(name="hover", duration_s=60.0)
 FRAME_NAMES = ["ATTITUDE", "ATTITUDE_QUATERNION", "LOCAL_POSITION_NED", "M4_JOINT_STATE", "M4_THRUSTER_STATUS"]

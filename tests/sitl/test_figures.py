@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from m4.airframe import load_airframe
-from sitl import figures
-from sitl.truth import Truth
+from sitl.flights import figures
+from sitl.plant.truth import Truth
 
 AF = load_airframe()
 

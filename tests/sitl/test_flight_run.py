@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from sitl.flight_run import FlightError, _await_ready, _start
+from sitl.flights.flight_run import FlightError, _await_ready, _start
 
 
 def _companion(tmp_path, code: str):
@@ -42,7 +42,7 @@ def test_fly_waits_for_the_ready_line_however_long_the_start_takes(tmp_path):
 
 def test_the_companions_priority_reaches_its_config_and_zero_leaves_the_key_out(tmp_path):
     from companion.config import load_config
-    from sitl.flight_run import FlightOptions, companion_config_text
+    from sitl.flights.flight_run import FlightOptions, companion_config_text
 
     for priority in (0, 40):
         path = tmp_path / f"companion-{priority}.toml"
@@ -52,7 +52,7 @@ def test_the_companions_priority_reaches_its_config_and_zero_leaves_the_key_out(
 
 
 def test_a_sitl_priority_that_cannot_be_had_is_one_line(tmp_path, monkeypatch):
-    from sitl.flight_run import _real_time
+    from sitl.flights.flight_run import _real_time
 
     def refuse(*_):
         raise PermissionError(1, "Operation not permitted")

@@ -6,8 +6,8 @@ import itertools
 
 from m4.mavlink import new_mav
 from m4.mavlink.link import parse_bytes
-from sitl.flood import fuzzed_frames
-from sitl.flood_bench import measure
+from sitl.links.fuzz_flood import fuzzed_frames
+from benchmarks.flood import measure
 
 
 def test_fuzzed_frames_are_mostly_garbage_with_some_good_messages():

@@ -1,8 +1,8 @@
-"""sitl.hog_bench's figures from a flight's metrics and feed (no flight here: the bench flies)."""
+"""benchmarks.hog's figures from a flight's metrics and feed (no flight here: the bench flies)."""
 
 from __future__ import annotations
 
-from sitl.hog_bench import HEADER, flight_row, main
+from benchmarks.hog import HEADER, flight_row, main
 
 
 def _nmpc(t_s, rate_hz, overruns, lead_ms):

@@ -1,9 +1,9 @@
-"""sitl.link_bench: its table row and its bad arguments (the flights themselves are the
+"""benchmarks.link: its table row and its bad arguments (the flights themselves are the
 emulation's and the flights' tests)."""
 
 from __future__ import annotations
 
-from sitl import link_bench
+from benchmarks import link as link_bench
 
 
 def test_a_row_names_the_link_the_verdict_and_the_detection(tmp_path):

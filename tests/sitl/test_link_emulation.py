@@ -1,4 +1,4 @@
-"""Link delay and loss emulated in simulated time by `m4-sitl serve` (sitl/link_emulation.py):
+"""Link delay and loss emulated in simulated time by `m4-sitl serve` (sitl/links/emulation.py):
 real sockets on loopback, the real plant, a stand-in companion answering every frame."""
 
 from __future__ import annotations
@@ -9,12 +9,12 @@ import pytest
 
 from m4.mavlink import mavlink
 from m4.mavlink.link import UdpLink, wait_readable
-from sitl import link_emulation
+from sitl.links import emulation as link_emulation
 from sitl.cli import main
-from sitl.link_emulation import EmulationError, LinkEmulation, LossDraw
+from sitl.links.emulation import EmulationError, LinkEmulation, LossDraw
 from sitl.scenario import Scenario
 from sitl.serve import ServeOptions
-from sitl.standin import StandInCompanion, served
+from sitl.standin_companion import StandInCompanion, served
 
 HOVER = Scenario(name="hover", duration_s=60.0)
 PERIOD_MS = 20

@@ -16,7 +16,7 @@ from mavsdk.component_type import ComponentType
 from mavsdk.plugins.failure import FailureType, FailureUnit
 
 from m4.mavlink import mavutil
-from sitl.telemetry import Home
+from sitl.fc.telemetry import Home
 
 pytestmark = pytest.mark.flight
 

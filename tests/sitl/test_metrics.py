@@ -1,4 +1,4 @@
-"""Flight metrics on synthetic records (no flight): definitions of sitl.metrics."""
+"""Flight metrics on synthetic records (no flight): definitions of sitl.flights.metrics."""
 
 import math
 
@@ -12,10 +12,10 @@ from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
 from m4.mavlink.tlog import TlogWriter
 from m4.mission import Landing, Mission, Waypoint
 from sitl.scenario import Fault, Scenario, Start
-from sitl import metrics
-from sitl.records import FaultStatusLog, NmpcLog, read_fault_status
-from sitl.thruster import FailureKind
-from sitl.truth import Truth
+from sitl.flights import metrics
+from sitl.flights.records import FaultStatusLog, NmpcLog, read_fault_status
+from sitl.plant.thrusters import FailureKind
+from sitl.plant.truth import Truth
 
 AF = load_airframe()
 HOVER_N = AF.hover_thrust_per_rotor_n
@@ -210,7 +210,7 @@ def test_a_landing_is_soft_below_1_m_s_and_the_reference_follows_the_mission():
 
 
 def test_touchdown_speed_is_the_fastest_descent_just_before_contact_not_a_last_bob_upwards():
-    from sitl.metrics import touchdown_speed_m_s
+    from sitl.flights.metrics import touchdown_speed_m_s
     t = np.arange(0.0, 1.0, 0.01)
     vel = np.zeros((len(t), 3))
     vel[:, 2] = 0.4                      # descending at 0.4 m/s (NED: down is +)

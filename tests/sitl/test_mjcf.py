@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from m4.airframe import ROTOR_COUNT, load_airframe
-from sitl import mjcf
+from sitl.plant import mjcf
 
 AF = load_airframe()
 FLIP = np.array([1.0, -1.0, -1.0])      # FRD <-> FLU, written out here on purpose
@@ -76,7 +76,7 @@ def test_thrust_actuators_have_the_rotor_lag_and_its_square_and_the_reaction_mom
         for name, tau in (("thrust", AF.motor_time_constant_s), ("thrustsq", AF.motor_time_constant_s / 2)):
             act = model.actuator(f"{name}{i + 1}")
             assert act.dynprm[0] == pytest.approx(tau)
-            assert not model.actuator_ctrllimited[act.id]      # the rotor model (sitl/thruster.py) limits
+            assert not model.actuator_ctrllimited[act.id]      # the rotor model (sitl/plant/thrusters.py) limits
             # Force along site +z (up); moment spin k_m T about FRD z, i.e. -spin k_m T about FLU z.
             assert act.gear == pytest.approx([0, 0, 1, 0, 0, -AF.spin_sign[i] * AF.moment_coefficient_m])
 

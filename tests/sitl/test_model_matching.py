@@ -3,7 +3,7 @@
 import numpy as np
 
 from m4.airframe import load_airframe
-from sitl.model_matching import compare
+from sitl.flights.model_matching import compare
 
 
 def test_rom_predicts_the_plant_after_a_rotor_loss_within_sane_bounds():

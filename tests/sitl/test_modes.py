@@ -7,8 +7,8 @@ import pytest
 
 from m4.airframe import load_airframe
 from m4.mavlink import mavlink, mavutil, new_mav
-from sitl.modes import MODES, FcMode, available_modes, base_mode
-from sitl.telemetry import Snapshot, Telemetry
+from sitl.fc.modes import MODES, FcMode, available_modes, base_mode
+from sitl.fc.telemetry import Snapshot, Telemetry
 from tests.support.packets import packed
 
 m = mavlink

@@ -1,4 +1,4 @@
-"""The UDP impairment proxy (sitl/netem.py): delay, loss, duplicates and reordering both ways,
+"""The UDP impairment proxy (sitl/links/netem_proxy.py): delay, loss, duplicates and reordering both ways,
 on real loopback sockets."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from sitl.netem import Impairment, Netem, NetemError, loopback_address
+from sitl.links.netem_proxy import Impairment, Netem, NetemError, loopback_address
 
 
 def _socket() -> socket.socket:
@@ -115,7 +115,7 @@ def test_bad_impairment_is_refused():
 
 
 def test_command_line_refuses_a_remote_address_in_one_line():
-    r = subprocess.run([sys.executable, "-m", "sitl.netem", "--listen", "127.0.0.1:0", "--to", "8.8.8.8:53"],
+    r = subprocess.run([sys.executable, "-m", "sitl.links.netem_proxy", "--listen", "127.0.0.1:0", "--to", "8.8.8.8:53"],
                        capture_output=True, text=True, timeout=30)
     assert r.returncode == 2
     assert r.stderr.strip() == "netem: error: bad address '8.8.8.8:53': expected 127.x.x.x:PORT (loopback only)"

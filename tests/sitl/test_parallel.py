@@ -1,4 +1,4 @@
-"""sitl.parallel: results come back in the order of the jobs, a flight that cannot start is an
+"""sitl.campaigns.parallel: results come back in the order of the jobs, a flight that cannot start is an
 error row, on local processes and on a local Dask cluster alike (no flight is flown here)."""
 
 from __future__ import annotations
@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from sitl.flight_run import FlightError
-from sitl.parallel import Batch, FlightJob, fly_all
+from sitl.flights.flight_run import FlightError
+from sitl.campaigns.parallel import Batch, FlightJob, fly_all
 
 
 def _jobs(tmp_path):

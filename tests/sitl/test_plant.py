@@ -7,7 +7,7 @@ import pytest
 
 from m4.airframe import ROTOR_COUNT, load_airframe
 from companion.core.rom import rotation_ned_from_frd
-from sitl.plant import Plant, PlantOptions
+from sitl.plant.mujoco_plant import Plant, PlantOptions
 
 AF = load_airframe()
 NOMINAL = np.full(ROTOR_COUNT, AF.nominal_hip_rad)

@@ -14,8 +14,8 @@ from m4.mavlink import mavlink, mavutil
 from m4.mavlink.link import UdpLink, wait_readable
 from sitl.scenario import Fault, PlantOptions, Scenario
 from sitl.serve import ServeOptions, Server
-from sitl.truth import load_truth
-from sitl.standin import StandInCompanion, served
+from sitl.plant.truth import load_truth
+from sitl.standin_companion import StandInCompanion, served
 
 KEY = bytes(range(1, 33))
 NOISY_FAULT = Scenario(name="noisy-fault", duration_s=60.0, faults=(Fault(at_s=1.0, rotor=4, loss=1.0),),

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from sitl.servo import HipReference
+from sitl.plant.hip_servos import HipReference
 
 RATE, ACCEL, PERIOD = 6.0, 50.0, 0.005
 LO, HI = 0.0, math.pi / 2

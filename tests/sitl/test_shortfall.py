@@ -1,4 +1,4 @@
-"""The FC's shortfall meter (sitl/shortfall.py) reads, in its ESCs' speed, how far each rotor
+"""The FC's shortfall meter (sitl/fc/shortfall.py) reads, in its ESCs' speed, how far each rotor
 falls short of its command, and the FC lets the others cover it when the setpoint asks."""
 
 from __future__ import annotations
@@ -8,10 +8,10 @@ import pytest
 
 from m4.airframe import load_airframe
 from m4.mavlink import mavlink
-from sitl.flight_controller import TICK_MS
+from sitl.fc.flight_controller import TICK_MS
 from sitl.scenario import Scenario
-from sitl.shortfall import DEADBAND_N, ShortfallMeter
-from sitl.thruster import RAD_S_TO_RPM, FailureKind, Thrusters
+from sitl.fc.shortfall import DEADBAND_N, ShortfallMeter
+from sitl.plant.thrusters import RAD_S_TO_RPM, FailureKind, Thrusters
 from sitl.vehicle import Vehicle
 from tests.sitl.test_fc_rate_feedback import THRUST_N, _from_companion
 

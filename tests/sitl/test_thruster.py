@@ -7,10 +7,10 @@ import pytest
 
 from m4.airframe import ROTOR_COUNT, load_airframe
 from m4.mavlink import mavlink
-from sitl.plant import Plant, PlantOptions
+from sitl.plant.mujoco_plant import Plant, PlantOptions
 from sitl.scenario import Fault, Scenario
-from sitl.thruster import HEALTHY, FailureKind, Thrusters, figures
-from sitl.truth import TruthRecorder, load_truth
+from sitl.plant.thrusters import HEALTHY, FailureKind, Thrusters, figures
+from sitl.plant.truth import TruthRecorder, load_truth
 from sitl.vehicle import Vehicle
 
 AF = load_airframe()

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sitl.truth import TruthRecorder
-from sitl.video import VideoError, captions, frame_times_s, make_video, snapshot_times_s
+from sitl.plant.truth import TruthRecorder
+from sitl.flights.video import VideoError, captions, frame_times_s, make_video, snapshot_times_s
 
 METRICS = {"scenario": "hover-rotor-loss", "controller": "nmpc",
            "faults": [{"at_s": 1.0, "rotor": 4, "loss": 1.0, "detected_at_s": 1.04, "detected_rotor": 4}]}

@@ -1,0 +1,110 @@
+"""Speed of the whole loop (plant and companion, lockstep): simulated seconds per wall second.
+
+    python -m benchmarks.fly [--scenario NAME] [--rate-hz HZ]... [--priority P] [--keep DIR]
+
+flies the scenario once per control rate (default 50 Hz) without figures and prints, per rate:
+- the real-time factor of the whole loop (wall clock: noisy on a shared machine);
+- the CPU time (time.process_time) of each process per control step: the SITL's (plant,
+  flight controller, MAVLink) and the companion's (telemetry in, controller, setpoint out,
+  feed and flight log), from their own stop lines in sitl.log and companion.log;
+- their sum against the period's budget for the target;
+- the wall time per step, and the companion's part of it: from reading the telemetry frame
+  to sending its setpoint (its mean, from companion.log).
+In lockstep the two processes take turns: the SITL steps while the companion waits for the
+frame, the companion answers while the SITL waits for the setpoint (only the companion's
+publishing and logging after the send overlap the SITL's step). So the wall time per step is
+the SITL's step + the companion's answer + two hand-offs, and the target, at least 10x real
+time at 50 Hz, needs them under 2 ms per 20 ms step. On a shared machine, `--priority P`
+runs both processes in SCHED_FIFO at P (the right to do so is needed: root, or LimitRTPRIO): the
+others' work then no longer stretches the wall-clock figure, which comes near an idle machine's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from m4.toml_fields import ConfigError
+from sitl.flights.flight_run import FlightError, FlightFiles, FlightOptions
+from sitl.flights.fly import fly
+
+TARGET_FACTOR = 10.0
+_SITL_CPU = re.compile(r"CPU ([0-9.]+) s \(")
+_COMPANION_CPU = re.compile(r"CPU ([0-9.]+) ms per step")
+_COMPANION_ANSWER = re.compile(r"setpoint sent ([0-9.]+) ms on average")
+
+
+@dataclass(frozen=True)
+class LoopCosts:
+    """What the two processes of a flight said of their costs when they stopped."""
+    sitl_cpu_s: float             # the SITL's loop, the whole flight
+    companion_cpu_ms: float       # per control step
+    answer_ms: float              # the companion's mean time from telemetry read to setpoint sent
+
+
+def loop_costs(files: FlightFiles) -> LoopCosts | None:
+    """From the flight's sitl.log and companion.log (None: a figure is missing)."""
+    found = [_last_match(pattern, path) for pattern, path in ((_SITL_CPU, files.sitl_log),
+                                                              (_COMPANION_CPU, files.companion_log),
+                                                              (_COMPANION_ANSWER, files.companion_log))]
+    return None if None in found else LoopCosts(*found)
+
+
+def _last_match(pattern: re.Pattern, path: Path) -> float | None:
+    found = pattern.findall(path.read_text(errors="replace")) if path.exists() else []
+    return float(found[-1]) if found else None
+
+
+def bench_line(scenario: str, rate_hz: float, out_dir: Path, priority: int = 0) -> str:
+    """Fly once at `rate_hz` into `out_dir` (both processes in SCHED_FIFO `priority`, 0: normal);
+    the figures in one paragraph."""
+    options = FlightOptions(rate_hz=rate_hz, companion_priority=priority, sitl_priority=priority)
+    m = fly(scenario, out_dir, options, figures=False, progress=False)
+    costs = loop_costs(FlightFiles(out_dir))
+    period_ms, factor, n = 1e3 / rate_hz, m["realtime_factor"], m["nmpc"]
+    lines = [f"{m['scenario']} at {rate_hz:g} Hz ({m['duration_s']:g} s simulated, lockstep"
+             f"{f', SCHED_FIFO {priority}' if priority else ''}): "
+             f"{factor:.1f}x real time; survived: {m['survived']}; "
+             f"NMPC solve median {n['solve_ms_median']:.2f} ms, p99 {n['solve_ms_p99']:.1f} ms"]
+    if costs is None:
+        return "\n".join([*lines, "  CPU per step: not found in sitl.log / companion.log"])
+    sitl_ms = 1e3 * costs.sitl_cpu_s / (m["duration_s"] * rate_hz)
+    both_ms = sitl_ms + costs.companion_cpu_ms
+    lines += [f"  CPU per step: SITL {sitl_ms:.2f} ms + companion {costs.companion_cpu_ms:.2f} ms = {both_ms:.2f} ms "
+              f"(budget for {TARGET_FACTOR:g}x: {period_ms / TARGET_FACTOR:.2f} ms)",
+              f"  CPU per simulated second: SITL {sitl_ms * rate_hz / 1e3:.3f} s, companion "
+              f"{costs.companion_cpu_ms * rate_hz / 1e3:.3f} s",
+              f"  wall per step {period_ms / factor:.2f} ms, of which the companion's answer (telemetry read to "
+              f"setpoint sent) {costs.answer_ms:.2f} ms; the rest is the SITL's step and the hand-offs (the "
+              "companion's publishing after its send overlaps the SITL's step)"]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.fly", description=__doc__.splitlines()[0])
+    parser.add_argument("--scenario", default="hover-rotor-loss", help="built-in name or file (default hover-rotor-loss)")
+    parser.add_argument("--rate-hz", type=float, action="append", help="control rate; repeat (default 50)")
+    parser.add_argument("--priority", type=int, default=0, metavar="P",
+                        help="both processes in SCHED_FIFO at P, 1..99 (default 0: normal priority)")
+    parser.add_argument("--keep", type=Path, metavar="DIR", help="keep the flights' folders in DIR (default: "
+                                                                 "a temporary folder)")
+    args = parser.parse_args(argv)
+    if not 0 <= args.priority <= 99:
+        parser.error("--priority must be 0..99")
+    with tempfile.TemporaryDirectory() as tmp:
+        root = args.keep or Path(tmp)
+        for rate in args.rate_hz or (50.0,):
+            try:
+                print(bench_line(args.scenario, rate, root / f"{rate:g}hz", args.priority), flush=True)
+            except (ConfigError, FlightError) as e:
+                print(f"python -m benchmarks.fly: error: {e}", file=sys.stderr)
+                return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

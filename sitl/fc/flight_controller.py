@@ -1,0 +1,341 @@
+"""The simulated flight controller's MAVLink logic (system 1, component 1), without sockets.
+
+It owns the plant's actuator commands: the companion's M4_SETPOINT while setpoints are fresh,
+its own failsafe (sitl/fc/failsafe.py) otherwise. A setpoint answering instant t with period P
+is fresh until t + max(3 P, 300 ms) on the FC's clock; then the FC holds its position and,
+2 s later, lands. STATUSTEXT announces each mode change. Commands (sitl/fc/commands.py) are
+acknowledged; telemetry streams (sitl/fc/streams.py) are built from the measured plant state.
+
+Authority: the FC is paired with one companion (`companion_ids`, system 1 component 191 by
+default). Setpoints, commands (rotor faults, arming, stream rates, requests) and
+M4_FAULT_STATUS are taken from it only (with `require_signed`, only signed); from anyone
+else they are refused and counted, a command with COMMAND_ACK DENIED. A setpoint is judged
+by the instant it answers (time_boot_ms, the FC's clock), not by when it arrives: one from
+the future, older than max(`MAX_AGE_MIN_MS`, `MAX_AGE_PERIODS` periods), out of order, with
+a period outside 1..`MAX_PERIOD_MS` or not finite is refused and counted by reason.
+
+Arming: the FC starts armed (the scenarios start in the air). Once it has landed or applied
+a thrust cut it is disarmed: setpoints are refused (counted) and the motors stay off until
+the paired companion re-arms it with MAV_CMD_COMPONENT_ARM_DISARM(1).
+
+It keeps the last M4_FAULT_STATUS of its companion (a restarted companion asks for it with
+MAV_CMD_REQUEST_MESSAGE) and answers TIMESYNC requests (tc1 = 0) with its clock in ns.
+
+The caller (sitl/serve.py) steps the plant and calls, at each instant on the 1 ms clock:
+`handle()` for each message received, `tick()` every TICK_MS, `telemetry()` when streams
+are due, and `take_outbox()` to send what the FC has to say on its own.
+"""
+
+from __future__ import annotations
+
+import collections
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from m4.airframe import ROTOR_COUNT, Airframe
+from m4.log_limit import RepeatLimiter
+from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from m4.setpoint import RateFeedback, Setpoint, ShortfallCover
+from sitl.fc.commands import CommandHandler
+from sitl.fc.esc_telemetry import EscTelemetry
+from sitl.fc.failsafe import Failsafe, FailsafeMode
+from sitl.fc.modes import FcMode, current_mode
+from sitl.fc.rotor_watch import RotorWatch
+from sitl.fc.shortfall import ShortfallMeter
+from sitl.plant.state import PlantState
+from sitl.fc.streams import DEFAULT_INTERVALS_MS, ESC_TELEMETRY_INTERVALS_MS, FRAME, StreamSchedule
+from sitl.fc.telemetry import Home, Snapshot, Telemetry, statustext
+from sitl.plant.thrusters import RAD_S_TO_RPM, FailureKind
+
+TICK_MS = 4                       # the failsafe controller and the staleness check: 250 Hz
+STALE_PERIODS = 3
+STALE_MIN_MS = 300
+LOST_FRACTION = 0.5               # a rotor left with less than this of hover thrust: fly on three
+MAX_PERIOD_MS = 1000              # a setpoint claiming a longer period is refused
+MAX_AGE_MIN_MS = 150              # a setpoint answering an instant older than this (and
+MAX_AGE_PERIODS = 2               # than this many of its periods) is too old to help
+_CONTROL_IDS = frozenset({mavlink.MAVLINK_MSG_ID_M4_SETPOINT, mavlink.MAVLINK_MSG_ID_COMMAND_LONG,
+                          mavlink.MAVLINK_MSG_ID_COMMAND_INT, mavlink.MAVLINK_MSG_ID_M4_FAULT_STATUS})
+_COMMAND_IDS = (mavlink.MAVLINK_MSG_ID_COMMAND_LONG, mavlink.MAVLINK_MSG_ID_COMMAND_INT)
+
+
+_ANNOUNCE = {
+    FcMode.COMPANION: (mavlink.MAV_SEVERITY_INFO, "FC: flying companion setpoints"),
+    FcMode.HOLD: (mavlink.MAV_SEVERITY_WARNING, "FC failsafe HOLD: no fresh setpoints"),
+    FcMode.LAND: (mavlink.MAV_SEVERITY_WARNING, "FC failsafe LAND: setpoints stale for 2 s"),
+    FcMode.LANDED: (mavlink.MAV_SEVERITY_NOTICE, "FC LANDED: thrust cut"),
+}
+
+
+def _clip(values: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """np.clip(values, lo, hi) (NaN and -0.0 kept alike) on four floats, for a fraction of the
+    cost of np.clip's dispatch at every tick."""
+    return np.array([min(max(v, lo), hi) for v in values.tolist()])
+
+
+@dataclass(frozen=True)
+class ReceivedSetpoint:
+    time_ms: int                  # the telemetry instant it answers (our clock)
+    period_ms: int
+    command: Setpoint
+
+    @property
+    def stale_after_ms(self) -> int:
+        return self.time_ms + max(STALE_PERIODS * self.period_ms, STALE_MIN_MS)
+
+
+@dataclass
+class FcCounters:
+    setpoints_accepted: int = 0
+    setpoints_dropped: int = 0      # every setpoint refused; by reason in `dropped_by_reason`
+    commands_acked: int = 0
+    refused_foreign: int = 0        # setpoints, commands and fault status from anyone but the companion
+    dropped_by_reason: collections.Counter = field(default_factory=collections.Counter)
+
+    def drop(self, reason: str) -> None:
+        self.setpoints_dropped += 1
+        self.dropped_by_reason[reason] += 1
+
+
+class FlightController:
+    def __init__(self, airframe: Airframe, plant, home: Home | None = None, lockstep: bool = False,
+                 companion_ids: tuple[int, int] = (FC_SYSTEM_ID, COMPANION_COMPONENT_ID), require_signed: bool = False,
+                 log: Callable[[str], None] = lambda text: None, esc: EscTelemetry | None = None):
+        self.airframe = airframe
+        self.companion_ids = companion_ids
+        self.require_signed = require_signed
+        self.log = log
+        self._repeats = RepeatLimiter()
+        self.armed = True
+        self.fault_status: mavlink.MAVLink_m4_fault_status_message | None = None
+        self.rotor_watch = RotorWatch(airframe)
+        self.shortfall = ShortfallMeter(airframe, TICK_MS / 1000.0)
+        self._shortfall_n: list[float] | None = None      # None: no ESC telemetry, no cover
+        self.lockstep = lockstep
+        self.plant = plant
+        self.esc = esc                          # None: no ESC telemetry (many FCs have none)
+        self.telemetry_builder = Telemetry(airframe, home, esc_telemetry=esc is not None)
+        self.schedule = StreamSchedule(DEFAULT_INTERVALS_MS if esc is None else ESC_TELEMETRY_INTERVALS_MS)
+        self.failsafe = Failsafe(airframe)
+        self.counters = FcCounters()
+        self.setpoint: ReceivedSetpoint | None = None
+        self.mode: FcMode | None = None
+        self._applied: ReceivedSetpoint | None = None
+        self._applied_at_ms = 0
+        self._outbox: list[mavlink.MAVLink_message] = []
+        self._measured: tuple[int, PlantState] | None = None
+        self._commands = CommandHandler(self)
+
+    # -- the plant as the FC sees it -------------------------------------------------------
+    def measured_state(self, now_ms: int) -> PlantState:
+        if self._measured is None or self._measured[0] != now_ms:
+            self._measured = (now_ms, self.plant.measured_state())
+        return self._measured[1]
+
+    def _command_plant(self, thrust_n, hip_rad, hip_rate_rad_s=None) -> None:
+        self.plant.command(thrust_n, hip_rad, hip_rate_rad_s)
+        self._measured = None
+
+    def _fast_loop(self, sp: Setpoint, now_ms: int) -> None:
+        """The companion's thrusts plus, every tick, its rate feedback on our gyro and the other
+        rotors' cover for a rotor our ESCs show falling short (m4.setpoint)."""
+        change = np.zeros(ROTOR_COUNT)
+        if sp.rate_feedback is not None:
+            rates = self.plant.measured_rates_frd_rad_s()      # the gyro alone: cheap at every tick
+            change += sp.rate_feedback.thrust_change_n(rates, (now_ms - self._applied_at_ms) / 1000.0,
+                                                       self.setpoint.period_ms / 1000.0)
+        if sp.shortfall_cover is not None and self._shortfall_n is not None:
+            change += sp.shortfall_cover.thrust_change_n(self._shortfall_n)
+        af = self.airframe
+        self.plant.command_thrust(_clip(sp.thrust_n + change, af.thrust_min_n, af.thrust_max_n))
+        self._measured = None
+
+    def set_rotor_loss(self, rotor: int, loss: float, kind: FailureKind = FailureKind.DEGRADED) -> None:
+        """Rotor 1..4 (0: all) fails as `kind` (sitl/plant/thrusters.py); loss 0 restores it."""
+        for r in range(1, ROTOR_COUNT + 1) if rotor == 0 else (rotor,):
+            self.plant.set_rotor_loss(r, loss, kind)
+        self._measured = None
+
+    # -- modes -------------------------------------------------------------------------------
+    def _set_mode(self, mode: FcMode) -> None:
+        if mode != self.mode:
+            self.mode = mode
+            self._outbox += [statustext(*_ANNOUNCE[mode]), current_mode(mode)]
+
+    def _fresh(self, now_ms: int) -> bool:
+        return self.setpoint is not None and now_ms <= self.setpoint.stale_after_ms
+
+    def set_armed(self, armed: bool) -> None:
+        """Arm (the next fresh setpoint, or the failsafe, flies) or disarm (motors off)."""
+        if armed != self.armed:
+            self.armed = armed
+            self.announce(mavlink.MAV_SEVERITY_NOTICE, "FC armed" if armed else "FC disarmed")
+            self.setpoint = None
+
+    def _watch_rotors(self, now_ms: int, thrust_cmd_n, rpm) -> None:
+        """The FC's own lost-rotor check on the speeds its ESCs report (sitl/fc/rotor_watch.py)
+        against what it commanded them."""
+        if self.rotor_watch.lost is not None:
+            return
+        speed_rad_s = [r / RAD_S_TO_RPM for r in rpm]
+        if self.rotor_watch.update(thrust_cmd_n, speed_rad_s, now_ms) is not None:
+            self.announce(mavlink.MAV_SEVERITY_CRITICAL, f"FC: rotor {self.rotor_watch.lost} lost (ESC speed)")
+
+    def tick(self, now_ms: int) -> None:
+        """Choose who flies (companion or failsafe) and command the plant accordingly; the ESCs
+        answer this output frame."""
+        if self.esc is not None:
+            rotors = self.plant.rotor_state()
+            self.esc.sample(now_ms, rotors)
+            rpm = self.esc.report(now_ms).rpm
+            self._shortfall_n = self.shortfall.update(rotors.thrust_cmd_n, rpm)
+            self._watch_rotors(now_ms, rotors.thrust_cmd_n, rpm)
+        if not self.armed:
+            self._set_mode(FcMode.LANDED)
+            self._command_plant(np.zeros(ROTOR_COUNT), self.failsafe.hip_rad)
+            return
+        if self._fresh(now_ms):
+            sp = self.setpoint.command
+            if sp.thrust_cut:
+                self.set_armed(False)
+                self.tick(now_ms)
+                return
+            self._set_mode(FcMode.COMPANION)
+            if self.setpoint is not self._applied:
+                self._command_plant(sp.thrust_n, sp.hip_rad, sp.hip_rate_rad_s)
+                self._applied, self._applied_at_ms = self.setpoint, now_ms
+            if sp.rate_feedback is not None or sp.shortfall_cover is not None:
+                self._fast_loop(sp, now_ms)
+            return
+        state = self.measured_state(now_ms)
+        self.failsafe.set_lost_rotor(self.lost_rotor())
+        if self.mode not in (FcMode.HOLD, FcMode.LAND):
+            self.failsafe.engage(state, now_ms, may_land=self.mode is not None)
+        out = self.failsafe.update(state, now_ms)
+        self._set_mode(FcMode(out.mode.value))
+        self._command_plant(out.thrust_n, out.hip_rad)
+        if out.mode == FailsafeMode.LANDED:
+            self.set_armed(False)
+
+    def lost_rotor(self) -> int | None:
+        """The rotor the companion last reported lost (confirmed, below LOST_FRACTION of hover
+        thrust), else the one the FC's own ESC telemetry shows lost (sitl/fc/rotor_watch.py, when
+        it has ESC telemetry), or None."""
+        f = self.fault_status
+        if f is not None and f.state == mavlink.M4_FAULT_STATE_CONFIRMED and 1 <= f.rotor <= ROTOR_COUNT:
+            if f.thrust_max_estimate_n[f.rotor - 1] < LOST_FRACTION * self.airframe.hover_thrust_per_rotor_n:
+                return f.rotor
+        return self.rotor_watch.lost
+
+    # -- messages in ---------------------------------------------------------------------------
+    @staticmethod
+    def addressed_to_me(msg) -> bool:
+        return msg.target_system in (0, FC_SYSTEM_ID) and msg.target_component in (0, FC_COMPONENT_ID)
+
+    def from_companion(self, msg) -> bool:
+        """Sent by the paired companion (and signed, when signing is required)."""
+        return ((msg.get_srcSystem(), msg.get_srcComponent()) == self.companion_ids
+                and (not self.require_signed or msg.get_signed()))
+
+    def _say(self, key, text: str) -> None:
+        self._repeats.say(key, text, self.log)
+
+    def handle(self, msg, now_ms: int) -> list[mavlink.MAVLink_message]:
+        """React to one received message; returns the immediate replies (acks, requested messages)."""
+        msg_id = msg.get_msgId()
+        if msg_id == mavlink.MAVLINK_MSG_ID_TIMESYNC:
+            return [mavlink.MAVLink_timesync_message(now_ms * 1_000_000, msg.ts1)] if msg.tc1 == 0 else []
+        if msg_id not in _CONTROL_IDS or (msg_id != mavlink.MAVLINK_MSG_ID_M4_FAULT_STATUS
+                                          and not self.addressed_to_me(msg)):
+            return []
+        if not self.from_companion(msg):
+            return self._refuse(msg)
+        if msg_id == mavlink.MAVLINK_MSG_ID_M4_SETPOINT:
+            self._on_setpoint(msg, now_ms)
+            return []
+        if msg_id == mavlink.MAVLINK_MSG_ID_M4_FAULT_STATUS:
+            self.fault_status = msg
+            return []
+        return self._commands.handle(msg, now_ms)
+
+    def _refuse(self, msg) -> list[mavlink.MAVLink_message]:
+        self.counters.refused_foreign += 1
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        unsigned = " or unsigned" if self.require_signed else ""
+        self._say(("foreign", msg.get_msgId()),
+                  f"refused {msg.get_type()} from {src[0]}/{src[1]}: not the paired companion "
+                  f"{self.companion_ids[0]}/{self.companion_ids[1]}{unsigned}")
+        if msg.get_msgId() in _COMMAND_IDS:
+            return [self._commands.ack(msg, mavlink.MAV_RESULT_DENIED)]
+        return []
+
+    def _setpoint_fault(self, msg, values: np.ndarray, now_ms: int) -> str | None:
+        """Why a setpoint from the companion cannot be applied (None: it can)."""
+        if not 1 <= msg.period_ms <= MAX_PERIOD_MS:
+            return "period"
+        if msg.time_boot_ms > now_ms:
+            return "future"
+        if now_ms - msg.time_boot_ms > max(MAX_AGE_MIN_MS, MAX_AGE_PERIODS * msg.period_ms):
+            return "too old"
+        if self.setpoint is not None and msg.time_boot_ms < self.setpoint.time_ms:
+            return "out of order"
+        if not np.isfinite(values).all():
+            return "not finite"
+        if not self.armed:
+            return "disarmed"
+        return None
+
+    def _on_setpoint(self, msg, now_ms: int) -> None:
+        values = np.array([msg.thrust_n, msg.hip_angle_rad, msg.hip_rate_rad_s], dtype=float)   # (3, ROTOR_COUNT)
+        reason = self._setpoint_fault(msg, values, now_ms)
+        if reason is not None:
+            self.counters.drop(reason)
+            self._say(("setpoint", reason), f"t={now_ms / 1000:.3f} s: setpoint for t={msg.time_boot_ms / 1000:.3f} s "
+                                            f"refused: {reason}")
+            return
+        af = self.airframe
+        thrust, hip, rate = values
+        self.setpoint = ReceivedSetpoint(msg.time_boot_ms, msg.period_ms, Setpoint(
+            thrust_n=_clip(thrust, af.thrust_min_n, af.thrust_max_n),
+            hip_rad=_clip(hip, af.hip_min_rad, af.hip_max_rad),
+            hip_rate_rad_s=_clip(rate, -af.hip_rate_max_rad_s, af.hip_rate_max_rad_s),
+            thrust_cut=bool(msg.flags & mavlink.M4_SETPOINT_FLAG_THRUST_CUT),
+            rate_feedback=RateFeedback.from_fields(msg.rates_ref_frd_rad_s, msg.rates_ref_change_frd_rad_s2,
+                                                   msg.rate_gain),
+            shortfall_cover=ShortfallCover.from_fields(msg.shortfall_gain)))
+        self.counters.setpoints_accepted += 1
+        self.tick(now_ms)
+
+    # -- messages out --------------------------------------------------------------------------
+    def snapshot(self, now_ms: int) -> Snapshot:
+        state = self.measured_state(now_ms)
+        landed = self.mode == FcMode.LANDED or bool(state.on_ground)
+        return Snapshot(t_ms=now_ms, state=state, custom_mode=int(self.mode or 0), armed=self.armed, landed=landed,
+                        esc=None if self.esc is None else self.esc.report(now_ms))
+
+    def telemetry(self, now_ms: int, frame: bool = False) -> list[mavlink.MAVLink_message]:
+        """The streams due at `now_ms` (with `frame`: plus the lockstep frame), in order. In
+        lockstep M4_THRUSTER_STATUS goes out only in frames: it tells the companion to answer."""
+        ids = self.schedule.due(now_ms, FRAME if frame else ())
+        if self.lockstep and not frame:
+            ids = [i for i in ids if i != FRAME[-1]]
+        if not ids:
+            return []
+        snap = self.snapshot(now_ms)
+        return [self.telemetry_builder.build(i, snap) for i in ids]
+
+    def next_event_ms(self, now_ms: int) -> int:
+        """The next instant at which the FC has something to do."""
+        next_tick = (now_ms // TICK_MS + 1) * TICK_MS
+        due = self.schedule.next_due_ms()
+        return next_tick if due is None else min(next_tick, max(due, now_ms + 1))
+
+    def announce(self, severity: int, text: str) -> None:
+        self._outbox.append(statustext(severity, text))
+
+    def take_outbox(self) -> list[mavlink.MAVLink_message]:
+        out, self._outbox = self._outbox, []
+        return out
+

@@ -1,0 +1,78 @@
+"""The simulated flight controller's modes and how they look on the wire, so that any ground
+station shows them for what they are.
+
+- HEARTBEAT: autopilot MAV_AUTOPILOT_GENERIC, base_mode made of MAVLink's standard flags only
+  (SAFETY_ARMED; GUIDED while the companion's setpoints fly, AUTO while the FC's own failsafe
+  does; STABILIZE whenever a controller holds the attitude), custom_mode our mode number
+  without MAV_MODE_FLAG_CUSTOM_MODE_ENABLED. With that flag a GCS reads custom_mode through
+  the mode table of the vehicle type (pymavlink's `mode_string_v10`, MAVProxy: ArduCopter's
+  for a quadrotor, where 1 is ACRO and 0 STABILIZE); without it, it reads the base flags.
+- The standard modes protocol (MAVLink's development.xml, which the dialect includes):
+  CURRENT_MODE on every mode change and every CURRENT_MODE_INTERVAL_MS; AVAILABLE_MODES on
+  MAV_CMD_REQUEST_MESSAGE (param2: 0 for every mode, else the mode's index from 1). HOLD and
+  LAND are the standard POSITION_HOLD and LAND (no name, as the protocol asks); COMPANION and
+  LANDED are custom modes with their names. None is user selectable: the FC enters them itself.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+from m4.mavlink import mavlink
+from sitl.fc.failsafe import FailsafeMode
+
+m = mavlink
+CURRENT_MODE_INTERVAL_MS = 2000           # 0.5 Hz, the protocol's nominal rate
+
+
+class FcMode(enum.IntEnum):
+    """HEARTBEAT and CURRENT_MODE custom_mode values."""
+    COMPANION = 0                  # flying the companion's setpoints
+    HOLD = FailsafeMode.HOLD.value
+    LAND = FailsafeMode.LAND.value
+    LANDED = FailsafeMode.LANDED.value
+
+
+@dataclass(frozen=True)
+class ModeInfo:
+    mode: FcMode
+    standard_mode: int             # MAV_STANDARD_MODE
+    name: str                      # sent for the custom (non-standard) modes only
+    base_flags: int                # MAV_MODE_FLAG bits besides SAFETY_ARMED
+
+
+_STAB = m.MAV_MODE_FLAG_STABILIZE_ENABLED
+MODES = (
+    ModeInfo(FcMode.COMPANION, m.MAV_STANDARD_MODE_NON_STANDARD, "COMPANION", _STAB | m.MAV_MODE_FLAG_GUIDED_ENABLED),
+    ModeInfo(FcMode.HOLD, m.MAV_STANDARD_MODE_POSITION_HOLD, "HOLD", _STAB | m.MAV_MODE_FLAG_AUTO_ENABLED),
+    ModeInfo(FcMode.LAND, m.MAV_STANDARD_MODE_LAND, "LAND", _STAB | m.MAV_MODE_FLAG_AUTO_ENABLED),
+    ModeInfo(FcMode.LANDED, m.MAV_STANDARD_MODE_NON_STANDARD, "LANDED", 0),
+)
+_BY_MODE = {info.mode: info for info in MODES}
+
+
+def base_mode(custom_mode: int, armed: bool) -> int:
+    """HEARTBEAT.base_mode for a mode (standard flags only: no CUSTOM_MODE_ENABLED)."""
+    flags = _BY_MODE[FcMode(custom_mode)].base_flags
+    return flags | (m.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0)
+
+
+def current_mode(custom_mode: int) -> mavlink.MAVLink_current_mode_message:
+    info = _BY_MODE[FcMode(custom_mode)]
+    return m.MAVLink_current_mode_message(info.standard_mode, int(info.mode), 0)    # 0: nobody asked for a mode
+
+
+def available_modes(index: int) -> list[mavlink.MAVLink_available_modes_message] | None:
+    """AVAILABLE_MODES for mode `index` (1..n), or for every mode (0); None: no such index."""
+    if not 0 <= index <= len(MODES):
+        return None
+    picked = range(1, len(MODES) + 1) if index == 0 else (index,)
+    return [_available(i) for i in picked]
+
+
+def _available(index: int) -> mavlink.MAVLink_available_modes_message:
+    info = MODES[index - 1]
+    name = b"" if info.standard_mode != m.MAV_STANDARD_MODE_NON_STANDARD else info.name.encode()
+    return m.MAVLink_available_modes_message(len(MODES), index, info.standard_mode, int(info.mode),
+                                             m.MAV_MODE_PROPERTY_NOT_USER_SELECTABLE, name)

@@ -1,0 +1,247 @@
+"""One flight: the SITL and the companion as two processes talking MAVLink 2 over loopback UDP.
+
+`run_flight` writes into the flight's folder:
+- scenario.toml: the scenario file flown, byte for byte;
+- companion.toml: the companion's configuration for this flight (controller variant, link,
+  feed; in lockstep no wall-clock time budget for the NMPC, so that the flight does not depend
+  on the machine's load); the companion reads the scenario's [mission] from scenario.toml;
+- flight.tlog (every packet both ways), truth.npz (the plant's true state, sitl.plant.truth),
+  feed.jsonl (the companion's Zenoh feed), sitl.log and companion.log (their stderr),
+  companion-log/flight-*.tlog (the companion's own flight log: its side of the link and its
+  decisions, companion/flight_log.py).
+
+With `link` (delay, loss) the companion's link is impaired both ways: in lockstep by the SITL
+itself, in simulated time (`m4-sitl serve --link-delay-ms --link-loss`, sitl/links/emulation.py:
+deterministic, the losses drawn from the seed, whatever the machine's load); with `realtime`
+through a loopback proxy (sitl/links/netem_proxy.py) on the wall clock, as a real link would be.
+
+Order: the feed recorder listens, the companion starts, builds its NMPC, opens its link and
+says so on a pipe (`m4-companion run --ready-fd`), then the SITL starts, flies the scenario's duration and exits; the companion is then
+stopped with SIGTERM. Each flight takes its own free loopback ports, so flights can run side
+by side. Anything that keeps the flight from starting raises FlightError with one line.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import re
+import select
+import signal
+import socket
+import subprocess
+import sys
+import time
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from m4.airframe import load_airframe
+from sitl.flights.feed_recorder import FeedRecorder
+from sitl.links.emulation import LinkEmulation
+from sitl.links.netem_proxy import Impairment, Netem
+from sitl.scenario import Scenario
+
+CONTROLLERS = ("nmpc", "fixed-posture")
+VEHICLE = "m4"
+COMPANION_START_TIMEOUT_S = 300.0     # a first start compiles the NMPC
+STOP_TIMEOUT_S = 10.0
+POLL_S = 0.2
+_PREFIX = re.compile(r"^m4-[a-z]+: (error: )?")
+
+
+class FlightError(RuntimeError):
+    """The flight could not start or its processes failed (one line, for the user)."""
+
+
+@dataclass(frozen=True)
+class FlightOptions:
+    controller: str = "nmpc"              # "fixed-posture": the NMPC with every hip pinned at nominal
+    seed: int = 0                         # the SITL's sensor noise
+    realtime: bool = False
+    viewer: bool = False
+    port: int | None = None               # loopback UDP port of the companion's MAVLink link; None: a free one
+    record_feed: bool = True
+    rate_hz: float | None = None          # the companion's control rate; None: the companion's default
+    link: LinkEmulation | None = None     # delay and loss between the SITL and the companion
+    companion_priority: int = 0           # the companion's [control] realtime_priority (SCHED_FIFO; 0: normal)
+    sitl_priority: int = 0                # the SITL's SCHED_FIFO priority (0: normal), the FC's own hardware standing in
+
+    def link_conditions(self) -> dict:
+        """The link's impairment and how it was made: "lockstep" (emulated in simulated time by
+        the SITL), "proxy" (sitl/links/netem_proxy.py, real time) or "none"."""
+        link = self.link or LinkEmulation()
+        mode = "none" if self.link is None else "proxy" if self.realtime else "lockstep"
+        return {"delay_ms": link.delay_ms, "loss": link.loss, "mode": mode}
+
+
+COMPANION_LOG_DIR = "companion-log"      # the companion's own flight log, in the flight's folder
+
+
+class FlightFiles:
+    """Where a flight's files are, in its folder."""
+
+    def __init__(self, out_dir: Path):
+        self.out_dir = Path(out_dir)
+        self.scenario = self.out_dir / "scenario.toml"
+        self.companion_config = self.out_dir / "companion.toml"
+        self.tlog = self.out_dir / "flight.tlog"
+        self.truth = self.out_dir / "truth.npz"
+        self.feed = self.out_dir / "feed.jsonl"
+        self.sitl_log = self.out_dir / "sitl.log"
+        self.companion_log = self.out_dir / "companion.log"
+        self.companion_tlogs = self.out_dir / COMPANION_LOG_DIR
+        self.metrics = self.out_dir / "metrics.json"
+
+
+def free_port(kind: int = socket.SOCK_DGRAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def check_port_free(port: int) -> None:
+    if not 1 <= port <= 65535:
+        raise FlightError(f"UDP port must be 1..65535, got {port}")
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError as e:
+            raise FlightError(f"UDP port {port} on 127.0.0.1 is not free: {e.strerror}") from None
+
+
+def make_output_dir(path: Path) -> None:
+    """Create the output folder `path`; FlightError in one line if it cannot be."""
+    if path.exists() and not path.is_dir():
+        raise FlightError(f"--out {path}: exists and is not a folder")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise FlightError(f"--out {path}: cannot create the folder ({e.strerror or e})") from None
+
+
+def companion_config_text(options: FlightOptions, mavlink_port: int, feed_port: int | None) -> str:
+    rate = [] if options.rate_hz is None else [f"rate_hz = {options.rate_hz:g}"]
+    priority = [f"realtime_priority = {options.companion_priority}"] * bool(options.companion_priority)
+    lines = ["# The companion's configuration for this flight (written by m4-sitl fly).",
+             "[control]", *rate, *priority, "", "[link]",
+             f'fc_url = "udpin:127.0.0.1:{mavlink_port}"', "",
+             "[log]", f'dir = "{COMPANION_LOG_DIR}"', ""]
+    nmpc = []
+    if not options.realtime:
+        nmpc += ["# lockstep: the FC waits for every answer, so a wall-clock time budget would only bring the",
+                 "# machine's load into the flight (max_iterations still bounds every solve)",
+                 "time_budget_share = 0.0"]
+    if options.controller == "fixed-posture":
+        nominal_deg = math.degrees(load_airframe().nominal_hip_rad)
+        nmpc += ["# the fixed-posture variant: every hip pinned at the nominal angle", f"fixed_hip_deg = {nominal_deg:.12g}"]
+    if nmpc:
+        lines += ["[nmpc]", *nmpc, ""]
+    if feed_port is not None:
+        lines += ["[feed]", f'vehicle = "{VEHICLE}"', 'mode = "peer"', f'connect = "tcp/127.0.0.1:{feed_port}"',
+                  "max_rate_hz = 0.0", ""]
+    return "\n".join(lines)
+
+
+def _last_line(path: Path) -> str:
+    """The last thing a process said, without its own "m4-...: error:" prefix."""
+    lines = [ln for ln in path.read_text(errors="replace").splitlines() if ln.strip()] if path.exists() else []
+    return _PREFIX.sub("", lines[-1]) if lines else "(no output)"
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(STOP_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def run_flight(scenario: Scenario, scenario_text: str, out_dir: Path, options: FlightOptions = FlightOptions(),
+               progress: Callable[[float], None] | None = None) -> FlightFiles:
+    """Fly `scenario` (its file's text: `scenario_text`); `progress(t_s)` is called with the
+    newest simulated time the feed has shown, about every POLL_S wall seconds."""
+    if options.controller not in CONTROLLERS:
+        raise FlightError(f"unknown controller {options.controller!r}; choose from {', '.join(CONTROLLERS)}")
+    if options.port is not None:
+        check_port_free(options.port)
+    files = FlightFiles(Path(out_dir))
+    make_output_dir(files.out_dir)
+    files.scenario.write_text(scenario_text)
+    port = options.port or free_port()
+    with contextlib.ExitStack() as stack:
+        recorder = None
+        feed_port = None
+        if options.record_feed:
+            feed_port = free_port(socket.SOCK_STREAM)
+            recorder = FeedRecorder(files.feed, f"tcp/127.0.0.1:{feed_port}", VEHICLE)
+            stack.callback(recorder.close)
+        files.companion_config.write_text(companion_config_text(options, port, feed_port))
+        cmd = [sys.executable, "-m", "companion.cli", "run", "--config", str(files.companion_config)]
+        if "mission" in tomllib.loads(scenario_text):          # none: hold where the flight starts
+            cmd += ["--mission", str(files.scenario)]
+        ready_r, ready_w = os.pipe()
+        stack.callback(os.close, ready_r)
+        try:
+            companion = _start(stack, [*cmd, "--ready-fd", str(ready_w)], files.companion_log, pass_fds=(ready_w,))
+        finally:
+            os.close(ready_w)                    # the companion holds the only writing end now
+        _await_ready(companion, ready_r, files.companion_log)
+        sitl_port = port
+        if options.link is not None and options.realtime:
+            impairment = Impairment(delay_ms=options.link.delay_ms, loss=options.link.loss)
+            proxy = Netem(("127.0.0.1", 0), ("127.0.0.1", port), impairment, seed=options.seed,
+                          duration_s=2 * scenario.duration_s + 60.0).start()
+            stack.callback(proxy.close)
+            sitl_port = proxy.listen_port
+        cmd = [sys.executable, "-m", "sitl.cli", "serve", "--scenario", str(files.scenario),
+               "--mavlink", f"udpout:127.0.0.1:{sitl_port}", "--duration", f"{scenario.duration_s:g}",
+               "--tlog", str(files.tlog), "--truth-log", str(files.truth), "--seed", str(options.seed)]
+        if options.link is not None and not options.realtime:
+            cmd += ["--link-delay-ms", f"{options.link.delay_ms:g}", "--link-loss", f"{options.link.loss:g}"]
+        cmd += ["--realtime"] * options.realtime + ["--viewer"] * options.viewer
+        sitl = _start(stack, cmd, files.sitl_log)
+        if options.sitl_priority:
+            _real_time(sitl, options.sitl_priority)
+        while sitl.poll() is None:
+            time.sleep(POLL_S)
+            if progress is not None and recorder is not None and recorder.latest_t_s is not None:
+                progress(recorder.latest_t_s)
+        if sitl.returncode != 0:
+            raise FlightError(f"the SITL stopped with exit code {sitl.returncode}: {_last_line(files.sitl_log)}")
+        if companion.poll() is not None:
+            raise FlightError(f"the companion stopped during the flight: {_last_line(files.companion_log)}")
+    return files
+
+
+def _start(stack: contextlib.ExitStack, cmd: list[str], log_path: Path, pass_fds: tuple[int, ...] = ()
+           ) -> subprocess.Popen:
+    log = stack.enter_context(log_path.open("w"))
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=log, stdin=subprocess.DEVNULL, pass_fds=pass_fds)
+    stack.callback(_stop, proc)
+    return proc
+
+
+def _real_time(proc: subprocess.Popen, priority: int) -> None:
+    """SCHED_FIFO for a process just started (its threads, started later, inherit it)."""
+    try:
+        os.sched_setscheduler(proc.pid, os.SCHED_FIFO, os.sched_param(priority))
+    except (AttributeError, OSError) as e:
+        raise FlightError(f"cannot give the SITL real-time priority {priority}: "
+                          f"{getattr(e, 'strerror', None) or e}") from None
+
+
+def _await_ready(proc: subprocess.Popen, ready_fd: int, log_path: Path) -> None:
+    """Until the companion writes its ready line to the pipe; end of file first means it stopped."""
+    deadline = time.monotonic() + COMPANION_START_TIMEOUT_S
+    while not select.select([ready_fd], [], [], POLL_S)[0]:
+        if time.monotonic() > deadline:
+            raise FlightError(f"the companion was not ready within {COMPANION_START_TIMEOUT_S:g} s")
+    if not os.read(ready_fd, 4096):
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            proc.wait(STOP_TIMEOUT_S)            # its last words are in its log once it has exited
+        raise FlightError(f"the companion did not start: {_last_line(log_path)}")

@@ -1,0 +1,243 @@
+"""The four thrusters as a real plant has them: an ESC, a DC motor and a propeller each.
+
+Rotor speed w (rad/s) heads for the speed at which the motor settles with a first-order lag
+(the airframe's motor_time_constant_s): w(t) = w_settled + (w0 - w_settled) exp(-t / tau),
+exact between updates. The propeller gives thrust k_t w^2 and drag torque k_q w^2 with
+k_q = k_m k_t. The motor (back-EMF and torque constant k_e, winding resistance R, no-load
+current i0) on ESC output voltage u settles where its torque carries the propeller's drag:
+k_e ((u - k_e w) / R - i0) = k_q w^2. Its current is (u - k_e w) / R (never below 0: an
+ESC braking the rotor reports no current), the pack sees u / V of it.
+
+The ESC command is the FC's thrust turned into the speed the nominal propeller needs for it,
+and that speed into the throttle that turns the nominal propeller at it on the present pack
+voltage V (the FC's thrust linearisation with battery-voltage compensation), at most full
+throttle. So a healthy rotor turns at the commanded speed below its ceiling, and a sagging
+pack lowers every rotor's ceiling together.
+
+Failure kinds (the dialect's M4_ROTOR_FAILURE_KIND), per rotor:
+- DEGRADED: the motor cannot exceed the speed at which the healthy propeller gives
+  (1 - loss) x hover thrust (its ESC output is capped there); loss 1 stops it.
+- MOTOR: motor or ESC dead: no drive, no current; the rotor spins down at its time constant.
+- PROPELLER: propeller lost: no thrust, no drag torque; the unloaded motor overspeeds to its
+  no-load speed for the same throttle and draws only its no-load current.
+- DAMAGE: a chipped propeller: k_t and k_q x (1 - loss) at the same speed (the lighter load
+  lets the motor turn a little faster).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+
+import numpy as np
+
+from m4.airframe import ROTOR_COUNT, Airframe
+from m4.mavlink import mavlink
+
+RAD_S_TO_RPM = 60.0 / (2.0 * math.pi)
+HEALTHY = -1                   # fault_kind of a healthy rotor (truth)
+
+
+class FailureKind(enum.IntEnum):
+    DEGRADED = mavlink.M4_ROTOR_FAILURE_KIND_DEGRADED
+    MOTOR = mavlink.M4_ROTOR_FAILURE_KIND_MOTOR
+    PROPELLER = mavlink.M4_ROTOR_FAILURE_KIND_PROPELLER
+    DAMAGE = mavlink.M4_ROTOR_FAILURE_KIND_DAMAGE
+
+    @classmethod
+    def named(cls, name: str) -> "FailureKind":
+        return cls[name.upper()]
+
+    @property
+    def label(self) -> str:
+        return self.name.lower()
+
+
+_MOTOR, _PROPELLER, _DAMAGE, _DEGRADED = (int(k) for k in (FailureKind.MOTOR, FailureKind.PROPELLER,
+                                                            FailureKind.DAMAGE, FailureKind.DEGRADED))
+
+
+class Thrusters:
+    """Per-rotor state on Python floats (lists of four): the FC commands the rotors at every
+    4 ms tick, a sagging pack at every physics step, and numpy on four-element arrays costs
+    more than the sums. The public arrays are built from them when asked for."""
+
+    def __init__(self, af: Airframe, thrust_n: float, voltage_v: float):
+        """Four healthy rotors settled at `thrust_n` each."""
+        self._tau_s = af.motor_time_constant_s
+        self._k_t, self._k_q = af.thrust_coefficient_n_s2, af.drag_torque_coefficient_n_m_s2
+        self._k_e, self._r, self._i0 = af.motor_back_emf_v_s_rad, af.motor_resistance_ohm, af.motor_no_load_current_a
+        self._k_e_sq, self._k_e_4 = self._k_e ** 2, self._k_e ** 4
+        self._hover_n = af.hover_thrust_per_rotor_n
+        self.kind = np.full(ROTOR_COUNT, HEALTHY)
+        self.loss = np.zeros(ROTOR_COUNT)
+        self._scale = [1.0] * ROTOR_COUNT                  # the propellers' k_t and k_q / the nominal ones
+        self._k_t_now = [self._k_t] * ROTOR_COUNT          # k_t x scale: 0 without a propeller
+        self._u_max_v = [math.inf] * ROTOR_COUNT           # what each motor may be driven with
+        self._driven = [True] * ROTOR_COUNT                # False: motor or ESC dead, no current
+        self._speed_cmd = [float(self.speed_for_thrust(thrust_n))] * ROTOR_COUNT
+        self._speed = list(self._speed_cmd)                # rad/s
+        self.voltage_v = voltage_v
+        self._ceiling: tuple[float, float, np.ndarray] | None = None   # (thrust_max_n, voltage_v, ceiling)
+        self.update(voltage_v)
+
+    # -- what the ESCs are told -------------------------------------------------------------
+    def speed_for_thrust(self, thrust_n):
+        """The speed at which the nominal propeller gives `thrust_n`."""
+        return np.sqrt(np.maximum(thrust_n, 0.0) / self._k_t)
+
+    def command(self, thrust_n) -> None:
+        """The ESC commands: thrusts (N, four) through the nominal propeller. Call update() after."""
+        self._speed_cmd = [math.sqrt(max(t, 0.0) / self._k_t) for t in thrust_n]
+
+    def set_fault(self, index: int, kind: FailureKind, loss: float) -> None:
+        """Rotor `index` (0..3) fails; loss 0 restores it. Call update() after."""
+        restored = loss == 0.0
+        self.kind[index] = kind = HEALTHY if restored else int(kind)
+        self.loss[index] = loss = 0.0 if restored else loss
+        self._scale[index] = {_PROPELLER: 0.0, _DAMAGE: 1.0 - loss}.get(kind, 1.0)
+        self._k_t_now[index] = self._k_t * self._scale[index]
+        ceiling_v = float(self._drive_voltage(self.speed_for_thrust((1.0 - loss) * self._hover_n)))
+        self._u_max_v[index] = {_MOTOR: 0.0, _DEGRADED: ceiling_v}.get(kind, math.inf)
+        self._driven[index] = kind != _MOTOR
+        self._ceiling = None
+
+    # -- the motor ------------------------------------------------------------------------
+    def _drive_voltage(self, speed_rad_s: float) -> float:
+        """The motor voltage that settles the nominal propeller at `speed_rad_s` (0 at rest)."""
+        w = speed_rad_s
+        return self._k_e * w + self._r * (self._k_q * w * w / self._k_e + self._i0) if w > 0.0 else 0.0
+
+    def _settled_speed(self, u_v: float, k_q: float) -> float:
+        """Root of k_q R w^2 + k_e^2 w - k_e (u - R i0) = 0 (0 when u cannot beat friction)."""
+        drive = self._k_e * max(u_v - self._r * self._i0, 0.0)
+        return 2.0 * drive / (self._k_e_sq + math.sqrt(self._k_e_4 + 4.0 * k_q * self._r * drive))
+
+    def _settle(self, speed_cmd: list[float], voltage_v: float) -> tuple[list[float], list[float]]:
+        """(ESC output voltage, settled speed) for the commanded speeds (four), faults applied."""
+        u = [min(min(self._drive_voltage(w), voltage_v), u_max) for w, u_max in zip(speed_cmd, self._u_max_v)]
+        w = [self._settled_speed(u_v, self._k_q * scale) for u_v, scale in zip(u, self._scale)]
+        return u, w
+
+    def update(self, voltage_v: float) -> None:
+        """Recompute what every rotor heads for, on pack voltage `voltage_v`."""
+        self.voltage_v = voltage_v
+        self._u_v, self._settled = self._settle(self._speed_cmd, voltage_v)
+
+    def advance(self, dt_s: float) -> None:
+        decay = math.exp(-dt_s / self._tau_s)
+        self._speed = [w_s + (w - w_s) * decay for w_s, w in zip(self._settled, self._speed)]
+
+    def advance_drawing(self, dt_s: float, steps: int) -> list[float]:
+        """advance(dt_s) `steps` times (targets and pack voltage held); after each, what the
+        ESCs draw from the pack in all (current_a summed, in its order of operations)."""
+        decay = math.exp(-dt_s / self._tau_s)
+        settled, speed, share = self._settled, self._speed, self._pack_share()
+        totals = []
+        for _ in range(steps):
+            speed = [w_s + (w - w_s) * decay for w_s, w in zip(settled, speed)]
+            totals.append(sum(self._pack_currents(speed, share)))
+        self._speed = speed
+        return totals
+
+    def esc_readings(self) -> tuple[list[float], list[float]]:
+        """(speed rad/s, draw from the pack A) of every rotor: what its ESC measures."""
+        return list(self._speed), self._pack_currents(self._speed, self._pack_share())
+
+    def filter_inputs(self) -> list[tuple[float, float, float]]:
+        """(k_t N/(rad/s)^2, settled speed rad/s, speed rad/s) of every rotor: what the plant's
+        thrust filters are set from (sitl/plant/mujoco_plant.py)."""
+        return list(zip(self._k_t_now, self._settled, self._speed))
+
+    # -- what the rotors do ---------------------------------------------------------------
+    @property
+    def time_constant_s(self) -> float:
+        return self._tau_s
+
+    @property
+    def speed_rad_s(self) -> np.ndarray:
+        return np.array(self._speed)
+
+    @property
+    def thrust_coefficient_n_s2(self) -> np.ndarray:
+        """Each rotor's k_t now (0 without its propeller)."""
+        return np.array(self._k_t_now)
+
+    @property
+    def thrust_n(self) -> np.ndarray:
+        return self.thrust_coefficient_n_s2 * self.speed_rad_s ** 2
+
+    @property
+    def motor_current_a(self) -> np.ndarray:
+        return np.array(self._motor_currents(self._speed))
+
+    @property
+    def current_a(self) -> np.ndarray:
+        """What each ESC draws from the pack."""
+        return np.array(self._pack_currents(self._speed, self._pack_share()))
+
+    def _motor_currents(self, speed_rad_s: list[float]) -> list[float]:
+        k_e, r = self._k_e, self._r
+        return [max((u - k_e * w) / r, 0.0) if driven else 0.0
+                for u, w, driven in zip(self._u_v, speed_rad_s, self._driven)]
+
+    def _pack_share(self) -> list[float]:
+        """Each ESC's draw from the pack per ampere of its motor: its output voltage over the pack's."""
+        return [u / self.voltage_v for u in self._u_v]
+
+    def _pack_currents(self, speed_rad_s: list[float], share: list[float]) -> list[float]:
+        """Each ESC's draw from the pack: its motor's current times its share (_pack_share)."""
+        return [s * i for s, i in zip(share, self._motor_currents(speed_rad_s))]
+
+    @property
+    def copper_loss_w(self) -> np.ndarray:
+        return self._r * self.motor_current_a ** 2
+
+    def thrust_ceiling_n(self, thrust_max_n: float) -> np.ndarray:
+        """What each rotor settles at when commanded `thrust_max_n` now (truth: the fault and the
+        pack voltage applied; computed again only when one of them changed)."""
+        if self._ceiling is None or self._ceiling[:2] != (thrust_max_n, self.voltage_v):
+            _, w = self._settle([float(self.speed_for_thrust(thrust_max_n))] * ROTOR_COUNT, self.voltage_v)
+            self._ceiling = (thrust_max_n, self.voltage_v, self.thrust_coefficient_n_s2 * np.array(w) ** 2)
+        return self._ceiling[2].copy()
+
+
+def fault_ceiling_n(af: Airframe, kind: FailureKind, loss: float, thrust_max_n: float | None = None) -> float:
+    """The most a rotor with this fault gives, settled on the nominal pack when commanded
+    `thrust_max_n` (default: the airframe's): 0 for a stopped motor or a lost propeller,
+    (1 - loss) x hover thrust for a degraded motor, a little over (1 - loss) x its limit for a
+    damaged propeller (on the lighter load the motor turns faster)."""
+    v = af.battery_nominal_voltage_v
+    rotors = Thrusters(af, af.hover_thrust_per_rotor_n, v)
+    rotors.set_fault(0, kind, loss)
+    rotors.update(v)
+    return float(rotors.thrust_ceiling_n(af.thrust_max_n if thrust_max_n is None else thrust_max_n)[0])
+
+
+def figures(af: Airframe) -> list[str]:
+    """The rotor's figures on the nominal pack, settled: `python -m sitl.plant.thrusters`."""
+    v = af.battery_nominal_voltage_v
+    rows = [f"k_t {af.thrust_coefficient_n_s2:g} N/(rad/s)^2, k_q {af.drag_torque_coefficient_n_m_s2:.3g} N m/(rad/s)^2, "
+            f"KV {af.motor_kv_rpm_per_v:g}, R {af.motor_resistance_ohm * 1e3:.1f} mOhm, i0 {af.motor_no_load_current_a:g} A, "
+            f"tau {af.motor_time_constant_s * 1e3:g} ms, pack {v:g} V",
+            "| rotor 4 | command | speed (rpm) | thrust (N) | ESC current (A) |", "|---|---|---|---|---|"]
+    cases = [("healthy", None, 0.0, af.hover_thrust_per_rotor_n), ("healthy", None, 0.0, af.thrust_max_n)]
+    cases += [(k.label, k, loss, af.hover_thrust_per_rotor_n)
+              for k, loss in ((FailureKind.MOTOR, 1.0), (FailureKind.PROPELLER, 1.0), (FailureKind.DAMAGE, 0.5),
+                              (FailureKind.DEGRADED, 0.5))]
+    for label, kind, loss, thrust_n in cases:
+        rotors = Thrusters(af, af.hover_thrust_per_rotor_n, v)
+        if kind is not None:
+            rotors.set_fault(3, kind, loss)
+            label += f" {loss:g}" if kind in (FailureKind.DAMAGE, FailureKind.DEGRADED) else ""
+        rotors.command(np.full(ROTOR_COUNT, thrust_n))
+        rotors.update(v)
+        rotors.advance(100.0 * af.motor_time_constant_s)
+        rows.append(f"| {label} | {thrust_n:.2f} N | {rotors.speed_rad_s[3] * RAD_S_TO_RPM:,.0f} | "
+                    f"{rotors.thrust_n[3]:.2f} | {rotors.current_a[3]:.2f} |")
+    return rows
+
+
+if __name__ == "__main__":
+    from m4.airframe import load_airframe
+    print("\n".join(figures(load_airframe())))

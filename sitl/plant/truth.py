@@ -1,0 +1,79 @@
+"""The plant's true state sampled on the simulated clock, saved as .npz for the flight metrics.
+
+`m4-sitl serve --truth-log PATH` attaches a TruthRecorder to the vehicle: it samples the
+plant every `period_ms` of simulated time (and at t = 0) with the wall clock beside it, and
+writes the arrays on close. `load_truth` reads them back as a Truth of numpy arrays; every
+array's first axis is the sample. Memory is bounded: a ring buffer keeps the last
+`MAX_SAMPLES` samples (10 minutes at 100 Hz) and `dropped` counts what it let go.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import MISSING, dataclass, fields
+from pathlib import Path
+
+import numpy as np
+
+from sitl.plant.mujoco_plant import Plant
+
+DEFAULT_PERIOD_MS = 10
+MAX_SAMPLES = 60_000
+
+
+@dataclass(frozen=True)
+class Truth:
+    time_s: np.ndarray             # (n,) simulated
+    wall_s: np.ndarray             # (n,) monotonic wall clock of the SITL process
+    pos_ned_m: np.ndarray          # (n, 3) hull centre
+    com_ned_m: np.ndarray          # (n, 3) centre of mass of the whole robot
+    vel_ned_m_s: np.ndarray        # (n, 3) hull centre
+    euler_rad: np.ndarray          # (n, 3) roll, pitch, yaw (ZYX)
+    rates_frd_rad_s: np.ndarray    # (n, 3)
+    hip_rad: np.ndarray            # (n, 4)
+    thrust_cmd_n: np.ndarray       # (n, 4)
+    thrust_n: np.ndarray           # (n, 4) delivered
+    thrust_limit_n: np.ndarray     # (n, 4)
+    on_ground: np.ndarray          # (n,) bool: any contact with the floor
+    # Every rotor's truth (None in a truth log written before the plant had them):
+    rotor_speed_rad_s: np.ndarray | None = None   # (n, 4)
+    esc_current_a: np.ndarray | None = None       # (n, 4) drawn from the pack
+    fault_kind: np.ndarray | None = None          # (n, 4) int: sitl.thruster.FailureKind, -1 healthy
+    battery_voltage_v: np.ndarray | None = None   # (n,)
+
+
+_FROM_STATE = tuple(f.name for f in fields(Truth) if f.name not in ("time_s", "wall_s"))   # PlantState's names
+
+
+class TruthRecorder:
+    def __init__(self, period_ms: int = DEFAULT_PERIOD_MS, max_samples: int = MAX_SAMPLES):
+        self.period_ms = period_ms
+        self.dropped = 0
+        self._next_ms = 0
+        self._rows: dict[str, deque] = {f.name: deque(maxlen=max_samples) for f in fields(Truth)}
+
+    def observe(self, now_ms: int, plant: Plant) -> None:
+        """Called at every simulated instant; samples when the next grid point is reached."""
+        if now_ms < self._next_ms:
+            return
+        self._next_ms = (now_ms // self.period_ms + 1) * self.period_ms
+        s = plant.state()
+        rows = self._rows
+        self.dropped += len(rows["time_s"]) == rows["time_s"].maxlen
+        rows["time_s"].append(now_ms / 1000.0)
+        rows["wall_s"].append(time.monotonic())
+        for name in _FROM_STATE:
+            rows[name].append(getattr(s, name))
+
+    def truth(self) -> Truth:
+        return Truth(**{name: np.array(values) for name, values in self._rows.items()})
+
+    def save(self, path: str | Path) -> None:
+        t = self.truth()
+        np.savez_compressed(Path(path), **{f.name: getattr(t, f.name) for f in fields(Truth)})
+
+
+def load_truth(path: str | Path) -> Truth:
+    with np.load(Path(path)) as data:
+        return Truth(**{f.name: data[f.name] for f in fields(Truth) if f.name in data or f.default is MISSING})
