@@ -83,7 +83,7 @@ def _fly(args) -> int:
 
 
 def add_compare(sub) -> None:
-    from sitl.flights.compare import DEFAULT_OUT
+    from sitl.campaigns.compare import DEFAULT_OUT
 
     p = sub.add_parser("compare", help="posture manipulation vs fixed posture on the paper's scenarios: a Markdown table")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, metavar="DIR", help=f"output folder (default {DEFAULT_OUT})")
@@ -94,7 +94,7 @@ def add_compare(sub) -> None:
 
 
 def _compare(args) -> int:
-    from sitl.flights.compare import compare
+    from sitl.campaigns.compare import compare
 
     try:
         make_output_dir(args.out)

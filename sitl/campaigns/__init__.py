@@ -1,2 +1,2 @@
-"""Many flights (`m4-sitl campaign`): the fault grid, the detection campaign, and the engines that
-fly them in parallel."""
+"""Many flights: the fault grid (`m4-sitl campaign`), the detection campaign, posture against a fixed
+posture (`m4-sitl compare`), and the engines that fly them in parallel."""

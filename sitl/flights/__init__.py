@@ -1,2 +1,2 @@
-"""One flight end to end (`m4-sitl fly`, `compare`, model matching): the SITL and the companion
+"""One flight end to end (`m4-sitl fly`, model matching): the SITL and the companion
 started as processes, their records read back, metrics.json, figures and video."""

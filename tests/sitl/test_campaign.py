@@ -11,7 +11,7 @@ from sitl.scenario import parse_scenario
 from sitl.campaigns import campaign, detection_campaign
 from sitl.flights import metrics
 from sitl.flights.records import FaultStatusLog
-from sitl.flights.compare import markdown_table
+from sitl.campaigns.compare import markdown_table
 
 AF = load_airframe()
 
