@@ -9,7 +9,7 @@ their window. A fault whose ceiling is unknown (None) is detected at the first c
 naming a rotor, whatever its estimate.
 
 The ceiling comes from whoever knows it: the simulator from its motor model
-(sitl.thruster.fault_ceiling_n), a tlog from the fault's kind and loss (stated_ceiling_n).
+(sitl.plant.thrusters.fault_ceiling_n), a tlog from the fault's kind and loss (stated_ceiling_n).
 """
 
 from __future__ import annotations

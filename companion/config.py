@@ -34,13 +34,13 @@ from m4.mission import Mission, load_mission
 from m4.toml_fields import ConfigError, Table, load_toml
 
 RATE_MAX_HZ = 100.0
-# The NMPC's solve time grows with its horizon (N = 20: 8 ms median, 24 ms p99, README "NMPC
-# speed"); beyond this it cannot answer within a control period, and the code it compiles grows
+# The NMPC's solve time grows with its horizon (N = 20: 8 ms median, 18 ms p99,
+# docs/performance.md); beyond this it cannot answer within a control period, and the code it compiles grows
 # with it (N = 100000 would compile for hours).
 HORIZON_MAX = 40
-# 50 Hz: the paper's 10 Hz survives a rotor loss in hover or at 3.5 m/s on the MuJoCo plant
-# but tilts about 40 deg, and fails the 24 N cap and the landing after a total loss; at 50 Hz
-# every built-in scenario passes with about 11 deg of tilt (README, "Measured results").
+# 50 Hz: at the paper's 10 Hz every built-in scenario survives too, but a new fault waits up to
+# 0.1 s for the next plan, the sag and tilt grow (24 N cap: 0.22 m against 0.13 m) and the
+# landing comes down at 0.25 m/s against 0.06 m/s (docs/results.md, "Control rate").
 DEFAULT_RATE_HZ = 50.0
 # The rate feedback the FC closes around the plan (m4.setpoint, companion.core.rate_feedback):
 # its bandwidth. Above ~1/(4 x the FC's 4 ms loop) it would ring on the FC's own loop delay.

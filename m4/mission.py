@@ -1,4 +1,4 @@
-"""The scenario file's `[mission]` (interfaces.md): what the companion flies.
+"""The scenario file's `[mission]` (docs/interfaces.md): what the companion flies.
 
 A `--mission FILE` may be a whole scenario (only its `[mission]` table is read here; the
 simulator reads the rest, `sitl.scenario`) or a file with only a `[mission]` table. Units SI,

@@ -5,7 +5,7 @@ no roll or pitch moment about the centre of mass); the posture decides how large
 and how much yaw moment is left. This module evaluates that balance for many postures at
 once (numpy, vectorised) and searches the posture that needs the smallest largest thrust.
 
-As the figures of m4-flight-model.md do, this static analysis lumps each whole leg at its
+As the figures of docs/airframe.md do, this static analysis lumps each whole leg at its
 thruster; the reduced-order model and the plant spread it over three lumps, which moves the
 centre of mass a little less (the best posture then needs about 1 % more thrust).
 """

@@ -16,7 +16,7 @@ relative cost gap to IPOPT median / max:
     N = 5,  dt = 0.1 s, re-solved at 50 Hz  1.3 / 3.0 / 4.5     IPOPT 44 ms   gap 1e-6 / 9e-5
     N = 20, dt = 0.025 s                    8.1 / 23 / 37       IPOPT 197 ms  gap 1e-6 / 4e-5
 
-Routes not kept: those of shared/design/nmpc-notes.md (IPOPT, sqpmethod with qrqp or HPIPM,
+Routes not kept: those of docs/performance.md (IPOPT, sqpmethod with qrqp or HPIPM,
 fatrop; 3.5-12.8 ms median at N = 5 as measured there); measured here, for the condensed QP, qpOASES
 and qrqp through CasADi (0.40 and 0.95 ms per QP against DAQP's 0.02 ms); the condensing
 itself compiled into the CasADi function (0.22 ms per call: its generated matrix products

@@ -1,4 +1,4 @@
-"""Scenario files (interfaces.md): what is flown, what fails, how the plant differs.
+"""Scenario files (docs/interfaces.md): what is flown, what fails, how the plant differs.
 
 The plant reads `[start]`, `[[fault]]` and `[plant]`; the companion reads `[mission]`
 (`m4.mission`, parsed here too so that a scenario is checked whole before it flies). Units

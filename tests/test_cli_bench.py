@@ -1,4 +1,4 @@
-"""`m4-companion bench`: the interface of interfaces.md, on a short sequence."""
+"""`m4-companion bench`: the interface of docs/interfaces.md, on a short sequence."""
 
 import json
 

@@ -1,7 +1,7 @@
 """Many flights side by side: on the local cores (concurrent.futures processes), or on a Dask
 cluster (`engine="dask"`, the optional `cluster` extra).
 
-Each flight is one `sitl.fly.fly()` in a worker process, which itself starts the SITL and the
+Each flight is one `sitl.flights.fly.fly()` in a worker process, which itself starts the SITL and the
 companion; every flight takes its own free loopback ports of the machine it runs on. A flight
 that cannot run gives an `{"error": ...}` row instead of stopping the others, and the batch
 says which (`Batch.failed`): the commands exit non-zero on them. The jobs' paths are made

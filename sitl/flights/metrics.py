@@ -21,7 +21,7 @@ Definitions (times in the scenario's clock, positions of the centre of mass, NED
 - faults[i].detected_at_s, detected_rotor, latency_s: analysis.detection's rule (the tlog's
   metrics use it too): the first instant in [at_s, the next later fault's at_s) at which the
   companion's fault status is confirmed with a thrust estimate on the named rotor that reflects this fault:
-  at most the ceiling the fault leaves the rotor (its kind and loss, sitl.thruster.fault_ceiling_n:
+  at most the ceiling the fault leaves the rotor (its kind and loss, sitl.plant.thrusters.fault_ceiling_n:
   0 for a stopped motor or a lost propeller, (1 - loss) x hover thrust for a degraded motor,
   about (1 - loss) x the rotor's limit for a damaged propeller) + DETECTION_MARGIN x hover
   thrust. The detection campaign takes its detections from here.
@@ -143,7 +143,7 @@ def reference_track(scenario: Scenario, af: Airframe, truth: Truth, status: Faul
 
 def flight_metrics(scenario: Scenario, controller: str, af: Airframe, truth: Truth, ref_ned_m: np.ndarray,
                    status: FaultStatusLog, nmpc: NmpcLog) -> dict:
-    """Every key of metrics.json (interfaces.md) and the survival checks; ref_ned_m: reference_track()."""
+    """Every key of metrics.json (docs/interfaces.md) and the survival checks; ref_ned_m: reference_track()."""
     t, com, ref = truth.time_s, truth.com_ned_m, ref_ned_m
     tilt = tilt_deg(truth.euler_rad)
     land_s = scenario.mission.land.at_s if scenario.mission.land is not None else None

@@ -1,4 +1,4 @@
-"""Why posture matters: the figures of m4-flight-model.md from a static balance."""
+"""Why posture matters: the figures of docs/airframe.md from a static balance."""
 
 import numpy as np
 import pytest

@@ -73,7 +73,7 @@ def test_posture_nmpc_recovers_attitude_within_1_5_s_and_holds_altitude(flights,
 @pytest.mark.parametrize("rotor", range(4))
 def test_moving_the_legs_lowers_the_largest_thrust_and_the_yaw_rate(flights, rotor):
     posture, fixed = flights[("posture", rotor)], flights[("fixed-45", rotor)]
-    # Static balance (m4-flight-model.md): 29.4 N at the nominal posture, 21.8 N at the best one
+    # Static balance (docs/airframe.md): 29.4 N at the nominal posture, 21.8 N at the best one
     # (spinning at 7-11 rad/s, the flying robot needs a little less than the static figure).
     assert steady_max_thrust(fixed) > 27.5
     assert steady_max_thrust(posture) < 24.0
