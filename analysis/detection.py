@@ -32,7 +32,7 @@ class Fault:
     at_s: float
     rotor: int                     # 1..4, 0: all
     loss: float                    # 0 restores
-    kind: str = "degraded"         # M4_ROTOR_FAILURE_KIND in lower case: degraded, motor, propeller, damage
+    kind: str = "degraded"         # an injectable FaultKind's label (m4.fault_kind): degraded, motor, propeller, damage
     until_s: float | None = None   # the fault ends here (None: never, or a later restore says so)
 
 

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from analysis.detection import Fault
+from m4.fault_kind import rotor_loss_kind
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, mavlink, mavutil
 
 m = mavlink
@@ -64,13 +65,12 @@ class FlightRecord:
 
 
 _INJECT = (m.MAV_CMD_INJECT_FAILURE, m.MAV_CMD_M4_ROTOR_LOSS)
-_KINDS = {m.M4_ROTOR_FAILURE_KIND_DEGRADED: "degraded", m.M4_ROTOR_FAILURE_KIND_MOTOR: "motor",
-          m.M4_ROTOR_FAILURE_KIND_PROPELLER: "propeller", m.M4_ROTOR_FAILURE_KIND_DAMAGE: "damage"}
 
 
 def _injected_fault(cmd, t_s: float) -> Fault | None:
     if cmd.command == m.MAV_CMD_M4_ROTOR_LOSS:
-        return Fault(t_s, int(cmd.param1), float(cmd.param2), _KINDS.get(cmd.param3, "unknown"))
+        kind = rotor_loss_kind(cmd.param3)
+        return Fault(t_s, int(cmd.param1), float(cmd.param2), "unknown" if kind is None else kind.label)
     if cmd.param1 == m.FAILURE_UNIT_SYSTEM_MOTOR and cmd.param2 in (m.FAILURE_TYPE_OFF, m.FAILURE_TYPE_OK):
         return Fault(t_s, int(cmd.param3), 1.0 if cmd.param2 == m.FAILURE_TYPE_OFF else 0.0, "motor")
     return None

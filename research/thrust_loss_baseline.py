@@ -21,8 +21,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
+from m4.fault_kind import FaultKind
 from companion.core import rom
-from companion.core.control_types import FaultKind, FaultState, FaultStatus
+from companion.core.control_types import FaultState, FaultStatus
 
 
 @dataclass(frozen=True)

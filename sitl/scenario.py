@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from m4.airframe import ROTOR_COUNT
+from m4.fault_kind import INJECTABLE, FaultKind
 from m4.mission import Mission, ned_position, parse_mission
 from m4.toml_fields import ConfigError, Table, load_toml
-from sitl.plant.thrusters import FailureKind
 
 
 @dataclass(frozen=True)
@@ -23,7 +23,7 @@ class Fault:
     at_s: float
     rotor: int                # 1..4
     loss: float               # DEGRADED: max thrust becomes (1 - loss) x hover thrust; see sitl/plant/thrusters.py
-    kind: FailureKind = FailureKind.DEGRADED
+    kind: FaultKind = FaultKind.DEGRADED
     until_s: float | None = None       # the fault ends here (None: never)
 
 
@@ -87,7 +87,7 @@ def _parse_start(t: Table) -> Start:
     return s
 
 
-_KINDS = tuple(k.label for k in FailureKind)
+_KINDS = tuple(k.label for k in INJECTABLE)
 
 
 def _parse_fault(t: Table, duration_s: float) -> Fault:
@@ -95,7 +95,7 @@ def _parse_fault(t: Table, duration_s: float) -> Fault:
     f = Fault(at_s=at_s,
               rotor=t.integer("rotor", lo=1, hi=ROTOR_COUNT),
               loss=t.number("loss", 1.0, lo=0.0, hi=1.0),
-              kind=FailureKind.named(t.string("kind", FailureKind.DEGRADED.label, choices=_KINDS)),
+              kind=FaultKind.named(t.string("kind", FaultKind.DEGRADED.label, choices=_KINDS)),
               until_s=t.number("until_s", lo=at_s, lo_open=True, hi=duration_s) if t.has("until_s") else None)
     t.finish()
     return f

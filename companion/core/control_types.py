@@ -1,7 +1,8 @@
 """The control step's plain types and checks, free of CasADi and Zenoh: what the link, the
 feed and the tests share with the controller without loading a solver.
 
-- FaultState, FaultKind, FaultStatus: the fault detector's answer (M4_FAULT_STATUS's content).
+- FaultState, FaultStatus: the fault detector's answer (M4_FAULT_STATUS's content; its kind is
+  m4.fault_kind.FaultKind).
 - plausible_state: whether a measured ROM state can be planned from.
 - one_period_apart: whether two frame instants are consecutive control steps (the controller's
   disturbance update and the FC's applied thrust both ask it).
@@ -19,6 +20,7 @@ import numpy as np
 
 from companion.core import rom_layout as rom
 from m4.airframe import ROTOR_COUNT, Airframe
+from m4.fault_kind import FaultKind
 from m4.setpoint import Setpoint
 
 _HIP_MARGIN_RAD = 0.5            # measured hips beyond the joint range by more than this are broken
@@ -44,16 +46,6 @@ class FaultState(IntEnum):
     HEALTHY = 0
     SUSPECT = 1
     CONFIRMED = 2
-
-
-class FaultKind(IntEnum):
-    """Values as in M4_FAULT_STATUS.kind (M4_FAULT_KIND)."""
-
-    UNKNOWN = 0         # thrust lost, no ESC evidence to say how
-    MOTOR = 1           # motor/ESC stopped
-    PROPELLER = 2       # propeller lost: the motor turns unloaded
-    DAMAGE = 3          # propeller damaged: less thrust at the same speed
-    DEGRADED = 4        # the motor cannot reach the speed asked: a lower ceiling
 
 
 @dataclass(frozen=True)

@@ -52,8 +52,9 @@ from enum import IntEnum
 import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
+from m4.fault_kind import FaultKind
 from companion.core import rom
-from companion.core.control_types import FaultKind, FaultState, FaultStatus
+from companion.core.control_types import FaultState, FaultStatus
 from companion.core.esc_evidence import EscReading, EscSample, PropellerModel, RotorCondition, read_escs
 from companion.core.fault_residual import (
     CHANNELS,

@@ -382,31 +382,17 @@ enums["M4_FAULT_STATE"][3] = EnumEntry("M4_FAULT_STATE_ENUM_END", """""")
 enums["M4_FAULT_KIND"] = Enum()
 enums["M4_FAULT_KIND"].bitmask = False
 M4_FAULT_KIND_UNKNOWN = 0
-enums["M4_FAULT_KIND"][0] = EnumEntry("M4_FAULT_KIND_UNKNOWN", """Thrust lost; no ESC evidence of how (saturation and the model residual only).""")
+enums["M4_FAULT_KIND"][0] = EnumEntry("M4_FAULT_KIND_UNKNOWN", """Thrust lost; no ESC evidence of how (saturation and the model residual only). MAV_CMD_M4_ROTOR_LOSS injects DEGRADED for it.""")
 M4_FAULT_KIND_MOTOR = 1
-enums["M4_FAULT_KIND"][1] = EnumEntry("M4_FAULT_KIND_MOTOR", """The ESC's speed collapsed: motor or ESC stopped.""")
+enums["M4_FAULT_KIND"][1] = EnumEntry("M4_FAULT_KIND_MOTOR", """Motor or ESC stopped: rotor speed, thrust and current go to zero (the ESC's speed collapses).""")
 M4_FAULT_KIND_PROPELLER = 2
-enums["M4_FAULT_KIND"][2] = EnumEntry("M4_FAULT_KIND_PROPELLER", """The motor turns unloaded (overspeed, current collapsed): propeller lost.""")
+enums["M4_FAULT_KIND"][2] = EnumEntry("M4_FAULT_KIND_PROPELLER", """Propeller lost: thrust and drag torque go to zero, the motor overspeeds and draws only its no-load current.""")
 M4_FAULT_KIND_DAMAGE = 3
-enums["M4_FAULT_KIND"][3] = EnumEntry("M4_FAULT_KIND_DAMAGE", """Less thrust at a normal speed: damaged propeller.""")
+enums["M4_FAULT_KIND"][3] = EnumEntry("M4_FAULT_KIND_DAMAGE", """Damaged propeller: less thrust at a normal speed (injected: thrust and drag coefficients times (1 - loss) at the same rotor speed).""")
 M4_FAULT_KIND_DEGRADED = 4
-enums["M4_FAULT_KIND"][4] = EnumEntry("M4_FAULT_KIND_DEGRADED", """The motor cannot reach the speed asked: a lower ceiling.""")
+enums["M4_FAULT_KIND"][4] = EnumEntry("M4_FAULT_KIND_DEGRADED", """The motor cannot reach the speed asked: a lower ceiling (injected: its maximum thrust becomes (1 - loss) times the hover thrust per rotor).""")
 M4_FAULT_KIND_ENUM_END = 5
 enums["M4_FAULT_KIND"][5] = EnumEntry("M4_FAULT_KIND_ENUM_END", """""")
-
-# M4_ROTOR_FAILURE_KIND
-enums["M4_ROTOR_FAILURE_KIND"] = Enum()
-enums["M4_ROTOR_FAILURE_KIND"].bitmask = False
-M4_ROTOR_FAILURE_KIND_DEGRADED = 0
-enums["M4_ROTOR_FAILURE_KIND"][0] = EnumEntry("M4_ROTOR_FAILURE_KIND_DEGRADED", """The motor cannot exceed a lower speed: its maximum thrust becomes (1 - loss) times the hover thrust per rotor.""")
-M4_ROTOR_FAILURE_KIND_MOTOR = 1
-enums["M4_ROTOR_FAILURE_KIND"][1] = EnumEntry("M4_ROTOR_FAILURE_KIND_MOTOR", """Motor or ESC stopped: rotor speed, thrust and current go to zero.""")
-M4_ROTOR_FAILURE_KIND_PROPELLER = 2
-enums["M4_ROTOR_FAILURE_KIND"][2] = EnumEntry("M4_ROTOR_FAILURE_KIND_PROPELLER", """Propeller lost: thrust and drag torque go to zero, the motor overspeeds and draws only its no-load current.""")
-M4_ROTOR_FAILURE_KIND_DAMAGE = 3
-enums["M4_ROTOR_FAILURE_KIND"][3] = EnumEntry("M4_ROTOR_FAILURE_KIND_DAMAGE", """Damaged propeller: thrust and drag coefficients times (1 - loss) at the same rotor speed.""")
-M4_ROTOR_FAILURE_KIND_ENUM_END = 4
-enums["M4_ROTOR_FAILURE_KIND"][4] = EnumEntry("M4_ROTOR_FAILURE_KIND_ENUM_END", """""")
 
 # MAV_CMD
 enums["MAV_CMD"] = Enum()
@@ -3101,7 +3087,7 @@ enums["MAV_CMD"][48000].param[1] = """Rotor 1..4 (PX4 quad-X numbering), 0 for a
 enums["MAV_CMD"][48000].label[1] = """Rotor"""
 enums["MAV_CMD"][48000].param[2] = """Loss, 0..1 (0 restores the rotor): for DEGRADED relative to hover thrust (1 stops the rotor), for DAMAGE of the propeller's coefficients; MOTOR and PROPELLER are total for any loss above 0."""
 enums["MAV_CMD"][48000].label[2] = """Loss"""
-enums["MAV_CMD"][48000].param[3] = """Failure kind (0, the default, is DEGRADED)."""
+enums["MAV_CMD"][48000].param[3] = """Failure kind; UNKNOWN (0, the default) injects DEGRADED."""
 enums["MAV_CMD"][48000].label[3] = """Kind"""
 enums["MAV_CMD"][48000].param[4] = """Empty."""
 enums["MAV_CMD"][48000].param[5] = """Empty."""

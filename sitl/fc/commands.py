@@ -4,8 +4,8 @@ COMMAND_LONG and COMMAND_INT alike (their first four params are the same floats)
 - MAV_CMD_INJECT_FAILURE: unit FAILURE_UNIT_SYSTEM_MOTOR, type FAILURE_TYPE_OFF (motor
   stopped: kind MOTOR) or FAILURE_TYPE_OK (restored), instance rotor 1..4 or 0 for all. Other
   units/types: UNSUPPORTED.
-- MAV_CMD_M4_ROTOR_LOSS: rotor 1..4 or 0, loss 0..1 (0 restores), kind M4_ROTOR_FAILURE_KIND
-  (0: DEGRADED, loss relative to hover thrust).
+- MAV_CMD_M4_ROTOR_LOSS: rotor 1..4 or 0, loss 0..1 (0 restores), kind M4_FAULT_KIND
+  (UNKNOWN, 0, the default: DEGRADED, loss relative to hover thrust; m4.fault_kind.rotor_loss_kind).
 - MAV_CMD_SET_MESSAGE_INTERVAL: message id, interval in us (-1 stop, 0 default).
 - MAV_CMD_REQUEST_MESSAGE: message id; the message follows the ACCEPTED ack. For
   M4_FAULT_STATUS, the last one the companion sent (MAV_RESULT_FAILED if none came yet); for
@@ -21,17 +21,17 @@ from __future__ import annotations
 import math
 
 from m4.airframe import ROTOR_COUNT
+from m4.fault_kind import FaultKind, rotor_loss_kind
 from m4.mavlink import mavlink
 from sitl.fc.modes import available_modes
-from sitl.plant.thrusters import FailureKind
 
 m = mavlink
 FORCE_DISARM = 21196
 _FAILURE_TEXT = {
-    FailureKind.DEGRADED: lambda loss: f"loss {100.0 * loss:.0f}%",
-    FailureKind.MOTOR: lambda loss: "motor stop",
-    FailureKind.PROPELLER: lambda loss: "propeller loss",
-    FailureKind.DAMAGE: lambda loss: f"propeller damage {100.0 * loss:.0f}%",
+    FaultKind.DEGRADED: lambda loss: f"loss {100.0 * loss:.0f}%",
+    FaultKind.MOTOR: lambda loss: "motor stop",
+    FaultKind.PROPELLER: lambda loss: "propeller loss",
+    FaultKind.DAMAGE: lambda loss: f"propeller damage {100.0 * loss:.0f}%",
 }
 
 
@@ -65,7 +65,7 @@ class CommandHandler:
         self.fc.counters.commands_acked += 1
         return m.MAVLink_command_ack_message(msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
 
-    def _apply_loss(self, rotor: int, loss: float, kind: FailureKind):
+    def _apply_loss(self, rotor: int, loss: float, kind: FaultKind):
         self.fc.set_rotor_loss(rotor, loss, kind)
         which = "all rotors" if rotor == 0 else f"rotor {rotor}"
         text = f"{which} restored" if loss == 0.0 else f"{which} {_FAILURE_TEXT[kind](loss)} injected"
@@ -79,13 +79,13 @@ class CommandHandler:
         rotor = _rotor(instance)
         if rotor is None:
             return m.MAV_RESULT_DENIED, []
-        return self._apply_loss(rotor, 1.0 if failure_type == m.FAILURE_TYPE_OFF else 0.0, FailureKind.MOTOR)
+        return self._apply_loss(rotor, 1.0 if failure_type == m.FAILURE_TYPE_OFF else 0.0, FaultKind.MOTOR)
 
     def _rotor_loss(self, params, now_ms):
-        rotor, loss, kind = _rotor(params[0]), params[1], params[2]
-        if rotor is None or not (math.isfinite(loss) and 0.0 <= loss <= 1.0) or kind not in set(FailureKind):
+        rotor, loss, kind = _rotor(params[0]), params[1], rotor_loss_kind(params[2])
+        if rotor is None or not (math.isfinite(loss) and 0.0 <= loss <= 1.0) or kind is None:
             return m.MAV_RESULT_DENIED, []
-        return self._apply_loss(rotor, float(loss), FailureKind(int(kind)))
+        return self._apply_loss(rotor, float(loss), kind)
 
     def _message_id(self, value: float) -> int | None:
         if not math.isfinite(value) or value != int(value) or not self.fc.telemetry_builder.can_build(int(value)):

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
+from m4.fault_kind import FaultKind
 from m4.log_limit import RepeatLimiter
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from m4.setpoint import RateFeedback, Setpoint, ShortfallCover
@@ -47,7 +48,7 @@ from sitl.fc.shortfall import ShortfallMeter
 from sitl.plant.state import PlantState
 from sitl.fc.streams import DEFAULT_INTERVALS_MS, ESC_TELEMETRY_INTERVALS_MS, FRAME, StreamSchedule
 from sitl.fc.telemetry import Home, Snapshot, Telemetry, statustext
-from sitl.plant.thrusters import RAD_S_TO_RPM, FailureKind
+from sitl.plant.thrusters import RAD_S_TO_RPM
 
 TICK_MS = 4                       # the failsafe controller and the staleness check: 250 Hz
 STALE_PERIODS = 3
@@ -152,7 +153,7 @@ class FlightController:
         self.plant.command_thrust(_clip(sp.thrust_n + change, af.thrust_min_n, af.thrust_max_n))
         self._measured = None
 
-    def set_rotor_loss(self, rotor: int, loss: float, kind: FailureKind = FailureKind.DEGRADED) -> None:
+    def set_rotor_loss(self, rotor: int, loss: float, kind: FaultKind = FaultKind.DEGRADED) -> None:
         """Rotor 1..4 (0: all) fails as `kind` (sitl/plant/thrusters.py); loss 0 restores it."""
         for r in range(1, ROTOR_COUNT + 1) if rotor == 0 else (rotor,):
             self.plant.set_rotor_loss(r, loss, kind)

@@ -17,6 +17,7 @@ import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
 from m4.attitude import euler_from_quat_wxyz, quat_wxyz_from_euler
+from m4.fault_kind import INJECTABLE, FaultKind
 from sitl.scenario import PlantOptions
 from sitl.plant import frames
 from sitl.plant.battery import Battery
@@ -25,7 +26,7 @@ from sitl.plant.mjcf import PHYSICS_DT_S, compile_model
 from sitl.plant.sensors import SensorNoise
 from sitl.plant.hip_servos import REFERENCE_PERIOD_S, HipReference
 from sitl.plant.state import PlantState, RotorState
-from sitl.plant.thrusters import FailureKind, Thrusters
+from sitl.plant.thrusters import Thrusters
 
 __all__ = ["Plant", "PlantOptions", "PlantState"]
 
@@ -146,14 +147,16 @@ class Plant:
         self._hips.set_target(self._hip_target.tolist(), np.where(np.isfinite(rate), rate, 0.0).tolist())
         self._servo_countdown = 0           # the servo controller (and drag, gate) react at the next step
 
-    def set_rotor_loss(self, rotor: int, loss: float, kind: FailureKind = FailureKind.DEGRADED) -> None:
+    def set_rotor_loss(self, rotor: int, loss: float, kind: FaultKind = FaultKind.DEGRADED) -> None:
         """Rotor 1..4 fails as `kind` (sitl/plant/thrusters.py); loss 0 restores it. The default,
         DEGRADED: its max thrust becomes (1 - loss) x the airframe's hover thrust, 1.0 stops it."""
         if isinstance(rotor, bool) or not isinstance(rotor, (int, np.integer)) or not 1 <= rotor <= ROTOR_COUNT:
             raise ValueError(f"rotor must be an integer 1..{ROTOR_COUNT}, got {rotor!r}")
         if not (isinstance(loss, (int, float)) and 0.0 <= loss <= 1.0):
             raise ValueError(f"loss must be a number in [0, 1], got {loss!r}")
-        self.thrusters.set_fault(rotor - 1, FailureKind(kind), float(loss))
+        if kind not in INJECTABLE:
+            raise ValueError(f"kind must be one of {', '.join(k.label for k in INJECTABLE)}, got {kind!r}")
+        self.thrusters.set_fault(rotor - 1, FaultKind(kind), float(loss))
         self._state = None
         self._update_rotors()
 

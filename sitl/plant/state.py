@@ -24,7 +24,7 @@ class PlantState:
     thrust_rated_max_n: np.ndarray  # (4,) max per rotor as configured (all the FC knows)
     rotor_speed_rad_s: np.ndarray  # (4,) truth; the FC hears it through the ESC telemetry
     esc_current_a: np.ndarray      # (4,) drawn from the pack by each ESC (truth)
-    fault_kind: np.ndarray         # (4,) int: sitl.thruster.FailureKind, -1 healthy (truth)
+    fault_kind: np.ndarray         # (4,) int: m4.fault_kind.FaultKind, -1 healthy (truth)
     battery_voltage_v: float
     battery_consumed_mah: float
     com_ned_m: np.ndarray          # whole-robot centre of mass (truth, for metrics)

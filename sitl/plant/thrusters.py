@@ -14,7 +14,7 @@ voltage V (the FC's thrust linearisation with battery-voltage compensation), at 
 throttle. So a healthy rotor turns at the commanded speed below its ceiling, and a sagging
 pack lowers every rotor's ceiling together.
 
-Failure kinds (the dialect's M4_ROTOR_FAILURE_KIND), per rotor:
+Failure kinds (m4.fault_kind.FaultKind, the dialect's M4_FAULT_KIND), per rotor:
 - DEGRADED: the motor cannot exceed the speed at which the healthy propeller gives
   (1 - loss) x hover thrust (its ESC output is capped there); loss 1 stops it.
 - MOTOR: motor or ESC dead: no drive, no current; the rotor spins down at its time constant.
@@ -26,35 +26,19 @@ Failure kinds (the dialect's M4_ROTOR_FAILURE_KIND), per rotor:
 
 from __future__ import annotations
 
-import enum
 import math
 
 import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
-from m4.mavlink import mavlink
+from m4.fault_kind import FaultKind
 
 RAD_S_TO_RPM = 60.0 / (2.0 * math.pi)
 HEALTHY = -1                   # fault_kind of a healthy rotor (truth)
 
 
-class FailureKind(enum.IntEnum):
-    DEGRADED = mavlink.M4_ROTOR_FAILURE_KIND_DEGRADED
-    MOTOR = mavlink.M4_ROTOR_FAILURE_KIND_MOTOR
-    PROPELLER = mavlink.M4_ROTOR_FAILURE_KIND_PROPELLER
-    DAMAGE = mavlink.M4_ROTOR_FAILURE_KIND_DAMAGE
-
-    @classmethod
-    def named(cls, name: str) -> "FailureKind":
-        return cls[name.upper()]
-
-    @property
-    def label(self) -> str:
-        return self.name.lower()
-
-
-_MOTOR, _PROPELLER, _DAMAGE, _DEGRADED = (int(k) for k in (FailureKind.MOTOR, FailureKind.PROPELLER,
-                                                            FailureKind.DAMAGE, FailureKind.DEGRADED))
+_MOTOR, _PROPELLER, _DAMAGE, _DEGRADED = (int(k) for k in (FaultKind.MOTOR, FaultKind.PROPELLER,
+                                                            FaultKind.DAMAGE, FaultKind.DEGRADED))
 
 
 class Thrusters:
@@ -90,7 +74,7 @@ class Thrusters:
         """The ESC commands: thrusts (N, four) through the nominal propeller. Call update() after."""
         self._speed_cmd = [math.sqrt(max(t, 0.0) / self._k_t) for t in thrust_n]
 
-    def set_fault(self, index: int, kind: FailureKind, loss: float) -> None:
+    def set_fault(self, index: int, kind: FaultKind, loss: float) -> None:
         """Rotor `index` (0..3) fails; loss 0 restores it. Call update() after."""
         restored = loss == 0.0
         self.kind[index] = kind = HEALTHY if restored else int(kind)
@@ -202,7 +186,7 @@ class Thrusters:
         return self._ceiling[2].copy()
 
 
-def fault_ceiling_n(af: Airframe, kind: FailureKind, loss: float, thrust_max_n: float | None = None) -> float:
+def fault_ceiling_n(af: Airframe, kind: FaultKind, loss: float, thrust_max_n: float | None = None) -> float:
     """The most a rotor with this fault gives, settled on the nominal pack when commanded
     `thrust_max_n` (default: the airframe's): 0 for a stopped motor or a lost propeller,
     (1 - loss) x hover thrust for a degraded motor, a little over (1 - loss) x its limit for a
@@ -223,13 +207,13 @@ def figures(af: Airframe) -> list[str]:
             "| rotor 4 | command | speed (rpm) | thrust (N) | ESC current (A) |", "|---|---|---|---|---|"]
     cases = [("healthy", None, 0.0, af.hover_thrust_per_rotor_n), ("healthy", None, 0.0, af.thrust_max_n)]
     cases += [(k.label, k, loss, af.hover_thrust_per_rotor_n)
-              for k, loss in ((FailureKind.MOTOR, 1.0), (FailureKind.PROPELLER, 1.0), (FailureKind.DAMAGE, 0.5),
-                              (FailureKind.DEGRADED, 0.5))]
+              for k, loss in ((FaultKind.MOTOR, 1.0), (FaultKind.PROPELLER, 1.0), (FaultKind.DAMAGE, 0.5),
+                              (FaultKind.DEGRADED, 0.5))]
     for label, kind, loss, thrust_n in cases:
         rotors = Thrusters(af, af.hover_thrust_per_rotor_n, v)
         if kind is not None:
             rotors.set_fault(3, kind, loss)
-            label += f" {loss:g}" if kind in (FailureKind.DAMAGE, FailureKind.DEGRADED) else ""
+            label += f" {loss:g}" if kind in (FaultKind.DAMAGE, FaultKind.DEGRADED) else ""
         rotors.command(np.full(ROTOR_COUNT, thrust_n))
         rotors.update(v)
         rotors.advance(100.0 * af.motor_time_constant_s)

@@ -39,7 +39,7 @@ class Truth:
     # Every rotor's truth (None in a truth log written before the plant had them):
     rotor_speed_rad_s: np.ndarray | None = None   # (n, 4)
     esc_current_a: np.ndarray | None = None       # (n, 4) drawn from the pack
-    fault_kind: np.ndarray | None = None          # (n, 4) int: sitl.thruster.FailureKind, -1 healthy
+    fault_kind: np.ndarray | None = None          # (n, 4) int: m4.fault_kind.FaultKind, -1 healthy
     battery_voltage_v: np.ndarray | None = None   # (n,)
 
 

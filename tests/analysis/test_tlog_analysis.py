@@ -45,7 +45,7 @@ class _Tlog:
         self.mavs[component].send(msg)
 
 
-ROTOR_4_LOST = (m.MAV_CMD_M4_ROTOR_LOSS, 4, 1, m.M4_ROTOR_FAILURE_KIND_DEGRADED)
+ROTOR_4_LOST = (m.MAV_CMD_M4_ROTOR_LOSS, 4, 1, m.M4_FAULT_KIND_DEGRADED)
 
 
 def _flight(path, yaw_rad=0.0, vel_ned=(0.0, 0.0, 0.0), injection=ROTOR_4_LOST):
@@ -96,7 +96,7 @@ def test_the_tlog_reads_back_into_series_and_the_injected_fault(tlog):
 
 @pytest.mark.parametrize("injection, fault", [
     ((m.MAV_CMD_INJECT_FAILURE, m.FAILURE_UNIT_SYSTEM_MOTOR, m.FAILURE_TYPE_OFF, 4), Fault(FAULT_S, 4, 1.0, "motor")),
-    ((m.MAV_CMD_M4_ROTOR_LOSS, 2, 0.5, m.M4_ROTOR_FAILURE_KIND_DAMAGE), Fault(FAULT_S, 2, 0.5, "damage"))])
+    ((m.MAV_CMD_M4_ROTOR_LOSS, 2, 0.5, m.M4_FAULT_KIND_DAMAGE), Fault(FAULT_S, 2, 0.5, "damage"))])
 def test_an_injected_fault_keeps_its_kind(tmp_path, injection, fault):
     assert read_tlog(_flight(tmp_path / "flight.tlog", injection=injection)).injected == [fault]
 

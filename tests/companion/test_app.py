@@ -17,7 +17,8 @@ from m4.airframe import load_airframe
 from companion.app import CompanionApp
 from companion.config import parse_config
 from companion.controller import Controller, ControllerSettings
-from companion.core.control_types import FaultKind, FaultState, FaultStatus
+from companion.core.control_types import FaultState, FaultStatus
+from m4.fault_kind import FaultKind
 from companion.fc_link import FcLink
 from companion.feed_publisher import Feed
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav

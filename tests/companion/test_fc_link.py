@@ -8,7 +8,8 @@ import time
 import numpy as np
 import pytest
 
-from companion.core.control_types import FaultKind, FaultState, FaultStatus
+from companion.core.control_types import FaultState, FaultStatus
+from m4.fault_kind import FaultKind
 from companion.fc_link import FcLink, LinkEvent
 from companion.telemetry import REQUESTED
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav

@@ -6,7 +6,8 @@ import pytest
 from m4.airframe import ROTOR_COUNT, load_airframe
 from companion.core import rom
 from companion.core.esc_evidence import EscSample, PropellerModel
-from companion.core.fault_detector import FaultDetector, FaultDetectorConfig, FaultKind, FaultState
+from companion.core.fault_detector import FaultDetector, FaultDetectorConfig, FaultState
+from m4.fault_kind import FaultKind
 
 AF = load_airframe()
 HOVER_N = AF.hover_thrust_per_rotor_n

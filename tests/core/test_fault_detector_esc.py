@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 from m4.airframe import ROTOR_COUNT, load_airframe
 from companion.core import rom
 from companion.core.esc_evidence import EscSample, PropellerModel, RotorCondition, read_escs
-from companion.core.fault_detector import FaultDetector, FaultKind, FaultState
+from companion.core.fault_detector import FaultDetector, FaultState
+from m4.fault_kind import FaultKind
 
 AF = load_airframe()
 HOVER_N = AF.hover_thrust_per_rotor_n

@@ -4,7 +4,7 @@ from m4.mission import load_mission
 from sitl.scenario import load_scenario
 from m4.toml_fields import ConfigError
 from sitl.scenarios import builtin_names, resolve, scenario_path
-from sitl.plant.thrusters import FailureKind
+from m4.fault_kind import FaultKind
 
 GOOD = """
 name = "t"
@@ -52,7 +52,7 @@ def test_a_full_scenario_is_read_with_defaults_and_faults_in_time_order(tmp_path
     assert s.mission.waypoints[0].speed_m_s == 2.0
     assert s.mission.land.at_s == 8.0 and s.mission.land.descent_speed_m_s == 0.5
     assert [(f.at_s, f.rotor, f.loss, f.kind, f.until_s) for f in s.faults] == [
-        (4.0, 4, 1.0, FailureKind.DEGRADED, None), (6.0, 2, 0.5, FailureKind.DAMAGE, 7.5)]
+        (4.0, 4, 1.0, FaultKind.DEGRADED, None), (6.0, 2, 0.5, FaultKind.DAMAGE, 7.5)]
     assert s.plant.mass_scale == 1.1 and s.plant.inertia_scale == 1.0
     assert s.plant.thrust_max_n == 24.0 and s.plant.sensor_noise is True
     assert s.plant.esc_telemetry is False and s.plant.battery is True and s.plant.battery_charge == 0.4

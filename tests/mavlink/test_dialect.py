@@ -71,10 +71,13 @@ def test_our_ids_are_used_by_no_bundled_dialect():
         assert not ours_cmds & _ids(xml, "command"), xml.name
 
 
-def test_the_fault_kinds_are_the_dialects_and_no_delivered_thrust_is_reported():
-    from companion.core.control_types import FaultKind
+def test_one_fault_kind_numbering_the_dialects_and_no_delivered_thrust_is_reported():
+    from m4.fault_kind import FaultKind
 
     assert {k.name: k.value for k in FaultKind} == {
         name.removeprefix("M4_FAULT_KIND_"): value for name, value in vars(mavlink).items()
         if name.startswith("M4_FAULT_KIND_") and name != "M4_FAULT_KIND_ENUM_END"}
+    kinds = [e.get("name") for e in ET.parse(XML_PATH).getroot().iter("enum") if "KIND" in e.get("name")]
+    params = {p.get("enum") for p in ET.parse(XML_PATH).getroot().iter("param") if p.get("enum")}
+    assert kinds == ["M4_FAULT_KIND"] and params == {"M4_FAULT_KIND"}
     assert mavlink.MAVLink_m4_thruster_status_message.fieldnames == ["time_boot_ms", "thrust_cmd_n", "thrust_limit_n"]

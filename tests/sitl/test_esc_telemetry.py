@@ -14,7 +14,8 @@ from sitl.plant.mujoco_plant import Plant
 from sitl.scenario import Fault, PlantOptions, Scenario
 from sitl.serve import ServeOptions
 from sitl.standin_companion import StandInCompanion, served
-from sitl.plant.thrusters import RAD_S_TO_RPM, FailureKind
+from m4.fault_kind import FaultKind
+from sitl.plant.thrusters import RAD_S_TO_RPM
 
 AF = load_airframe()
 m = mavlink
@@ -75,7 +76,7 @@ def _esc_by_instant(companion):
 
 def test_the_fc_streams_esc_telemetry_over_udp_in_arduPilot_units_and_a_lost_propeller_shows():
     scenario = Scenario(name="prop", duration_s=60.0,
-                        faults=(Fault(at_s=0.6, rotor=2, loss=1.0, kind=FailureKind.PROPELLER),))
+                        faults=(Fault(at_s=0.6, rotor=2, loss=1.0, kind=FaultKind.PROPELLER),))
     companion = _serve(scenario, 0.8)
     esc = _esc_by_instant(companion)
     assert 38 <= sum(1 for t in esc if 0 < t <= 800) <= 42                # 50 Hz

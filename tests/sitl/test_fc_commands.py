@@ -96,11 +96,13 @@ def test_rotor_loss_command_caps_the_rotor_relative_to_hover_thrust():
 def test_rotor_loss_command_takes_the_failure_kind_and_refuses_an_unknown_one():
     af = load_airframe()
     with _fc() as companion:
-        ack = _command(companion, m.MAV_CMD_M4_ROTOR_LOSS, 3, 1.0, m.M4_ROTOR_FAILURE_KIND_PROPELLER)
+        ack = _command(companion, m.MAV_CMD_M4_ROTOR_LOSS, 3, 1.0, m.M4_FAULT_KIND_PROPELLER)
         assert ack.result == m.MAV_RESULT_ACCEPTED
         hover_rpm = _rpm(af, af.hover_thrust_per_rotor_n)
         assert _after(companion, ack, "ESC_TELEMETRY_1_TO_4", lambda e: e.rpm[2] > 1.15 * hover_rpm) is not None   # unloaded
         assert _command(companion, m.MAV_CMD_M4_ROTOR_LOSS, 3, 1.0, 9).result == m.MAV_RESULT_DENIED
+        assert _command(companion, m.MAV_CMD_M4_ROTOR_LOSS, 3, 1.0, m.M4_FAULT_KIND_UNKNOWN).result == \
+            m.MAV_RESULT_ACCEPTED                                              # the default: degraded
         assert _command(companion, m.MAV_CMD_M4_ROTOR_LOSS, 3, 1.0, 1.5).result == m.MAV_RESULT_DENIED
         assert "rotor 3 propeller loss injected" in [t.text for t in companion.of_type("STATUSTEXT")]
 

@@ -14,7 +14,7 @@ from m4.mission import Landing, Mission, Waypoint
 from sitl.scenario import Fault, Scenario, Start
 from sitl.flights import metrics
 from sitl.flights.records import FaultStatusLog, NmpcLog, read_fault_status
-from sitl.plant.thrusters import FailureKind
+from m4.fault_kind import FaultKind
 from sitl.plant.truth import Truth
 
 AF = load_airframe()
@@ -137,14 +137,14 @@ def test_a_tlog_alone_finds_the_detections_the_simulators_metrics_find(tmp_path)
     assert tlog_path == truth_path
 
 
-@pytest.mark.parametrize("kind, detected_at_s", [(FailureKind.DAMAGE, 2.1), (FailureKind.DEGRADED, 2.5),
-                                                 (FailureKind.MOTOR, 2.9), (FailureKind.PROPELLER, 2.9)])
+@pytest.mark.parametrize("kind, detected_at_s", [(FaultKind.DAMAGE, 2.1), (FaultKind.DEGRADED, 2.5),
+                                                 (FaultKind.MOTOR, 2.9), (FaultKind.PROPELLER, 2.9)])
 def test_a_detection_is_judged_against_the_ceiling_each_failure_kind_leaves(kind, detected_at_s):
     """Half a propeller gone leaves the rotor about half its limit (some 15-19 N, hover is 14.7 N):
     the detector's 15 N estimate sizes it, though it would not size a motor degraded to half
     hover thrust, nor a stopped one."""
     scenario = Scenario(name="kinds", duration_s=4.0, faults=(Fault(2.0, 3, 1.0 if kind in (
-        FailureKind.MOTOR, FailureKind.PROPELLER) else 0.5, kind),))
+        FaultKind.MOTOR, FaultKind.PROPELLER) else 0.5, kind),))
     status = _status([(2.1, 3, 2, 0.5 * AF.thrust_max_n), (2.5, 3, 2, 0.5 * HOVER_N), (2.9, 3, 2, AF.thrust_min_n)])
     (found,) = metrics.detections(scenario, status, AF)
     assert (found["detected_at_s"], found["detected_rotor"]) == (detected_at_s, 3)

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from m4.airframe import ROTOR_COUNT, load_airframe
+from m4.fault_kind import FaultKind
 from companion.core.rom import rotation_ned_from_frd
 from sitl.plant.mujoco_plant import Plant, PlantOptions
 
@@ -232,6 +233,7 @@ def test_non_finite_command_entries_keep_the_previous_values():
     (lambda p: p.command(np.ones(4), "up"), "hip_rad must be 4 numbers"),
     (lambda p: p.set_rotor_loss(5, 1.0), "rotor must be an integer 1..4"),
     (lambda p: p.set_rotor_loss(1, 1.5), "loss must be a number in \\[0, 1\\]"),
+    (lambda p: p.set_rotor_loss(1, 1.0, FaultKind.UNKNOWN), "kind must be one of degraded, motor"),
     (lambda p: p.step(0.0015), "multiple of 0.001"),
     (lambda p: p.step(-0.001), "non-negative"),
 ])

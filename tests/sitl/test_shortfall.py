@@ -11,7 +11,8 @@ from m4.mavlink import mavlink
 from sitl.fc.flight_controller import TICK_MS
 from sitl.scenario import Scenario
 from sitl.fc.shortfall import DEADBAND_N, ShortfallMeter
-from sitl.plant.thrusters import RAD_S_TO_RPM, FailureKind, Thrusters
+from m4.fault_kind import FaultKind
+from sitl.plant.thrusters import RAD_S_TO_RPM, Thrusters
 from sitl.vehicle import Vehicle
 from tests.sitl.test_fc_rate_feedback import THRUST_N, _from_companion
 
@@ -46,8 +47,8 @@ def test_healthy_rotors_following_steps_of_their_command_fall_short_of_nothing()
         assert np.all(_meter_after(steps, ticks=ticks)[0] == 0.0)
 
 
-@pytest.mark.parametrize("kind, loss", [(FailureKind.MOTOR, 1.0), (FailureKind.PROPELLER, 1.0),
-                                        (FailureKind.DEGRADED, 0.5), (FailureKind.DAMAGE, 0.5)])
+@pytest.mark.parametrize("kind, loss", [(FaultKind.MOTOR, 1.0), (FaultKind.PROPELLER, 1.0),
+                                        (FaultKind.DEGRADED, 0.5), (FaultKind.DAMAGE, 0.5)])
 def test_a_failed_rotor_falls_short_by_what_it_no_longer_gives(kind, loss):
     """Even a lighter (chipped) or missing propeller, on a motor that turns faster for it."""
     shortfall, thrust_n = _meter_after([np.full(4, HOVER_N)], (kind, loss))
@@ -61,7 +62,7 @@ def _fly(cover_gain, fail_rotor: int | None):
     vehicle.start(lambda msgs: None)
     vehicle.advance_to(100, lambda msgs: None)
     if fail_rotor is not None:
-        vehicle.fc.set_rotor_loss(fail_rotor, 1.0, FailureKind.MOTOR)
+        vehicle.fc.set_rotor_loss(fail_rotor, 1.0, FaultKind.MOTOR)
     sp = mavlink.MAVLink_m4_setpoint_message(1, 1, 100, 20, [THRUST_N] * 4, [AF.nominal_hip_rad] * 4, [0.0] * 4, 0,
                                              shortfall_gain=cover_gain)
     vehicle.handle([_from_companion(sp)], lambda msgs: None)
