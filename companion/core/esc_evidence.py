@@ -30,8 +30,8 @@ from enum import IntEnum
 import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
+from m4.units import RPM_TO_RAD_S
 
-_RAD_S_PER_RPM = 2.0 * math.pi / 60.0
 # What ESC_TELEMETRY_1_TO_4 can carry (uint16 rpm, centiamps, centivolts): beyond it a number
 # is no reading, and its powers would overflow.
 _RPM_MAX = 65535.0
@@ -69,10 +69,10 @@ class PropellerModel:
                    voltage_nominal_v=af.battery_nominal_voltage_v)
 
     def thrust_n(self, rpm: np.ndarray) -> np.ndarray:
-        return self.thrust_coefficient_n_s2 * (np.asarray(rpm, dtype=float) * _RAD_S_PER_RPM) ** 2
+        return self.thrust_coefficient_n_s2 * (np.asarray(rpm, dtype=float) * RPM_TO_RAD_S) ** 2
 
     def rpm(self, thrust_n: np.ndarray) -> np.ndarray:
-        return np.sqrt(np.maximum(thrust_n, 0.0) / self.thrust_coefficient_n_s2) / _RAD_S_PER_RPM
+        return np.sqrt(np.maximum(thrust_n, 0.0) / self.thrust_coefficient_n_s2) / RPM_TO_RAD_S
 
     def ceiling_n(self, voltage_v: float) -> float:
         """The thrust a full command gives at this supply voltage (speed proportional to it)."""

@@ -25,8 +25,8 @@ import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
 from m4.mavlink import mavlink
+from m4.units import RAD_S_TO_RPM
 from sitl.plant.state import RotorState
-from sitl.plant.thrusters import RAD_S_TO_RPM
 
 _US_PER_MINUTE = 60e6
 _MANTISSA_MAX = 511                  # DShot telemetry: 9-bit mantissa

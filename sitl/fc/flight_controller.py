@@ -39,6 +39,7 @@ from m4.fault_kind import FaultKind
 from m4.log_limit import RepeatLimiter
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from m4.setpoint import RateFeedback, Setpoint, ShortfallCover
+from m4.units import RAD_S_TO_RPM
 from sitl.fc.commands import CommandHandler
 from sitl.fc.esc_telemetry import EscTelemetry
 from sitl.fc.failsafe import Failsafe, FailsafeMode
@@ -48,7 +49,6 @@ from sitl.fc.shortfall import ShortfallMeter
 from sitl.plant.state import PlantState
 from sitl.fc.streams import DEFAULT_INTERVALS_MS, ESC_TELEMETRY_INTERVALS_MS, FRAME, StreamSchedule
 from sitl.fc.telemetry import Home, Snapshot, Telemetry, statustext
-from sitl.plant.thrusters import RAD_S_TO_RPM
 
 TICK_MS = 4                       # the failsafe controller and the staleness check: 250 Hz
 STALE_PERIODS = 3

@@ -23,7 +23,7 @@ import collections
 import math
 
 from m4.airframe import Airframe
-from sitl.plant.thrusters import RAD_S_TO_RPM
+from m4.units import RAD_S_TO_RPM
 
 DEADBAND_N = 1.5
 

@@ -32,8 +32,8 @@ import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
 from m4.fault_kind import FaultKind
+from m4.units import RAD_S_TO_RPM
 
-RAD_S_TO_RPM = 60.0 / (2.0 * math.pi)
 HEALTHY = -1                   # fault_kind of a healthy rotor (truth)
 
 

@@ -15,7 +15,7 @@ from sitl.scenario import Fault, PlantOptions, Scenario
 from sitl.serve import ServeOptions
 from sitl.standin_companion import StandInCompanion, served
 from m4.fault_kind import FaultKind
-from sitl.plant.thrusters import RAD_S_TO_RPM
+from m4.units import RAD_S_TO_RPM
 
 AF = load_airframe()
 m = mavlink

@@ -9,6 +9,7 @@ import pytest
 
 from m4.airframe import load_airframe
 from m4.mavlink import mavlink
+from m4.units import RAD_S_TO_RPM
 from sitl.scenario import Scenario
 from sitl.serve import ServeOptions
 from sitl.standin_companion import StandInCompanion, served
@@ -36,7 +37,7 @@ def _command(companion, command, *params, target_component=1):
 
 def _rpm(af, thrust_n: float) -> float:
     """The rotor speed at which the propeller gives thrust_n."""
-    return math.sqrt(thrust_n / af.thrust_coefficient_n_s2) * 60.0 / (2.0 * math.pi)
+    return math.sqrt(thrust_n / af.thrust_coefficient_n_s2) * RAD_S_TO_RPM
 
 
 def _after(companion, ack, kind, match, timeout_s=10.0):

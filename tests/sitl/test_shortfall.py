@@ -12,7 +12,8 @@ from sitl.fc.flight_controller import TICK_MS
 from sitl.scenario import Scenario
 from sitl.fc.shortfall import DEADBAND_N, ShortfallMeter
 from m4.fault_kind import FaultKind
-from sitl.plant.thrusters import RAD_S_TO_RPM, Thrusters
+from m4.units import RAD_S_TO_RPM
+from sitl.plant.thrusters import Thrusters
 from sitl.vehicle import Vehicle
 from tests.sitl.test_fc_rate_feedback import THRUST_N, _from_companion
 
