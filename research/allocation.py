@@ -31,13 +31,13 @@ class Allocation:
         return float(self.thrust_n.max())
 
 
-def hover_thrusts(af: Airframe, hip_rad, failed_rotor: int) -> np.ndarray:
+def hover_thrusts(af: Airframe, hip_rad, failed_index: int) -> np.ndarray:
     """Thrusts (K, 4) that hover the robot in postures hip_rad (K, 4) with rotor
-    `failed_rotor` (0-based) off. Negative entries mean the posture cannot hover."""
+    `failed_index` (0..3: rotor - 1) off. Negative entries mean the posture cannot hover."""
     q = np.atleast_2d(np.asarray(hip_rad, dtype=float))
     r = af.thruster_positions_frd_m(q)[..., :2]                        # (K, 4, 2)
     com = af.leg_mass_kg * r.sum(axis=1) / af.total_mass_kg          # (K, 2)
-    live = [i for i in range(ROTOR_COUNT) if i != failed_rotor]
+    live = [i for i in range(ROTOR_COUNT) if i != failed_index]
     arms = r[:, live, :] - com[:, None, :]                              # (K, 3, 2)
     a = np.stack([np.ones(arms.shape[:2]), arms[..., 1], arms[..., 0]], axis=1)  # rows: force, roll, pitch
     rhs = np.array([af.total_mass_kg * af.gravity_m_s2, 0.0, 0.0])
@@ -46,10 +46,10 @@ def hover_thrusts(af: Airframe, hip_rad, failed_rotor: int) -> np.ndarray:
     return thrust
 
 
-def allocate(af: Airframe, hip_rad, failed_rotor: int) -> Allocation:
-    """The hover balance for one posture with one rotor (0-based) off."""
+def allocate(af: Airframe, hip_rad, failed_index: int) -> Allocation:
+    """The hover balance for one posture with the rotor at `failed_index` (0..3) off."""
     q = np.asarray(hip_rad, dtype=float)
-    thrust = hover_thrusts(af, q[None, :], failed_rotor)[0]
+    thrust = hover_thrusts(af, q[None, :], failed_index)[0]
     yaw = af.moment_coefficient_m * float(np.dot(af.spin_sign, thrust))
     return Allocation(hip_rad=q, thrust_n=thrust, yaw_moment_n_m=yaw)
 
@@ -63,14 +63,14 @@ def admissible(af: Airframe, hip_rad: np.ndarray) -> np.ndarray:
     return ok
 
 
-def best_posture(af: Airframe, failed_rotor: int, grid_step_deg: float = 3.0) -> Allocation:
+def best_posture(af: Airframe, failed_index: int, grid_step_deg: float = 3.0) -> Allocation:
     """The admissible posture that hovers with the smallest largest thrust (rotor off).
 
     A grid over the four hip angles, then a pattern search that halves its step around the
     best point until it is below 0.01 deg.
     """
     def score(q: np.ndarray) -> np.ndarray:
-        t = hover_thrusts(af, q, failed_rotor)
+        t = hover_thrusts(af, q, failed_index)
         s = t.max(axis=1)
         s[(t.min(axis=1) < -1e-9) | ~admissible(af, q)] = np.inf
         return s
@@ -88,4 +88,4 @@ def best_posture(af: Airframe, failed_rotor: int, grid_step_deg: float = 3.0) ->
             best = candidates[np.argmin(cand_scores)]
         else:
             step /= 2
-    return allocate(af, best, failed_rotor)
+    return allocate(af, best, failed_index)

@@ -44,7 +44,7 @@ from research.rom_sim import (
     simulate,
 )
 
-_FAILED_ROTOR = 3
+_FAILED_INDEX = 3                # rotor 4
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,7 @@ def bench_sequence(af: Airframe, nmpc: Nmpc, solves: int, seed: int = 0):
     """The closed-loop-like sequence of `solves` control steps (one solve each)."""
     period = nmpc.config.dt_s * nmpc.config.warm_start_shift
     duration = solves * period
-    fault = RotorFault(duration / 2, _FAILED_ROTOR, 1.0)
+    fault = RotorFault(duration / 2, _FAILED_INDEX, 1.0)
     sim = SimConfig(duration_s=duration, control_period_s=period, faults=(fault,),
                     mismatch=PlantMismatch(mass_scale=1.1, thrust_scale=0.95, wind_force_ned_n=(1.0, -0.5, 0.0)),
                     estimator_gain=0.3, kick_every_s=1.0, noise_scale=1.0, seed=seed)

@@ -29,7 +29,7 @@ _NOISE_STD = np.r_[np.full(3, 0.01), np.full(3, 0.005), np.full(4, 0.002), np.fu
 @dataclass(frozen=True)
 class RotorFault:
     at_s: float
-    rotor: int                  # 0-based index (rotor number - 1)
+    index: int                  # the rotor's, 0..3 (rotor - 1)
     loss: float                 # loss of effectiveness: the limit becomes (1 - loss) x hover thrust
 
 
@@ -92,7 +92,7 @@ def thrust_limits(af: Airframe, sim: SimConfig, t_s: float, delay_s: float = 0.0
     limit = np.full(ROTOR_COUNT, cap)
     for f in sim.faults:
         if t_s >= f.at_s + delay_s:
-            limit[f.rotor] = min(limit[f.rotor], (1.0 - f.loss) * af.hover_thrust_per_rotor_n)
+            limit[f.index] = min(limit[f.index], (1.0 - f.loss) * af.hover_thrust_per_rotor_n)
     return limit
 
 

@@ -124,7 +124,7 @@ class _Path(IntEnum):
 
 @dataclass(frozen=True)
 class _Evidence:
-    rotor: int | None                  # 0-based rotor voted for, None: no vote
+    index: int | None                  # the rotor voted for, 0..3 (rotor - 1); None: no vote
     path: _Path
     kind: FaultKind
     delivered_n: np.ndarray            # (4,) what each rotor delivered (ESC: the level its lag heads to)
@@ -167,7 +167,7 @@ class FaultDetector:
         self._detected_at_s: float | None = None
 
     def _clear(self) -> None:
-        self._state, self._rotor, self._kind = FaultState.HEALTHY, None, FaultKind.UNKNOWN
+        self._state, self._index, self._kind = FaultState.HEALTHY, None, FaultKind.UNKNOWN
         self._healthy_s = 0.0                      # confirmed rotor delivering all it is asked for this long
         self._window.clear()
         self._suspect_since_s = 0.0
@@ -178,14 +178,14 @@ class FaultDetector:
         """Start from a fault confirmed before this detector existed (a restarted companion:
         the FC kept its M4_FAULT_STATUS): rotor 1..4, its ceiling, when it was confirmed."""
         self._clear()
-        self._state, self._rotor, self._detected_at_s = FaultState.CONFIRMED, rotor - 1, detected_at_s
+        self._state, self._index, self._detected_at_s = FaultState.CONFIRMED, rotor - 1, detected_at_s
         self._estimate_n = float(thrust_max_estimate_n)
 
     def _thrust_bound_n(self) -> np.ndarray:
         """The NMPC's bounds: the limits, the estimate plus the probe on a confirmed rotor."""
         bound = self._limit_n.copy()
         if self._state is FaultState.CONFIRMED:
-            bound[self._rotor] = min(self._estimate_n + self._c.probe_n, self._limit_n[self._rotor])
+            bound[self._index] = min(self._estimate_n + self._c.probe_n, self._limit_n[self._index])
         return bound
 
     @property
@@ -193,8 +193,8 @@ class FaultDetector:
         estimate, bound = self._limit_n.copy(), self._thrust_bound_n()
         confirmed = self._state is FaultState.CONFIRMED
         if confirmed:
-            estimate[self._rotor] = self._estimate_n
-        rotor = None if self._rotor is None else self._rotor + 1
+            estimate[self._index] = self._estimate_n
+        rotor = None if self._index is None else self._index + 1
         message = ""
         if confirmed:
             known = "" if self._kind is FaultKind.UNKNOWN else f" ({self._kind.name.lower()})"
@@ -236,7 +236,7 @@ class FaultDetector:
         if reading is not None:
             direct = self._esc_evidence(reading)
             confirmed = self._state is FaultState.CONFIRMED
-            if direct.rotor is not None and not confirmed or confirmed and self._kind is not FaultKind.DAMAGE:
+            if direct.index is not None and not confirmed or confirmed and self._kind is not FaultKind.DAMAGE:
                 evidence = direct              # the ESC measures its rotor; only a damaged propeller hides from it
         self._count_run(evidence, dt)
         escs_speak = time_s - self._esc_time_s <= self._c.esc_max_age_s
@@ -252,7 +252,7 @@ class FaultDetector:
         rotor: its effectiveness and ceiling)."""
         target = asked_n.copy()
         if self._state is FaultState.CONFIRMED:
-            i = self._rotor
+            i = self._index
             target[i] = min(self._effectiveness * target[i], self._estimate_n)
         return np.maximum(target, self._af.thrust_min_n)
 
@@ -300,7 +300,7 @@ class FaultDetector:
         kind = _KIND_OF_CONDITION[reading.condition[i]]
         if kind is FaultKind.DEGRADED and self._esc_heading_n[i] <= _STOPPED_SHARE * expected[i]:
             kind = FaultKind.MOTOR                # still spinning down, but heading for a standstill
-        return _Evidence(rotor=i if alone and large else None, path=_Path.ESC, kind=kind,
+        return _Evidence(index=i if alone and large else None, path=_Path.ESC, kind=kind,
                          delivered_n=np.maximum(self._esc_heading_n, self._af.thrust_min_n), expected_n=expected,
                          short=deficit >= c.ceiling_deficit_min_n, significant=np.ones(ROTOR_COUNT, dtype=bool))
 
@@ -332,7 +332,7 @@ class FaultDetector:
             expected, delivered = self._since_suspicion(time_s, dt, lagged=kind is not FaultKind.DAMAGE)
         short = np.zeros(ROTOR_COUNT, dtype=bool)
         short[i] = consistent and pooled.deficit_size_n[i] >= c.ceiling_deficit_min_n
-        return _Evidence(rotor=i if votes else None, path=_Path.SATURATED if saturated else _Path.RESIDUAL,
+        return _Evidence(index=i if votes else None, path=_Path.SATURATED if saturated else _Path.RESIDUAL,
                          kind=kind, delivered_n=delivered, expected_n=expected, short=short,
                          significant=pooled.b**2 / pooled.a >= c.chi2_min)
 
@@ -354,11 +354,11 @@ class FaultDetector:
 
     def _count_run(self, evidence: _Evidence, dt: float) -> None:
         """The time covered by votes in a row for one rotor on one fast path (ESC, saturation)."""
-        if evidence.rotor is None or evidence.path is _Path.RESIDUAL:
+        if evidence.index is None or evidence.path is _Path.RESIDUAL:
             self._run = None
             return
-        same = self._run is not None and self._run[:2] == (evidence.path, evidence.rotor)
-        self._run = (evidence.path, evidence.rotor, dt + (self._run[2] if same else 0.0))
+        same = self._run is not None and self._run[:2] == (evidence.path, evidence.index)
+        self._run = (evidence.path, evidence.index, dt + (self._run[2] if same else 0.0))
 
     # -- decisions ----------------------------------------------------------------------------------
     def _decide(self, time_s: float, evidence: _Evidence, cmd: np.ndarray, dt: float,
@@ -366,11 +366,11 @@ class FaultDetector:
         if self._state is FaultState.CONFIRMED:
             self._refine(evidence, cmd, dt, reading)
             return
-        if evidence.rotor is None:
+        if evidence.index is None:
             self._clear()
             return
-        if self._state is FaultState.HEALTHY or evidence.rotor != self._rotor:
-            self._state, self._rotor, self._suspect_since_s = FaultState.SUSPECT, evidence.rotor, time_s
+        if self._state is FaultState.HEALTHY or evidence.index != self._index:
+            self._state, self._index, self._suspect_since_s = FaultState.SUSPECT, evidence.index, time_s
         c = self._c
         fast_s = {_Path.ESC: c.direct_confirm_s, _Path.SATURATED: c.saturated_confirm_s}.get(evidence.path)
         fast = fast_s is not None and self._run is not None and self._run[2] >= fast_s - 1e-9
@@ -378,7 +378,7 @@ class FaultDetector:
             self._confirm(time_s, evidence)
 
     def _confirm(self, time_s: float, evidence: _Evidence) -> None:
-        i = self._rotor
+        i = self._index
         self._state, self._detected_at_s, self._kind = FaultState.CONFIRMED, time_s, evidence.kind
         delivered, expected = evidence.delivered_n[i], evidence.expected_n[i]
         if self._kind in (FaultKind.MOTOR, FaultKind.PROPELLER):
@@ -400,7 +400,7 @@ class FaultDetector:
         propeller only once the residual finds it giving less than _LOST_SHARE of its command (a
         damaged propeller turns a little fast, and a current its ESC sampled while braking it,
         held until the next poll, reads as no load)."""
-        c, i = self._c, self._rotor
+        c, i = self._c, self._index
         later = None if reading is None else _KIND_OF_CONDITION.get(reading.condition[i])
         gives_thrust = self._kind is FaultKind.DAMAGE and self._effectiveness >= _LOST_SHARE
         if (later is FaultKind.MOTOR or later is FaultKind.PROPELLER and not gives_thrust) and self._kind is not later:
@@ -427,4 +427,4 @@ class FaultDetector:
             self._clear()
 
     def _clip(self, thrust_n: float) -> float:
-        return float(np.clip(thrust_n, self._af.thrust_min_n, self._limit_n[self._rotor]))
+        return float(np.clip(thrust_n, self._af.thrust_min_n, self._limit_n[self._index]))

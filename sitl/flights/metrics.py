@@ -103,7 +103,7 @@ def detections(scenario: Scenario, status: FaultStatusLog, af: Airframe) -> list
     """The scenario's faults and their detections (analysis.detection), each judged against the
     ceiling the plant's motor model says the fault leaves its rotor."""
     faults = detection_faults(scenario)
-    ceilings_n = [fault_ceiling_n(af, f.kind, f.loss, scenario.plant.thrust_max_n) for f in scenario.faults]
+    ceilings_n = [fault_ceiling_n(af, f.loss, f.kind, scenario.plant.thrust_max_n) for f in scenario.faults]
     return detection.detections(faults, ceilings_n, af.hover_thrust_per_rotor_n, status.time_s, status.state,
                                 status.rotor, status.thrust_max_estimate_n)
 

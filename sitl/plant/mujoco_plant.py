@@ -156,7 +156,7 @@ class Plant:
             raise ValueError(f"loss must be a number in [0, 1], got {loss!r}")
         if kind not in INJECTABLE:
             raise ValueError(f"kind must be one of {', '.join(k.label for k in INJECTABLE)}, got {kind!r}")
-        self.thrusters.set_fault(rotor - 1, FaultKind(kind), float(loss))
+        self.thrusters.set_fault(rotor - 1, float(loss), FaultKind(kind))
         self._state = None
         self._update_rotors()
 

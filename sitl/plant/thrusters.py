@@ -74,8 +74,9 @@ class Thrusters:
         """The ESC commands: thrusts (N, four) through the nominal propeller. Call update() after."""
         self._speed_cmd = [math.sqrt(max(t, 0.0) / self._k_t) for t in thrust_n]
 
-    def set_fault(self, index: int, kind: FaultKind, loss: float) -> None:
-        """Rotor `index` (0..3) fails; loss 0 restores it. Call update() after."""
+    def set_fault(self, index: int, loss: float, kind: FaultKind) -> None:
+        """The rotor at `index` (0..3 into the arrays: rotor index + 1) fails; loss 0 restores
+        it. Call update() after."""
         restored = loss == 0.0
         self.kind[index] = kind = HEALTHY if restored else int(kind)
         self.loss[index] = loss = 0.0 if restored else loss
@@ -186,14 +187,14 @@ class Thrusters:
         return self._ceiling[2].copy()
 
 
-def fault_ceiling_n(af: Airframe, kind: FaultKind, loss: float, thrust_max_n: float | None = None) -> float:
+def fault_ceiling_n(af: Airframe, loss: float, kind: FaultKind, thrust_max_n: float | None = None) -> float:
     """The most a rotor with this fault gives, settled on the nominal pack when commanded
     `thrust_max_n` (default: the airframe's): 0 for a stopped motor or a lost propeller,
     (1 - loss) x hover thrust for a degraded motor, a little over (1 - loss) x its limit for a
     damaged propeller (on the lighter load the motor turns faster)."""
     v = af.battery_nominal_voltage_v
     rotors = Thrusters(af, af.hover_thrust_per_rotor_n, v)
-    rotors.set_fault(0, kind, loss)
+    rotors.set_fault(0, loss, kind)
     rotors.update(v)
     return float(rotors.thrust_ceiling_n(af.thrust_max_n if thrust_max_n is None else thrust_max_n)[0])
 
@@ -212,7 +213,7 @@ def figures(af: Airframe) -> list[str]:
     for label, kind, loss, thrust_n in cases:
         rotors = Thrusters(af, af.hover_thrust_per_rotor_n, v)
         if kind is not None:
-            rotors.set_fault(3, kind, loss)
+            rotors.set_fault(3, loss, kind)
             label += f" {loss:g}" if kind in (FaultKind.DAMAGE, FaultKind.DEGRADED) else ""
         rotors.command(np.full(ROTOR_COUNT, thrust_n))
         rotors.update(v)

@@ -10,7 +10,7 @@ AF = load_airframe()
 
 
 def test_rotor_4_off_at_the_nominal_posture_loads_rotors_1_and_2_with_the_whole_weight():
-    a = allocate(AF, np.radians([45, 45, 45, 45]), failed_rotor=3)
+    a = allocate(AF, np.radians([45, 45, 45, 45]), failed_index=3)
     assert a.thrust_n == pytest.approx([29.43, 29.43, 0.0, 0.0], abs=0.01)
     assert a.yaw_moment_n_m == pytest.approx(1.18, abs=0.005)
 

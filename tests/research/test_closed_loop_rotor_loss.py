@@ -30,9 +30,9 @@ HOVER = rom.hover_state(AF)
 REF = hold_reference(HOVER, 5)
 
 
-def fly(nmpc, rotor, period=PERIOD, duration=5.0, **sim):
+def fly(nmpc, index, period=PERIOD, duration=5.0, **sim):
     nmpc.reset()
-    cfg = SimConfig(duration_s=duration, control_period_s=period, faults=(RotorFault(FAULT_AT, rotor, 1.0),), **sim)
+    cfg = SimConfig(duration_s=duration, control_period_s=period, faults=(RotorFault(FAULT_AT, index, 1.0),), **sim)
     return simulate(nmpc, HOVER, REF, cfg)
 
 
@@ -44,12 +44,12 @@ def controllers():
 
 @pytest.fixture(scope="module")
 def flights(controllers):
-    out = {(name, rotor): fly(nmpc, rotor) for name, nmpc in controllers.items() for rotor in range(4)}
+    out = {(name, index): fly(nmpc, index) for name, nmpc in controllers.items() for index in range(4)}
     print("\nrotor  controller  max tilt deg  back <10 deg s  |alt err| m  max thrust N  "
           "steady max thrust N  final yaw rate rad/s  final hips deg")
-    for (name, rotor), log in out.items():
+    for (name, index), log in out.items():
         f = rotor_loss_figures(log, FAULT_AT)
-        print(f"{rotor + 1:>5}  {name:<10}  {f.max_tilt_deg:12.2f}  {f.settle_s:14.2f}  {f.max_altitude_error_m:11.3f}  "
+        print(f"{index + 1:>5}  {name:<10}  {f.max_tilt_deg:12.2f}  {f.settle_s:14.2f}  {f.max_altitude_error_m:11.3f}  "
               f"{f.max_thrust_n:12.2f}  {steady_max_thrust(log):19.2f}  {f.final_yaw_rate_rad_s:20.2f}  "
               f"{np.round(f.final_hip_deg, 0)}")
     return out
@@ -60,19 +60,19 @@ def steady_max_thrust(log):
     return float(log.thrust_delivered_n[log.t_s >= log.t_s[-1] - 1.0].max())
 
 
-@pytest.mark.parametrize("rotor", range(4))
-def test_posture_nmpc_recovers_attitude_within_1_5_s_and_holds_altitude(flights, rotor):
-    log = flights[("posture", rotor)]
+@pytest.mark.parametrize("index", range(4))
+def test_posture_nmpc_recovers_attitude_within_1_5_s_and_holds_altitude(flights, index):
+    log = flights[("posture", index)]
     f = rotor_loss_figures(log, FAULT_AT)
     assert not log.fallback.any()
     assert f.settle_s <= 1.5
     assert f.max_altitude_error_m <= 0.3
-    assert np.all(log.thrust_delivered_n[log.t_s >= FAULT_AT, rotor] == 0.0)
+    assert np.all(log.thrust_delivered_n[log.t_s >= FAULT_AT, index] == 0.0)
 
 
-@pytest.mark.parametrize("rotor", range(4))
-def test_moving_the_legs_lowers_the_largest_thrust_and_the_yaw_rate(flights, rotor):
-    posture, fixed = flights[("posture", rotor)], flights[("fixed-45", rotor)]
+@pytest.mark.parametrize("index", range(4))
+def test_moving_the_legs_lowers_the_largest_thrust_and_the_yaw_rate(flights, index):
+    posture, fixed = flights[("posture", index)], flights[("fixed-45", index)]
     # Static balance (docs/airframe.md): 29.4 N at the nominal posture, 21.8 N at the best one
     # (spinning at 7-11 rad/s, the flying robot needs a little less than the static figure).
     assert steady_max_thrust(fixed) > 27.5

@@ -19,7 +19,7 @@ AF = load_airframe()
 
 
 def test_a_fault_lowers_one_rotor_to_its_share_of_hover_thrust_from_its_time_on():
-    sim = SimConfig(duration_s=1.0, faults=(RotorFault(at_s=0.5, rotor=2, loss=0.66),), thrust_cap_n=24.0)
+    sim = SimConfig(duration_s=1.0, faults=(RotorFault(at_s=0.5, index=2, loss=0.66),), thrust_cap_n=24.0)
     assert thrust_limits(AF, sim, 0.4) == pytest.approx([24.0] * 4)
     after = thrust_limits(AF, sim, 0.5)
     assert after[2] == pytest.approx(0.34 * AF.hover_thrust_per_rotor_n)

@@ -24,7 +24,7 @@ HOVER_N = AF.hover_thrust_per_rotor_n
 
 def _meter_after(commands_n, fault=None, ticks=50):
     """Fly the plant's rotors through `commands_n` (one (4,) per tick, the last held), rotor 1
-    failing as `fault` (kind, loss) from the start; the meter's last reading and the thrust
+    failing as `fault` (loss, kind) from the start; the meter's last reading and the thrust
     the rotors truly give then."""
     rotors = Thrusters(AF, HOVER_N, 14.8)
     meter = ShortfallMeter(AF, TICK_S)
@@ -52,7 +52,7 @@ def test_healthy_rotors_following_steps_of_their_command_fall_short_of_nothing()
                                         (FaultKind.DEGRADED, 0.5), (FaultKind.DAMAGE, 0.5)])
 def test_a_failed_rotor_falls_short_by_what_it_no_longer_gives(kind, loss):
     """Even a lighter (chipped) or missing propeller, on a motor that turns faster for it."""
-    shortfall, thrust_n = _meter_after([np.full(4, HOVER_N)], (kind, loss))
+    shortfall, thrust_n = _meter_after([np.full(4, HOVER_N)], (loss, kind))
     assert shortfall[0] == pytest.approx(HOVER_N - thrust_n[0] - DEADBAND_N, abs=0.1)
     assert thrust_n[0] < HOVER_N - 2 * DEADBAND_N
     assert np.all(shortfall[1:] == 0.0)

@@ -22,7 +22,7 @@ V_NOM = AF.battery_nominal_voltage_v
 def settled(kind=None, loss=1.0, thrust_n=HOVER_N, voltage_v=V_NOM):
     rotors = Thrusters(AF, HOVER_N, voltage_v)
     if kind is not None:
-        rotors.set_fault(3, kind, loss)
+        rotors.set_fault(3, loss, kind)
     rotors.command(np.full(ROTOR_COUNT, thrust_n))
     rotors.update(voltage_v)
     rotors.advance(50 * AF.motor_time_constant_s)
