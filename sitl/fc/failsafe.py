@@ -18,7 +18,6 @@ holding first: on three rotors every second in the air is a risk.
 
 from __future__ import annotations
 
-import enum
 import math
 from dataclasses import dataclass
 
@@ -26,6 +25,7 @@ import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
 from sitl.fc.failsafe_posture import ThreeRotorController
+from sitl.fc.modes import FcMode
 
 LAND_AFTER_S = 2.0
 LAND_SPEED_M_S = 0.5
@@ -33,12 +33,6 @@ MAX_TILT_RAD = math.radians(30.0)
 MAX_HORIZONTAL_ACCEL_M_S2 = 4.0
 TOUCHDOWN_LAG_M = 0.3        # the target this far below the hull with no descent: on the ground
 TOUCHDOWN_SPEED_M_S = 0.1
-
-
-class FailsafeMode(enum.IntEnum):
-    HOLD = 1
-    LAND = 2
-    LANDED = 3
 
 
 @dataclass(frozen=True)
@@ -102,7 +96,7 @@ class HoldController:
 
 @dataclass(frozen=True)
 class FailsafeOutput:
-    mode: FailsafeMode
+    mode: FcMode                   # HOLD, LAND or LANDED
     thrust_n: np.ndarray
     hip_rad: np.ndarray
 
@@ -112,7 +106,7 @@ class Failsafe:
 
     def __init__(self, airframe: Airframe):
         self.controller = HoldController(airframe)
-        self.mode = FailsafeMode.HOLD
+        self.mode = FcMode.HOLD
         self._since_ms = 0
         self._may_land = False
         self._target_ned_m = np.zeros(3)
@@ -130,7 +124,7 @@ class Failsafe:
 
     def engage(self, state, now_ms: int, may_land: bool) -> None:
         """Hold here from `now_ms`; with `may_land`, land once held for LAND_AFTER_S."""
-        self.mode = FailsafeMode.HOLD
+        self.mode = FcMode.HOLD
         self._since_ms = now_ms
         self._may_land = may_land
         self._target_ned_m = np.array(state.pos_ned_m, dtype=float)
@@ -143,21 +137,21 @@ class Failsafe:
 
     def update(self, state, now_ms: int) -> FailsafeOutput:
         held_ms = now_ms - self._since_ms
-        if self.mode == FailsafeMode.HOLD and (self.three_rotor is not None
+        if self.mode == FcMode.HOLD and (self.three_rotor is not None
                                                or (self._may_land and held_ms >= LAND_AFTER_S * 1000)):
-            self.mode = FailsafeMode.LAND
+            self.mode = FcMode.LAND
             self._since_ms = now_ms
             self._target_ned_m = np.array(state.pos_ned_m, dtype=float)
-        if self.mode == FailsafeMode.LAND:
+        if self.mode == FcMode.LAND:
             descent = LAND_SPEED_M_S * (now_ms - self._since_ms) / 1000.0
             target_ned_m = self._target_ned_m + np.array([0.0, 0.0, descent])
             stalled = (target_ned_m[2] - state.pos_ned_m[2] > TOUCHDOWN_LAG_M
                        and abs(state.vel_ned_m_s[2]) < TOUCHDOWN_SPEED_M_S)
             if state.on_ground or stalled:
-                self.mode = FailsafeMode.LANDED
+                self.mode = FcMode.LANDED
             else:
                 thrust = self._thrust_n(state, target_ned_m, (0.0, 0.0, LAND_SPEED_M_S))
                 return FailsafeOutput(self.mode, thrust, self.hip_rad)
-        if self.mode == FailsafeMode.LANDED:
+        if self.mode == FcMode.LANDED:
             return FailsafeOutput(self.mode, np.zeros(ROTOR_COUNT), self.hip_rad)
         return FailsafeOutput(self.mode, self._thrust_n(state, self._target_ned_m), self.hip_rad)

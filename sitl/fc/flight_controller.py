@@ -42,7 +42,7 @@ from m4.setpoint import RateFeedback, Setpoint, ShortfallCover
 from m4.units import RAD_S_TO_RPM
 from sitl.fc.commands import CommandHandler
 from sitl.fc.esc_telemetry import EscTelemetry
-from sitl.fc.failsafe import Failsafe, FailsafeMode
+from sitl.fc.failsafe import Failsafe
 from sitl.fc.modes import FcMode, current_mode
 from sitl.fc.rotor_watch import RotorWatch
 from sitl.fc.shortfall import ShortfallMeter
@@ -215,9 +215,9 @@ class FlightController:
         if self.mode not in (FcMode.HOLD, FcMode.LAND):
             self.failsafe.engage(state, now_ms, may_land=self.mode is not None)
         out = self.failsafe.update(state, now_ms)
-        self._set_mode(FcMode(out.mode.value))
+        self._set_mode(out.mode)
         self._command_plant(out.thrust_n, out.hip_rad)
-        if out.mode == FailsafeMode.LANDED:
+        if out.mode == FcMode.LANDED:
             self.set_armed(False)
 
     def lost_rotor(self) -> int | None:

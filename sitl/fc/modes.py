@@ -20,18 +20,18 @@ import enum
 from dataclasses import dataclass
 
 from m4.mavlink import mavlink
-from sitl.fc.failsafe import FailsafeMode
 
 m = mavlink
 CURRENT_MODE_INTERVAL_MS = 2000           # 0.5 Hz, the protocol's nominal rate
 
 
 class FcMode(enum.IntEnum):
-    """HEARTBEAT and CURRENT_MODE custom_mode values."""
+    """HEARTBEAT and CURRENT_MODE custom_mode values; the failsafe (sitl/fc/failsafe.py) runs
+    HOLD, LAND and LANDED."""
     COMPANION = 0                  # flying the companion's setpoints
-    HOLD = FailsafeMode.HOLD.value
-    LAND = FailsafeMode.LAND.value
-    LANDED = FailsafeMode.LANDED.value
+    HOLD = 1
+    LAND = 2
+    LANDED = 3
 
 
 @dataclass(frozen=True)
