@@ -274,7 +274,7 @@ class Controller:
             flight.fault_announced = True
         return status, confirmed_now
 
-    def _estimate_disturbance(self, time_s, x, usable, in_force, thrust_max_n, lead_s) -> np.ndarray:
+    def _estimate_disturbance(self, time_s, x, usable, in_force, thrust_bound_n, lead_s) -> np.ndarray:
         """Updated over the last period with our command within the current bounds. A rotor lost
         but not yet confirmed shows up here as a disturbance within a few periods, so the NMPC
         compensates it before the detector confirms it (measured on the SITL at 50 Hz: altitude
@@ -285,7 +285,7 @@ class Controller:
         if not (usable and in_force is not None and self._consecutive(time_s)):
             return self.disturbance.estimate.copy()
         u = in_force.input.copy()
-        u[rom.THRUST] = np.minimum(u[rom.THRUST], thrust_bounds(self.af, thrust_max_n))
+        u[rom.THRUST] = np.minimum(u[rom.THRUST], thrust_bounds(self.af, thrust_bound_n))
         return self.disturbance.update(self.sent.newest.state, u, x, gain_scale=self.period_s / (self.period_s + lead_s))
 
     def _touched_down(self, time_s: float, x: np.ndarray) -> bool:
@@ -305,13 +305,13 @@ class Controller:
         x[rom.HIP], x[rom.HIP_RATE] = goal.angle_rad, goal.rate_rad_s
         return x
 
-    def _setpoint(self, x: np.ndarray, res: NmpcResult, thrust_max_n) -> Setpoint:
+    def _setpoint(self, x: np.ndarray, res: NmpcResult, thrust_bound_n) -> Setpoint:
         """Thrusts now; the hips from the goal now to the planned goal one period later (the FC's
         servo moves its goal from the angle at the rate, so the rate is the chord's)."""
         af, tau = self.af, self.period_s
         accel = res.u[rom.HIP_ACCEL]
         planned = x[rom.HIP] + x[rom.HIP_RATE] * tau + 0.5 * accel * tau**2
-        sp = safe_setpoint(af, res.u[rom.THRUST], x[rom.HIP], (planned - x[rom.HIP]) / tau, thrust_max_n, x[rom.HIP])
+        sp = safe_setpoint(af, res.u[rom.THRUST], x[rom.HIP], (planned - x[rom.HIP]) / tau, thrust_bound_n, x[rom.HIP])
         next_rate = (x[rom.HIP_RATE] + accel * tau).clip(-af.hip_rate_max_rad_s, af.hip_rate_max_rad_s)
         self._hip_goal = HipGoal((sp.hip_rad + sp.hip_rate_rad_s * tau).clip(af.hip_min_rad, af.hip_max_rad),
                                  np.where(np.isfinite(next_rate), next_rate, 0.0))

@@ -31,7 +31,7 @@ import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
 from m4.attitude import euler_from_quat_wxyz, rotation_ned_from_frd
-from companion.core import rom_layout as rom
+from companion.core import rom_layout
 from companion.core.esc_evidence import EscSample
 from m4.mavlink import mavlink
 
@@ -183,13 +183,13 @@ def rom_state(snap: VehicleSnapshot, af: Airframe) -> np.ndarray:
     rot = rotation_ned_from_frd(snap.euler_rad)
     r_frd = af.com_offset_frd_m(snap.hip_rad)
     r_dot_frd = af.com_offset_rate_frd_m_s(snap.hip_rad, snap.hip_rate_rad_s)
-    x = np.zeros(rom.NX)
-    x[rom.P] = snap.pos_ned_m + rot @ r_frd
-    x[rom.EULER] = snap.euler_rad
-    x[rom.HIP] = snap.hip_rad
-    x[rom.V] = snap.vel_ned_m_s + rot @ (_cross(snap.rates_frd_rad_s, r_frd) + r_dot_frd)
-    x[rom.RATES] = snap.rates_frd_rad_s
-    x[rom.HIP_RATE] = snap.hip_rate_rad_s
+    x = np.zeros(rom_layout.NX)
+    x[rom_layout.P] = snap.pos_ned_m + rot @ r_frd
+    x[rom_layout.EULER] = snap.euler_rad
+    x[rom_layout.HIP] = snap.hip_rad
+    x[rom_layout.V] = snap.vel_ned_m_s + rot @ (_cross(snap.rates_frd_rad_s, r_frd) + r_dot_frd)
+    x[rom_layout.RATES] = snap.rates_frd_rad_s
+    x[rom_layout.HIP_RATE] = snap.hip_rate_rad_s
     return x
 
 

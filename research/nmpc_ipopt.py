@@ -67,12 +67,12 @@ class IpoptReference:
     def reset(self) -> None:
         self._guess = None
 
-    def solve(self, x0, x_ref, thrust_max_n, disturbance=None) -> IpoptResult:
+    def solve(self, x0, x_ref, thrust_bound_n, disturbance=None) -> IpoptResult:
         n = self.nmpc.config.horizon
         x0 = np.asarray(x0, dtype=float)
         d = np.zeros(ND) if disturbance is None else np.asarray(disturbance, dtype=float)
         ref, u_ref = self.nmpc.targets(x0, np.asarray(x_ref, dtype=float), d)
-        lo, hi = self.nmpc.input_bounds(thrust_max_n)
+        lo, hi = self.nmpc.input_bounds(thrust_bound_n)
         if self._guess is None:
             self._guess = np.concatenate([np.tile(x0, n + 1), u_ref.ravel()])
         lbx = np.concatenate([self._x_lo.ravel(), np.tile(lo, n)])

@@ -18,7 +18,7 @@ from enum import IntEnum
 
 import numpy as np
 
-from companion.core import rom_layout as rom
+from companion.core import rom_layout
 from m4.airframe import ROTOR_COUNT, Airframe
 from m4.fault_kind import FaultKind
 from m4.setpoint import Setpoint
@@ -26,12 +26,13 @@ from m4.setpoint import Setpoint
 _HIP_MARGIN_RAD = 0.5            # measured hips beyond the joint range by more than this are broken
 _CONSECUTIVE_TOLERANCE = 0.5     # of a period: the FC's frames are on a grid of the period, and half
                                  # of one tells one period (jittered) from none or two (a lost frame)
-_PLAUSIBLE = ((rom.P, 1e5), (rom.EULER, 2 * np.pi), (rom.V, 100.0), (rom.RATES, 100.0), (rom.HIP_RATE, 100.0))
+_PLAUSIBLE = ((rom_layout.P, 1e5), (rom_layout.EULER, 2 * np.pi), (rom_layout.V, 100.0),
+              (rom_layout.RATES, 100.0), (rom_layout.HIP_RATE, 100.0))
 
 
 def _per_entry(limits) -> np.ndarray:
     """(NX,) the limit on each state entry's magnitude (inf: none), from (slice, limit) pairs."""
-    out = np.full(rom.NX, np.inf)
+    out = np.full(rom_layout.NX, np.inf)
     for part, limit in limits:
         out[part] = limit
     return out
@@ -66,7 +67,7 @@ def plausible_state(af: Airframe, x) -> bool:
     x = np.asarray(x, dtype=float)
     if not np.isfinite(x).all():
         return False
-    hip = x[rom.HIP]
+    hip = x[rom_layout.HIP]
     hip_ok = (hip >= af.hip_min_rad - _HIP_MARGIN_RAD).all() and (hip <= af.hip_max_rad + _HIP_MARGIN_RAD).all()
     return bool(hip_ok and (np.abs(x) <= _PLAUSIBLE_ABS).all())
 
@@ -77,18 +78,18 @@ def one_period_apart(earlier_s: float, later_s: float, period_s: float) -> bool:
     return abs(later_s - earlier_s - period_s) <= _CONSECUTIVE_TOLERANCE * period_s
 
 
-def thrust_bounds(af: Airframe, thrust_max_n) -> np.ndarray:
+def thrust_bounds(af: Airframe, thrust_bound_n) -> np.ndarray:
     """Per-rotor upper bounds: finite entries clipped into [thrust_min, thrust_max], the rest the maximum."""
-    t_max = np.asarray(thrust_max_n, dtype=float).reshape(-1)
-    if t_max.size != ROTOR_COUNT:
-        raise ValueError(f"thrust_max_n must have {ROTOR_COUNT} entries, got {t_max.size}")
-    return np.where(np.isfinite(t_max), t_max, af.thrust_max_n).clip(af.thrust_min_n, af.thrust_max_n)
+    bound = np.asarray(thrust_bound_n, dtype=float).reshape(-1)
+    if bound.size != ROTOR_COUNT:
+        raise ValueError(f"thrust_bound_n must have {ROTOR_COUNT} entries, got {bound.size}")
+    return np.where(np.isfinite(bound), bound, af.thrust_max_n).clip(af.thrust_min_n, af.thrust_max_n)
 
 
-def safe_setpoint(af: Airframe, thrust_n, hip_rad, hip_rate_rad_s, thrust_max_n, measured_hip_rad=None,
+def safe_setpoint(af: Airframe, thrust_n, hip_rad, hip_rate_rad_s, thrust_bound_n, measured_hip_rad=None,
                   thrust_cut: bool = False) -> Setpoint:
     """A setpoint that is finite and within every bound, whatever goes in (NaN, inf, out of range)."""
-    bound = thrust_bounds(af, thrust_max_n)
+    bound = thrust_bounds(af, thrust_bound_n)
     thrust = np.asarray(thrust_n, dtype=float).reshape(ROTOR_COUNT)
     thrust = np.where(np.isfinite(thrust), thrust, af.hover_thrust_per_rotor_n).clip(af.thrust_min_n, bound)
     if thrust_cut:

@@ -256,7 +256,7 @@ class FaultDetector:
             target[i] = min(self._effectiveness * target[i], self._estimate_n)
         return np.maximum(target, self._af.thrust_min_n)
 
-    def _common_floor_n(self, reading: EscReading | None) -> float:
+    def _common_ceiling_n(self, reading: EscReading | None) -> float:
         """The ceiling a sagging battery may give every rotor: below it a shortfall is a rotor's."""
         if reading is not None and math.isfinite(reading.battery_ceiling_n):
             return (1.0 - self._c.shortfall_min / 3) * reading.battery_ceiling_n
@@ -287,7 +287,7 @@ class FaultDetector:
         c = self._c
         expected = self._cmd_lag_n
         if math.isfinite(reading.battery_ceiling_n):
-            expected = np.minimum(expected, self._common_floor_n(reading))
+            expected = np.minimum(expected, self._common_ceiling_n(reading))
         deficit = expected - self._esc_thrust_n
         # A rotor is short only of the least it may have been asked (a rotor the FC is
         # spinning up between our frames is not short).
@@ -317,7 +317,7 @@ class FaultDetector:
         consistent = explained >= c.chi2_min and left <= c.unexplained_max * explained + noise_chi2
         expected = pooled.expected_thrust_n
         delivered = expected - pooled.deficit_size_n
-        short = min(expected[i], self._common_floor_n(reading)) - delivered[i]
+        short = min(expected[i], self._common_ceiling_n(reading)) - delivered[i]
         votes = consistent and pooled.deficit_n[i] >= c.deficit_min_n and short >= c.deficit_min_n
         if self._state is FaultState.HEALTHY and not votes:
             self._bias_per_s += min(dt / c.bias_time_constant_s, 1.0) * (raw / dt - self._bias_per_s)

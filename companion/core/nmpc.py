@@ -114,10 +114,10 @@ class Nmpc:
         self._guess = None
         self._duals = None
 
-    def input_bounds(self, thrust_max_n) -> tuple[np.ndarray, np.ndarray]:
+    def input_bounds(self, thrust_bound_n) -> tuple[np.ndarray, np.ndarray]:
         """(lo, hi) of one stage's input; a non-finite thrust bound means the airframe's maximum."""
         lo = np.concatenate([np.full(ROTOR_COUNT, self.af.thrust_min_n), self._accel_lo])
-        hi = np.concatenate([thrust_bounds(self.af, thrust_max_n), self._accel_hi])
+        hi = np.concatenate([thrust_bounds(self.af, thrust_bound_n), self._accel_hi])
         return lo, hi
 
     def targets(self, x0, x_ref, disturbance) -> tuple[np.ndarray, np.ndarray]:
@@ -126,16 +126,16 @@ class Nmpc:
         under the disturbance (see nmpc_targets)."""
         return hover_targets(self.af, x0, x_ref, disturbance, self.config.dt_s, self.hip_ref_rad)
 
-    def solve(self, x0, x_ref, thrust_max_n, disturbance=None) -> NmpcResult:
+    def solve(self, x0, x_ref, thrust_bound_n, disturbance=None) -> NmpcResult:
         """One receding-horizon step from state x0 (20,) along x_ref (N+1, 20)."""
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):   # every result is checked
-            return self._solve(x0, x_ref, thrust_max_n, disturbance)
+            return self._solve(x0, x_ref, thrust_bound_n, disturbance)
 
     # ----------------------------------------------------------------- internals
-    def _solve(self, x0, x_ref, thrust_max_n, disturbance) -> NmpcResult:
+    def _solve(self, x0, x_ref, thrust_bound_n, disturbance) -> NmpcResult:
         t0 = time.perf_counter()
         n = self.config.horizon
-        lo, hi = self.input_bounds(thrust_max_n)
+        lo, hi = self.input_bounds(thrust_bound_n)
         x0 = np.asarray(x0, dtype=float).reshape(-1)
         x_ref = np.asarray(x_ref, dtype=float)
         if x0.size != NX or x_ref.shape != (n + 1, NX):

@@ -96,9 +96,9 @@ class Predictor:
         self._flow = ca.Function("m4_rom_flow", [x, u, d, dt], [rom.rk4(f, x, u, d, dt, _SUBSTEPS)])
 
     def predict(self, x, time_s: float, lead_s: float, history: CommandHistory, disturbance,
-                thrust_max_n, thrust_now_n=None) -> np.ndarray:
+                thrust_bound_n, thrust_now_n=None) -> np.ndarray:
         """The state at time_s + lead_s from x at time_s under the commands in flight, each
-        rotor's thrust within what it can deliver now (thrust_max_n: a lost rotor's estimate),
+        rotor's thrust within what it can deliver now (thrust_bound_n: the NMPC's bounds, a lost rotor's from its estimate),
         starting from thrust_now_n (what the FC measured at time_s; None or NaN: the command in
         force); x itself when lead_s is 0, no command of ours is in force yet, or the
         prediction is not finite."""
@@ -106,7 +106,7 @@ class Predictor:
         if not lead_s > 0 or history.in_force(time_s, lead_s) is None:
             return x.copy()
         end_s = time_s + lead_s
-        bound = thrust_bounds(self._af, thrust_max_n)
+        bound = thrust_bounds(self._af, thrust_bound_n)
         edges = [time_s, *history.acting_from(time_s, end_s, lead_s), end_s]
         thrust = np.minimum(history.in_force(time_s, lead_s).thrust_n, bound)
         if thrust_now_n is not None:

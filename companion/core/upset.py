@@ -19,7 +19,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from companion.core import rom_layout as rom
+from companion.core import rom_layout
 
 
 @dataclass(frozen=True)
@@ -63,10 +63,10 @@ class UpsetDetector:
             return self.crash
         x = np.asarray(x, dtype=float)
         c = self._c
-        height_m = self._ground_z - float(x[rom.P][2])          # above the standing height
+        height_m = self._ground_z - float(x[rom_layout.P][2])   # above the standing height
         self._airborne |= height_m > c.airborne_margin_m
-        speed = float(np.linalg.norm(x[rom.V]))
-        held = {"upside down": (tilt_rad(x[rom.EULER]) > c.tilt_max_rad, c.upside_down_s),
+        speed = float(np.linalg.norm(x[rom_layout.V]))
+        held = {"upside down": (tilt_rad(x[rom_layout.EULER]) > c.tilt_max_rad, c.upside_down_s),
                 "on the ground": (self._airborne and not landing and height_m < c.ground_margin_m
                                   and speed < c.still_speed_m_s, c.ground_s)}
         for reason, (now_true, needed_s) in held.items():

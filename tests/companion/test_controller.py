@@ -47,12 +47,12 @@ def step(c: Controller, time_s: float, x, *telemetry):
     return c.step(time_s, x, *telemetry)
 
 
-def assert_safe(sp: Setpoint, thrust_max_n) -> None:
+def assert_safe(sp: Setpoint, thrust_bound_n) -> None:
     """Finite and within every bound, also as the float32 values MAVLink carries."""
     values = np.r_[sp.thrust_n, sp.hip_rad, sp.hip_rate_rad_s]
     assert values.shape == (12,) and np.all(np.isfinite(values))
     assert np.array_equal(values.astype(np.float32).astype(float), values)
-    bound = thrust_bounds(AF, thrust_max_n)
+    bound = thrust_bounds(AF, thrust_bound_n)
     assert np.all(sp.thrust_n >= (0.0 if sp.thrust_cut else AF.thrust_min_n))
     assert np.all(sp.thrust_n <= bound + 1e-9)
     assert np.all(sp.hip_rad >= AF.hip_min_rad) and np.all(sp.hip_rad <= AF.hip_max_rad)
@@ -66,11 +66,11 @@ four = st.lists(anything, min_size=4, max_size=4)
 
 
 @settings(max_examples=500, deadline=None)
-@given(thrust=four, hip=four, rate=four, thrust_max=four, measured=st.none() | four, cut=st.booleans())
-def test_safe_setpoint_is_finite_and_within_every_bound_whatever_goes_in(thrust, hip, rate, thrust_max, measured,
+@given(thrust=four, hip=four, rate=four, thrust_bound=four, measured=st.none() | four, cut=st.booleans())
+def test_safe_setpoint_is_finite_and_within_every_bound_whatever_goes_in(thrust, hip, rate, thrust_bound, measured,
                                                                           cut):
-    sp = safe_setpoint(AF, thrust, hip, rate, thrust_max, measured, thrust_cut=cut)
-    assert_safe(sp, thrust_max)
+    sp = safe_setpoint(AF, thrust, hip, rate, thrust_bound, measured, thrust_cut=cut)
+    assert_safe(sp, thrust_bound)
     if cut:
         assert np.all(sp.thrust_n == 0.0)
 

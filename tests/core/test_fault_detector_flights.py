@@ -93,14 +93,14 @@ class PdController:
     def __init__(self, reference, hip_wave_rad=0.0):
         self.reference, self._wave = reference, hip_wave_rad
 
-    def __call__(self, t, x, thrust_max_n):
+    def __call__(self, t, x, thrust_bound_n):
         p_ref, v_ref = self.reference.state(t)
         return np.r_[pd_control(x, p_ref, v_ref), hip_wave(t, x, self._wave)]
 
 
 class NmpcController:
     """The companion's loop: offset-free NMPC on the mission reference, with the detector's
-    thrust_max_estimate_n as its thrust bounds (no other knowledge of the fault)."""
+    thrust_bound_n as its thrust bounds (no other knowledge of the fault)."""
 
     def __init__(self, nmpc, reference):
         nmpc.reset()
@@ -108,10 +108,10 @@ class NmpcController:
         self._estimator = DisturbanceEstimator(AF, nmpc.config.control_period_s)
         self._last = None
 
-    def __call__(self, t, x, thrust_max_n):
+    def __call__(self, t, x, thrust_bound_n):
         d = np.zeros(rom.ND) if self._last is None else self._estimator.update(*self._last, x)
         cfg = self._nmpc.config
-        u = self._nmpc.solve(x, self.reference.reference(t, cfg.horizon, cfg.dt_s), thrust_max_n, d).u
+        u = self._nmpc.solve(x, self.reference.reference(t, cfg.horizon, cfg.dt_s), thrust_bound_n, d).u
         self._last = (x, u)
         return u
 

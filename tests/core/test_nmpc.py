@@ -45,8 +45,8 @@ def perturbed(rng, scale=1.0):
     return x
 
 
-def assert_within(nmpc, res, thrust_max):
-    lo, hi = nmpc.input_bounds(thrust_max)
+def assert_within(nmpc, res, thrust_bound):
+    lo, hi = nmpc.input_bounds(thrust_bound)
     assert np.all(np.isfinite(res.u)) and np.all(np.isfinite(res.u_pred)) and np.all(np.isfinite(res.x_pred))
     assert np.all(res.u_pred >= lo - 1e-9) and np.all(res.u_pred <= hi + 1e-9)
 
@@ -55,10 +55,10 @@ def test_commands_stay_within_the_bounds_from_rough_states(nmpc):
     rng = np.random.default_rng(1)
     nmpc.reset()
     for k in range(12):
-        thrust_max = ROTOR_4_OFF if k % 2 else rng.uniform(5.0, AF.thrust_max_n, 4)
-        res = nmpc.solve(perturbed(rng), hover_ref(), thrust_max)
+        thrust_bound = ROTOR_4_OFF if k % 2 else rng.uniform(5.0, AF.thrust_max_n, 4)
+        res = nmpc.solve(perturbed(rng), hover_ref(), thrust_bound)
         assert res.ok and not res.fallback
-        assert_within(nmpc, res, thrust_max)
+        assert_within(nmpc, res, thrust_bound)
 
 
 ANY_FLOAT = st.floats(allow_nan=True, allow_infinity=True, width=64)
@@ -66,13 +66,13 @@ ANY_FLOAT = st.floats(allow_nan=True, allow_infinity=True, width=64)
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(state_noise=st.lists(st.one_of(st.floats(-3, 3), ANY_FLOAT), min_size=rom.NX, max_size=rom.NX),
-       thrust_max=st.lists(st.one_of(st.floats(-5, 40), ANY_FLOAT), min_size=4, max_size=4),
+       thrust_bound=st.lists(st.one_of(st.floats(-5, 40), ANY_FLOAT), min_size=4, max_size=4),
        disturbance=st.lists(st.one_of(st.floats(-20, 20), ANY_FLOAT), min_size=6, max_size=6))
-def test_whatever_it_is_given_the_command_is_finite_and_within_the_bounds(nmpc, state_noise, thrust_max,
+def test_whatever_it_is_given_the_command_is_finite_and_within_the_bounds(nmpc, state_noise, thrust_bound,
                                                                              disturbance):
     x0 = rom.hover_state(AF) + np.array(state_noise)
-    res = nmpc.solve(x0, hover_ref(), thrust_max, disturbance)
-    lo, hi = nmpc.input_bounds(thrust_max)
+    res = nmpc.solve(x0, hover_ref(), thrust_bound, disturbance)
+    lo, hi = nmpc.input_bounds(thrust_bound)
     assert np.all(np.isfinite(res.u)) and np.all(res.u >= lo) and np.all(res.u <= hi)
     assert np.all(np.isfinite(res.u_pred))
     assert res.fallback == (not res.ok)
@@ -218,7 +218,7 @@ def test_bad_settings_are_rejected_by_name(kwargs, field):
 def test_wrong_shapes_are_rejected_by_name(nmpc):
     with pytest.raises(ValueError, match="x_ref"):
         nmpc.solve(rom.hover_state(AF), hover_ref()[:3], FULL)
-    with pytest.raises(ValueError, match="thrust_max_n"):
+    with pytest.raises(ValueError, match="thrust_bound_n"):
         nmpc.solve(rom.hover_state(AF), hover_ref(), FULL[:3])
 
 
