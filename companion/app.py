@@ -25,6 +25,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -59,6 +60,17 @@ class LoopCounters:
     solve_ms_max: float = 0.0
 
 
+class _RateMark(NamedTuple):
+    """Where the link's message rate was last measured from."""
+    wall_s: float                 # the clock's reading
+    received: int                 # messages from the FC by then
+
+
+class _Announcement(NamedTuple):
+    time_s: float                 # FC time
+    text: str
+
+
 class CompanionApp:
     def __init__(self, config: CompanionConfig, fc: FcLink, controller: Controller, feed: Feed | None = None,
                  clock=time.monotonic, flight_log: FlightLog | None = None):
@@ -75,10 +87,10 @@ class CompanionApp:
         self._last_answered_ms: int | None = None
         self._stop = False
         self._received = 0                       # messages from the FC, for the link's rate
-        self._rate_mark: tuple[float, int] | None = None
+        self._rate_mark: _RateMark | None = None
         self._msgs_per_s = 0.0
         self._delay_warned = False
-        self._announced: tuple[float, str] | None = None     # (FC time, text) of the last fault announcement
+        self._announced: _Announcement | None = None         # the last fault announcement
         self.timing = LoopTiming(config.control_period_s)
 
     # -- the loop ----------------------------------------------------------------------------------
@@ -198,12 +210,12 @@ class CompanionApp:
         last announcement is KIND_ANNOUNCE_MIN_S old."""
         if step.fault.state is not FaultState.CONFIRMED or self._announced is None:
             return False
-        at_s, text = self._announced
-        return step.fault.message != text and step.time_s - at_s >= KIND_ANNOUNCE_MIN_S - 1e-9
+        last = self._announced
+        return step.fault.message != last.text and step.time_s - last.time_s >= KIND_ANNOUNCE_MIN_S - 1e-9
 
     def _announce_fault(self, step: ControlStep) -> None:
         text = step.fault.message
-        self._announced = (step.time_s, text)
+        self._announced = _Announcement(step.time_s, text)
         self.fc.statustext(mavlink.MAV_SEVERITY_CRITICAL, text)
         bounds = ", ".join(f"{b:.1f}" for b in step.fault.thrust_max_estimate_n)
         log.error("t=%.3f s: %s (thrust bounds now %s N)", step.time_s, text, bounds)
@@ -244,10 +256,11 @@ class CompanionApp:
     def _publish_link(self, t_s: float | None) -> None:
         h, now = self.fc.health(), self.clock()
         last = self.telemetry.last_received_s()
-        if self._rate_mark is None or now - self._rate_mark[0] >= 1.0:
-            if self._rate_mark is not None:
-                self._msgs_per_s = (self._received - self._rate_mark[1]) / (now - self._rate_mark[0])
-            self._rate_mark = (now, self._received)
+        mark = self._rate_mark
+        if mark is None or now - mark.wall_s >= 1.0:
+            if mark is not None:
+                self._msgs_per_s = (self._received - mark.received) / (now - mark.wall_s)
+            self._rate_mark = _RateMark(now, self._received)
         self.feed.link(t_s, connected=self.fc.connected, last_msg_age_s=None if last is None else now - last,
                        msgs_per_s=self._msgs_per_s, bad_crc=h.bad_crc, bad_signature=h.bad_signature,
                        dropped_foreign=h.foreign, setpoint_lead_s=self.fc.delay.lead_s,

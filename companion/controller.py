@@ -94,17 +94,19 @@ class ControllerSettings:
                    shortfall_cover=config.shortfall_cover)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ControlStep:
+    """What one control step decided; built by keyword only."""
+
     time_s: float
     setpoint: Setpoint
     state: np.ndarray             # (20,) the ROM state planned from: measured (predicted lead_s on), the hips their goal
-    lead_s: float                 # how far ahead of time_s the setpoint acts (the state is predicted there)
-    reference: np.ndarray | None  # (N+1, 20); None before the flight started
-    nmpc: NmpcResult | None       # None when no solve ran (thrust cut, not started, implausible state)
     fault: FaultStatus
     fault_confirmed_now: bool     # the step at which the fault was confirmed (announce it)
     disturbance: np.ndarray       # (6,) estimate handed to the NMPC
+    lead_s: float = 0.0           # how far ahead of time_s the setpoint acts (the state is predicted there)
+    reference: np.ndarray | None = None   # (N+1, 20); None when no solve ran
+    nmpc: NmpcResult | None = None        # None when no solve ran (thrust cut, not started, implausible state)
     crash: str | None = None      # why the flight is over ("upside down", "on the ground"): thrust cut for good
     crash_now: bool = False       # the step at which the crash was recognised (announce it)
 
@@ -229,7 +231,8 @@ class Controller:
                      shortfall_cover=self.rate_feedback.cover(x_plan[rom.HIP], fault.state is FaultState.CONFIRMED))
         self.sent.add(SentCommand(time_s, x, np.concatenate([sp.thrust_n, res.u[rom.HIP_ACCEL]]), sp.rate_feedback,
                                   sp.shortfall_cover))
-        return ControlStep(time_s, sp, x_plan, lead_s, x_ref, res, fault, confirmed_now, d)
+        return ControlStep(time_s=time_s, setpoint=sp, state=x_plan, fault=fault, fault_confirmed_now=confirmed_now,
+                           disturbance=d, lead_s=lead_s, reference=x_ref, nmpc=res)
 
     # ------------------------------------------------------------------------------------------
     def _thrust_telemetry(self, thrust_n) -> np.ndarray | None:
@@ -323,7 +326,8 @@ class Controller:
                            fault.thrust_bound_n, x[rom.HIP], thrust_cut=True)
         self.sent.clear()
         self._hip_goal = None
-        return ControlStep(time_s, sp, x, 0.0, None, None, fault, confirmed_now, d, crash, crash_now)
+        return ControlStep(time_s=time_s, setpoint=sp, state=x, fault=fault, fault_confirmed_now=confirmed_now,
+                           disturbance=d, crash=crash, crash_now=crash_now)
 
     def _fallback(self, time_s, x, fault, confirmed_now, d) -> ControlStep:
         """No usable state or no flight yet: hover thrust within the bounds, hips held where they
@@ -332,4 +336,5 @@ class Controller:
                            fault.thrust_bound_n, x[rom.HIP])
         self.sent.clear()
         self._hip_goal = None
-        return ControlStep(time_s, sp, x, 0.0, None, None, fault, confirmed_now, d)
+        return ControlStep(time_s=time_s, setpoint=sp, state=x, fault=fault, fault_confirmed_now=confirmed_now,
+                           disturbance=d)

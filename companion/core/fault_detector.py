@@ -48,6 +48,7 @@ import math
 from collections import deque
 from dataclasses import dataclass, fields
 from enum import IntEnum
+from typing import NamedTuple
 
 import numpy as np
 
@@ -122,6 +123,18 @@ class _Path(IntEnum):
     RESIDUAL = 2
 
 
+class _Frame(NamedTuple):
+    time_s: float
+    state: np.ndarray                  # (20,) the ROM state measured
+
+
+class _Run(NamedTuple):
+    """Votes in a row for one rotor on one path."""
+    path: _Path
+    index: int                         # the rotor's, 0..3
+    covered_s: float                   # the time they cover
+
+
 @dataclass(frozen=True)
 class _Evidence:
     index: int | None                  # the rotor voted for, 0..3 (rotor - 1); None: no vote
@@ -146,7 +159,7 @@ class FaultDetector:
             force_n=config.force_model_error_n, torque_n_m=config.torque_model_error_n_m,
             torque_share=config.torque_model_share), codegen)
         self._limit_n = np.full(ROTOR_COUNT, af.thrust_max_n)
-        self._prev: tuple[float, np.ndarray] | None = None
+        self._prev: _Frame | None = None
         self._lag_n = np.zeros(ROTOR_COUNT)        # thrust the model says the motors deliver
         self._cmd_lag_n = np.zeros(ROTOR_COUNT)    # the command through the motor lag: what the ESCs are asked for
         self._asked_n = np.zeros(ROTOR_COUNT)      # the command in force (clipped to the limits)
@@ -159,7 +172,7 @@ class FaultDetector:
         self._esc_thrust_n = np.zeros(ROTOR_COUNT)     # its speed-implied thrusts
         self._esc_rpm: np.ndarray | None = None
         self._esc_heading_n = np.zeros(ROTOR_COUNT)    # the level those thrusts head to through the lag
-        self._run: tuple[_Path, int, float] | None = None   # (path, rotor, time covered) of the votes in a row
+        self._run: _Run | None = None
         self._window: deque[tuple[float, IntervalFit]] = deque()
         self._bias_per_s = np.zeros(len(CHANNELS))
         self._deficit_n = np.zeros(ROTOR_COUNT)
@@ -220,8 +233,8 @@ class FaultDetector:
         asked_before, asked = self._asked_n, cmd.clip(self._af.thrust_min_n, self._limit_n)
         self._asked_n = asked
         target = self._expected_response(asked)
-        prev, self._prev = self._prev, (time_s, x)
-        dt = None if prev is None else time_s - prev[0]
+        prev, self._prev = self._prev, _Frame(time_s, x)
+        dt = None if prev is None else time_s - prev.time_s
         if dt is None or not 0 < dt <= self._c.max_gap_s:
             self._window.clear()
             self._lag_n, self._cmd_lag_n, self._cmd_lag_low_n, self._cmd_lag_high_n = target, asked, asked, asked
@@ -232,7 +245,7 @@ class FaultDetector:
         self._cmd_lag_low_n = self._model.motor_response(self._cmd_lag_low_n, np.minimum(asked_before, asked), dt)[1]
         self._cmd_lag_high_n = self._model.motor_response(self._cmd_lag_high_n, np.maximum(asked_before, asked), dt)[1]
         reading = self._esc_reading(time_s, esc)
-        evidence = self._residual_evidence(time_s, prev[1], x, average_n, cmd, dt, reading)
+        evidence = self._residual_evidence(time_s, prev.state, x, average_n, cmd, dt, reading)
         if reading is not None:
             direct = self._esc_evidence(reading)
             confirmed = self._state is FaultState.CONFIRMED
@@ -357,8 +370,8 @@ class FaultDetector:
         if evidence.index is None or evidence.path is _Path.RESIDUAL:
             self._run = None
             return
-        same = self._run is not None and self._run[:2] == (evidence.path, evidence.index)
-        self._run = (evidence.path, evidence.index, dt + (self._run[2] if same else 0.0))
+        same = self._run is not None and (self._run.path, self._run.index) == (evidence.path, evidence.index)
+        self._run = _Run(evidence.path, evidence.index, dt + (self._run.covered_s if same else 0.0))
 
     # -- decisions ----------------------------------------------------------------------------------
     def _decide(self, time_s: float, evidence: _Evidence, cmd: np.ndarray, dt: float,
@@ -373,7 +386,7 @@ class FaultDetector:
             self._state, self._index, self._suspect_since_s = FaultState.SUSPECT, evidence.index, time_s
         c = self._c
         fast_s = {_Path.ESC: c.direct_confirm_s, _Path.SATURATED: c.saturated_confirm_s}.get(evidence.path)
-        fast = fast_s is not None and self._run is not None and self._run[2] >= fast_s - 1e-9
+        fast = fast_s is not None and self._run is not None and self._run.covered_s >= fast_s - 1e-9
         if fast or time_s - self._suspect_since_s >= c.confirm_s - 1e-9:
             self._confirm(time_s, evidence)
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 import collections
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -87,6 +88,12 @@ class ReceivedSetpoint:
         return self.time_ms + max(STALE_PERIODS * self.period_ms, STALE_MIN_MS)
 
 
+class _Measured(NamedTuple):
+    """The plant's measured state at one instant of the FC's clock (read once per instant)."""
+    time_ms: int
+    state: PlantState
+
+
 @dataclass
 class FcCounters:
     setpoints_accepted: int = 0
@@ -126,14 +133,14 @@ class FlightController:
         self._applied: ReceivedSetpoint | None = None
         self._applied_at_ms = 0
         self._outbox: list[mavlink.MAVLink_message] = []
-        self._measured: tuple[int, PlantState] | None = None
+        self._measured: _Measured | None = None
         self._commands = CommandHandler(self)
 
     # -- the plant as the FC sees it -------------------------------------------------------
     def measured_state(self, now_ms: int) -> PlantState:
-        if self._measured is None or self._measured[0] != now_ms:
-            self._measured = (now_ms, self.plant.measured_state())
-        return self._measured[1]
+        if self._measured is None or self._measured.time_ms != now_ms:
+            self._measured = _Measured(now_ms, self.plant.measured_state())
+        return self._measured.state
 
     def _command_plant(self, thrust_n, hip_rad, hip_rate_rad_s=None) -> None:
         self.plant.command(thrust_n, hip_rad, hip_rate_rad_s)
