@@ -150,11 +150,6 @@ class TelemetryAssembler:
         self._samples.clear()
         self._esc = None
 
-    def age_s(self, msg_id: int, now_s: float) -> float | None:
-        """Companion seconds since the stream's newest sample arrived (None: never)."""
-        s = self._samples.get(msg_id)
-        return None if s is None else now_s - s.received_s
-
     def last_received_s(self) -> float | None:
         return max((s.received_s for s in self._samples.values()), default=None)
 

@@ -120,7 +120,7 @@ class MissionPlan:
         self._mission, self._a = mission, accel_max_m_s2
         self.ground_com_z_ned_m = -ground_com_height_m(af)
         self._base = _Plan(self._mission_pieces(np.asarray(start_ned_m, dtype=float), t0_s))
-        self._plan, self._touchdown_s = self._with_landing(self._base)
+        self._plan = self._with_landing(self._base)
         self.fault_hold_s: float | None = None      # when a fault turned the plan into a hold
 
     def _mission_pieces(self, start: np.ndarray, t_s: float) -> list:
@@ -138,15 +138,15 @@ class MissionPlan:
         brake = _Brake(t_s, p_ned_m, v_ned_m_s, self._a)
         return [brake, _Hold(brake.end_s, brake.state(brake.end_s)[0])]
 
-    def _with_landing(self, base: _Plan) -> tuple[_Plan, float]:
+    def _with_landing(self, base: _Plan) -> _Plan:
         land = self._mission.land
         if land is None:
-            return base, math.inf
+            return base
         stop = self._stop(land.at_s, *base.state(land.at_s))
         above = stop[-1].state(stop[-1].t0_s)[0]
         ground = np.array([above[0], above[1], max(above[2], self.ground_com_z_ned_m)])
         descent = _Move(stop[-1].t0_s, above, ground, land.descent_speed_m_s, self._a)
-        return base.replaced_from(land.at_s, stop[:-1] + [descent, _Hold(descent.end_s, ground)]), descent.end_s
+        return base.replaced_from(land.at_s, stop[:-1] + [descent, _Hold(descent.end_s, ground)])
 
     def state(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
         """(p_ned_m (3,), v_ned_m_s (3,)) of the reference at t_s."""
@@ -160,11 +160,7 @@ class MissionPlan:
         self.fault_hold_s = t_s
         _, v_ned_m_s = self._base.state(t_s)
         self._base = self._base.replaced_from(t_s, self._stop(t_s, np.asarray(position_ned_m, dtype=float), v_ned_m_s))
-        self._plan, self._touchdown_s = self._with_landing(self._base)
+        self._plan = self._with_landing(self._base)
 
     def landing_started(self, t_s: float) -> bool:
         return self._mission.land is not None and t_s >= self._mission.land.at_s
-
-    def touchdown_expected(self, t_s: float) -> bool:
-        """True once the landing reference has reached the ground."""
-        return t_s >= self._touchdown_s

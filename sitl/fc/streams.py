@@ -47,9 +47,6 @@ class StreamSchedule:
         self._interval_ms: dict[int, int] = dict(self._defaults)
         self._next_ms: dict[int, int] = {i: 0 for i in self._interval_ms}
 
-    def interval_ms(self, msg_id: int) -> int | None:
-        return self._interval_ms.get(msg_id)
-
     def set_interval_us(self, msg_id: int, interval_us: float, now_ms: int) -> None:
         """MAV_CMD_SET_MESSAGE_INTERVAL semantics: -1 stops, 0 restores the default, else the
         interval in microseconds (rounded to the 1 ms clock, at least 1 ms). Handled after the

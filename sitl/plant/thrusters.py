@@ -153,10 +153,6 @@ class Thrusters:
         return self.thrust_coefficient_n_s2 * self.speed_rad_s ** 2
 
     @property
-    def motor_current_a(self) -> np.ndarray:
-        return np.array(self._motor_currents(self._speed))
-
-    @property
     def current_a(self) -> np.ndarray:
         """What each ESC draws from the pack."""
         return np.array(self._pack_currents(self._speed, self._pack_share()))
@@ -173,10 +169,6 @@ class Thrusters:
     def _pack_currents(self, speed_rad_s: list[float], share: list[float]) -> list[float]:
         """Each ESC's draw from the pack: its motor's current times its share (_pack_share)."""
         return [s * i for s, i in zip(share, self._motor_currents(speed_rad_s))]
-
-    @property
-    def copper_loss_w(self) -> np.ndarray:
-        return self._r * self.motor_current_a ** 2
 
     def thrust_ceiling_n(self, thrust_max_n: float) -> np.ndarray:
         """What each rotor settles at when commanded `thrust_max_n` now (truth: the fault and the

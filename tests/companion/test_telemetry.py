@@ -11,8 +11,7 @@ from m4.airframe import load_airframe
 from m4.attitude import euler_from_quat_wxyz
 from companion.core import rom
 from m4.mavlink import mavlink
-from companion.telemetry import (ATTITUDE, LOCAL_POSITION, THRUSTER_STATUS, TelemetryAssembler,
-                                 rom_state)
+from companion.telemetry import ATTITUDE, LOCAL_POSITION, TelemetryAssembler, rom_state
 
 AF = load_airframe()
 NAN4 = [math.nan] * 4
@@ -147,15 +146,6 @@ def test_rom_velocity_adds_omega_cross_r_and_the_legs_motion():
     r_dot = (AF.com_offset_frd_m(hip + hip_rate * dt) - AF.com_offset_frd_m(hip - hip_rate * dt)) / (2 * dt)
     assert np.allclose(AF.com_offset_rate_frd_m_s(hip, hip_rate), r_dot, atol=1e-8)
     assert np.allclose(x[rom.V], np.cross(rates, r) + r_dot)
-
-
-def test_ages_follow_the_companion_clock_per_stream():
-    asm = TelemetryAssembler()
-    asm.add(attitude(0), 1.0)
-    asm.add(thrusters(0), 1.2)
-    assert asm.age_s(ATTITUDE, 1.5) == pytest.approx(0.5)
-    assert asm.age_s(THRUSTER_STATUS, 1.5) == pytest.approx(0.3)
-    assert asm.age_s(LOCAL_POSITION, 1.5) is None
 
 
 def esc(rpm=(5522,) * 4, current_ca=(2250,) * 4, voltage_cv=(1480,) * 4):
