@@ -215,7 +215,6 @@ class Server:
                  f"refused from others {c.refused_foreign}; unsigned/bad-signature packets rejected {rejected}; "
                  f"garbled {sum(link.bad_packets for link in self.links) - rejected}")
             if self.emulated is not None:
-                link = self.options.link
                 log(f"link emulated ({self.options.link.describe()}): {self.emulated.counters.summary()}")
 
     def _run_realtime(self) -> None:

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from companion import watch
-from companion.dashboard.events import Hub, ReplayError, ReplaySource, airframe_view, read_recorded_feed
+from companion.dashboard.events import Hub, ReplaySource, airframe_view, read_recorded_feed
 from companion.dashboard.server import DashboardServer
 from companion.dashboard.tlog import tlog_samples
 from m4.airframe import load_airframe

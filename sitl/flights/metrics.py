@@ -12,7 +12,7 @@ Definitions (times in the scenario's clock, positions of the centre of mass, NED
   the airborne window after the first fault (the whole window when nothing fails).
 - max_tilt_deg_after_fault: largest angle between body z and the vertical over the same span.
 - tilt_recovered_s: time after the first fault from which the tilt stays within
-  TILT_RECOVERED_DEG to the end of the airborne window (None: it never does).
+  analysis.measures.TILT_RECOVERED_DEG to the end of the airborne window (None: it never does).
 - yaw_rate_final_rad_s: mean body yaw rate over the last YAW_FINAL_WINDOW_S before the
   landing starts (or the end of the airborne window); time_to_yaw_saturation_s: from the
   first total rotor loss (else the first fault) until |yaw rate| first reaches
@@ -37,7 +37,7 @@ from __future__ import annotations
 import numpy as np
 
 from analysis import detection
-from analysis.measures import TILT_RECOVERED_DEG, tilt_deg, tilt_recovered_s, time_to_yaw_saturation, yaw_rate_final
+from analysis.measures import tilt_deg, tilt_recovered_s, time_to_yaw_saturation, yaw_rate_final
 from m4.airframe import Airframe
 from m4.mission_plan import MissionPlan
 from sitl.scenario import Scenario

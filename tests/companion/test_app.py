@@ -7,7 +7,6 @@ from __future__ import annotations
 import math
 import random
 import struct
-from collections import deque
 from types import SimpleNamespace
 
 import numpy as np

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 
 from companion.core import rom
 from companion.core.upset import UpsetConfig, UpsetDetector, tilt_rad

@@ -5,7 +5,6 @@ A rotor lost while the FC flies alone is seen on its ESC speed, with the same la
 
 from __future__ import annotations
 
-import math
 import os
 import select
 import signal

@@ -1,6 +1,5 @@
 """The thrusters: motor, propeller and ESC per rotor, each failure kind's signature, the battery."""
 
-import math
 
 import numpy as np
 import pytest
