@@ -1,18 +1,17 @@
 """The simulated flight controller's MAVLink logic (system 1, component 1), without sockets.
 
-It owns the plant's actuator commands: the companion's M4_SETPOINT while setpoints are fresh,
-its own failsafe (sitl/fc/failsafe.py) otherwise. A setpoint answering instant t with period P
-is fresh until t + max(3 P, 300 ms) on the FC's clock; then the FC holds its position and,
-2 s later, lands. STATUSTEXT announces each mode change. Commands (sitl/fc/commands.py) are
+It implements the contract of docs/flight-controller.md, where each rule (setpoint age and
+staleness, authority, arming, failsafe, the fast loops) is stated once. It owns the plant's
+actuator commands: the companion's M4_SETPOINT while setpoints are fresh, its own failsafe
+(sitl/fc/failsafe.py) otherwise. STATUSTEXT announces each mode change. Commands (sitl/fc/commands.py) are
 acknowledged; telemetry streams (sitl/fc/streams.py) are built from the measured plant state.
 
 Authority: the FC is paired with one companion (`companion_ids`, system 1 component 191 by
 default). Setpoints, commands (rotor faults, arming, stream rates, requests) and
 M4_FAULT_STATUS are taken from it only (with `require_signed`, only signed); from anyone
 else they are refused and counted, a command with COMMAND_ACK DENIED. A setpoint is judged
-by the instant it answers (time_boot_ms, the FC's clock), not by when it arrives: one from
-the future, older than max(`MAX_AGE_MIN_MS`, `MAX_AGE_PERIODS` periods), out of order, with
-a period outside 1..`MAX_PERIOD_MS` or not finite is refused and counted by reason.
+by the instant it answers (time_boot_ms, the FC's clock), with `MAX_AGE_MIN_MS`,
+`MAX_AGE_PERIODS` and `MAX_PERIOD_MS`; what it refuses is counted by reason.
 
 Arming: the FC starts armed (the scenarios start in the air). Once it has landed or applied
 a thrust cut it is disarmed: setpoints are refused (counted) and the motors stay off until
