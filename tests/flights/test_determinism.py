@@ -46,7 +46,7 @@ def _flight(tmp_path, name, seed, text=NOISY, link=None):
 
 
 def test_the_same_seed_gives_the_same_noisy_flight(tmp_path):
-    """(Another seed giving other noise: tests/sitl/test_serve.py and test_plant.py.)"""
+    """(Another seed giving other noise: tests/sitl/test_serve.py and tests/sitl/plant/test_mujoco_plant.py.)"""
     (first, _), (second, _) = _flight(tmp_path, "a", 5), _flight(tmp_path, "b", 5)
     assert first.shape == second.shape and np.array_equal(first, second)
 

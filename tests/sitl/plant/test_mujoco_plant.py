@@ -253,7 +253,7 @@ def test_hip_servo_respects_the_rate_and_acceleration_limits():
     rates = np.array(rates)
     accel = np.diff(rates, axis=0) / 0.005
     assert plant.state().hip_rad == pytest.approx(target, abs=2e-3)
-    # The reference keeps both limits exactly (tests/sitl/test_servo.py); the joint follows it
+    # The reference keeps both limits exactly (tests/sitl/plant/test_hip_servos.py); the joint follows it
     # through the servo, critically damped with rate feed-forward, (kv s + kp) / (I s^2 + kv s
     # + kp), whose impulse response integrates in absolute value to 1 + 2 / e^2: the most it
     # can amplify the reference's rate or acceleration.

@@ -15,7 +15,7 @@ from m4.fault_kind import FaultKind
 from m4.units import RAD_S_TO_RPM
 from sitl.plant.thrusters import Thrusters
 from sitl.vehicle import Vehicle
-from tests.sitl.test_fc_rate_feedback import THRUST_N, _from_companion
+from tests.sitl.fc.test_fc_rate_feedback import THRUST_N, _from_companion
 
 AF = load_airframe()
 TICK_S = TICK_MS / 1000.0
