@@ -7,11 +7,15 @@ import argparse
 import math
 
 
-def number(text: str) -> float:
+def _converted(text: str, kind: type, what: str):
     try:
-        return float(text)
+        return kind(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        raise argparse.ArgumentTypeError(f"not {what}: {text!r}") from None
+
+
+def number(text: str) -> float:
+    return _converted(text, float, "a number")
 
 
 def positive_number(text: str) -> float:
@@ -21,22 +25,15 @@ def positive_number(text: str) -> float:
     return value
 
 
-def _integer(text: str) -> int:
-    try:
-        return int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-
-
 def positive_int(text: str) -> int:
-    value = _integer(text)
+    value = _converted(text, int, "an integer")
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be >= 1, got {text}")
     return value
 
 
 def seed_number(text: str) -> int:
-    value = _integer(text)
+    value = _converted(text, int, "an integer")
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
     return value

@@ -34,6 +34,8 @@ def test_list_prints_the_builtin_scenarios(capsys):
     (["serve", "--scenario", "no-such-scenario"], "unknown scenario 'no-such-scenario'"),
     (["serve", "--mavlink", "tcp:127.0.0.1:5760"], "bad MAVLink URL"),
     (["serve", "--duration", "0"], "--duration: must be a finite number > 0"),
+    (["serve", "--duration", "inf"], "--duration: must be a finite number > 0"),
+    (["serve", "--seed", "x"], "--seed: not an integer: 'x'"),
     (["serve", "--seed", "-1"], "--seed: must be >= 0"),
     (["fly"], "required: SCENARIO"),
     (["nope"], "invalid choice: 'nope'"),
