@@ -15,7 +15,7 @@ from sitl.standin_companion import StandInCompanion
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.lockstep", description="lockstep speed of m4-sitl serve")
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.lockstep", description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0, help="simulated seconds (default 10)")
     parser.add_argument("--period-ms", type=int, default=20, help="control period (default 20)")
     args = parser.parse_args(argv)

@@ -10,11 +10,13 @@ tumbling onto the floor). Target: >= 50x real time on one core.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
 import numpy as np
 
 from m4.airframe import ROTOR_COUNT, load_airframe
+from m4.arguments import positive_number
 from sitl.plant.mujoco_plant import Plant
 
 COMMAND_PERIOD_S = 0.02
@@ -42,16 +44,17 @@ def real_time_factor(sim_s: float, move_hips: bool) -> float:
     return n * COMMAND_PERIOD_S / (time.perf_counter() - start)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sim-s", type=float, default=20.0, help="simulated seconds per load (default 20)")
-    args = parser.parse_args()
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.plant", description=__doc__.splitlines()[0])
+    parser.add_argument("--sim-s", type=positive_number, default=20.0, help="simulated seconds per load (default 20)")
+    args = parser.parse_args(argv)
     for label, move in (("hips held", False), ("hips sweeping", True)):
         factor = real_time_factor(args.sim_s, move)
         verdict = "ok" if factor >= TARGET_FACTOR else f"BELOW the {TARGET_FACTOR:.0f}x target"
         print(f"plant at 1 kHz, commands every {COMMAND_PERIOD_S * 1e3:.0f} ms, {label}: "
               f"{factor:.0f}x real time ({verdict})")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
