@@ -290,8 +290,8 @@ class CompanionApp:
 
 
 def open_app(config: CompanionConfig) -> CompanionApp:
-    """The app with its link open, its feed open and its NMPC built (compiled on a first start).
-    A bad URL, a port in use or a bad key/feed setting raises LinkError/ConfigError/FeedError."""
+    """The app with its link open, its feed open or trying to be, and its NMPC built (compiled on
+    a first start). A bad URL, a port in use or a bad key/feed setting raises LinkError/ConfigError."""
     key = load_key(config.link.signing_key_path) if config.link.signing_key_path is not None else None
     link = open_link(config.link.fc_url, FC_SYSTEM_ID, COMPANION_COMPONENT_ID, key=key)
     feed = None

@@ -5,6 +5,11 @@
     feed.fault(t_s, state="confirmed", rotor=4, thrust_max_estimate_n=..., message=text)
     feed.close()
 
+The feed never decides whether the robot flies: when its Zenoh side cannot be set up (client
+mode with no router reachable, a Zenoh config file missing or broken) that is said in one
+line and tried again every RETRY_S on a thread of its own; until it opens, every call returns
+at once and nothing is published.
+
 Each topic is published at most `max_rate_hz` times a second (wall clock); a call in
 between returns at once without building anything. The fault topic also goes out at once
 whenever its state or rotor changes. A payload that cannot be built or sent is counted
@@ -15,15 +20,18 @@ raised: the feed must not stop the control loop.
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from typing import Any, Callable, Protocol
 
 from m4.feed import payloads
 from m4.feed.settings import FeedSettings
-from m4.feed.transport import ZenohSink
+from m4.feed.transport import FeedError, ZenohSink, describe
 from m4.toml_fields import ConfigError
 
 log = logging.getLogger(__name__)
+
+RETRY_S = 5.0                   # a feed that could not be set up is tried again this often
 
 
 class Sink(Protocol):
@@ -42,6 +50,9 @@ class Feed:
         self._last_sent_s: dict[str, float] = {}
         self._last_fault: tuple[Any, Any] | None = None
         self._logged_kinds: set[str] = set()
+        self._closed = threading.Event()
+        self._sink_lock = threading.Lock()            # the connecting thread's sink against close()
+        self._connecting = False
         self.published = 0
         self.errors = 0
 
@@ -52,7 +63,41 @@ class Feed:
 
     @property
     def enabled(self) -> bool:
+        """Publishing, or trying to set up its sink."""
+        return not self._closed.is_set() and (self._sink is not None or self._connecting)
+
+    @property
+    def up(self) -> bool:
+        """Its sink is open: calls publish."""
         return self._sink is not None
+
+    def connect(self, open_sink: Callable[[], Sink], what: str, retry_s: float = RETRY_S) -> "Feed":
+        """Open the sink now or, when that raises FeedError, say so once and try again every
+        retry_s on a thread of its own until it opens or the feed is closed."""
+        try:
+            self._sink = open_sink()
+            return self
+        except FeedError as e:
+            log.warning("feed down: %s; the companion flies without it and tries again every %g s", e, retry_s)
+        self._connecting = True
+        threading.Thread(target=self._keep_trying, args=(open_sink, what, retry_s), name="feed-connect",
+                         daemon=True).start()
+        return self
+
+    def _keep_trying(self, open_sink: Callable[[], Sink], what: str, retry_s: float) -> None:
+        while not self._closed.wait(retry_s):
+            try:
+                sink = open_sink()
+            except FeedError:
+                continue
+            with self._sink_lock:
+                if not self._closed.is_set():
+                    self._sink, sink = sink, None
+            if sink is not None:                      # closed meanwhile
+                self._guarded("close", sink.close)
+            else:
+                log.info("feed up: publishing (%s)", what)
+            return
 
     def state(self, t_s: float | None, **fields) -> None:
         self._publish("state", payloads.state_payload, t_s, fields)
@@ -72,8 +117,10 @@ class Feed:
         self._publish("link", payloads.link_payload, t_s, {**fields, "feed_errors": self.errors})
 
     def close(self) -> None:
-        if self._sink is not None:
+        with self._sink_lock:
+            self._closed.set()
             sink, self._sink = self._sink, None
+        if sink is not None:
             self._guarded("close", sink.close)
 
     def __enter__(self) -> "Feed":
@@ -111,12 +158,14 @@ class Feed:
             return False
 
 
-def open_feed(settings: FeedSettings) -> Feed:
-    """A live feed on Zenoh, or a disabled one; a bad setting raises ConfigError/FeedError now."""
+def open_feed(settings: FeedSettings, retry_s: float = RETRY_S) -> Feed:
+    """A feed on Zenoh, live or trying to be (Feed.connect), or a disabled one; a bad setting
+    raises ConfigError now."""
     if not settings.enabled:
         return Feed.disabled()
     try:
         settings.validate()
     except ConfigError as e:
         raise ConfigError(f"feed: {e}") from None
-    return Feed(ZenohSink.open(settings), max_rate_hz=settings.max_rate_hz)
+    feed = Feed(None, max_rate_hz=settings.max_rate_hz)
+    return feed.connect(lambda: ZenohSink.open(settings), describe(settings), retry_s)

@@ -6,7 +6,8 @@ first start, cached) and opens the link before it says "ready" (in its log and, 
 supervisor such as `m4-sitl fly` waits for), having put its loop in the real-time class the
 configuration asks for (companion/realtime.py), then runs until SIGINT or SIGTERM. A bad
 configuration, URL, key, feed setting, ready descriptor or a port in use prints one line on
-stderr and exits with 2.
+stderr and exits with 2; a feed that cannot reach Zenoh does not stop it (it is said and
+tried again in the background).
 """
 
 from __future__ import annotations
@@ -75,14 +76,13 @@ def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.INFO, format="m4-companion: %(message)s", stream=sys.stderr)
     from companion.app import close_app, open_app
     from companion.realtime import use_realtime
-    from m4.feed.transport import FeedError
     from m4.mavlink.link import LinkError
 
     try:
         _check_ready_fd(args.ready_fd)
         config = _config(args)
         app = open_app(config)
-    except (ConfigError, LinkError, FeedError) as e:
+    except (ConfigError, LinkError) as e:
         print(f"m4-companion: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
     for sig in (signal.SIGINT, signal.SIGTERM):

@@ -1,5 +1,7 @@
 import json
+import logging
 import math
+import time
 
 import numpy as np
 import pytest
@@ -167,7 +169,7 @@ def test_bad_zenoh_config_file_is_an_error_naming_the_file(tmp_path):
     with pytest.raises(FeedError, match="bad.json5"):
         config_from_file(bad)
     with pytest.raises(FeedError, match="no such"):
-        open_feed(FeedSettings(zenoh_config=tmp_path / "missing.json5"))
+        config_from_file(tmp_path / "missing.json5")
 
 
 # --- over Zenoh on loopback (scouting off, 127.0.0.1 only) ------------------------------------
@@ -178,6 +180,11 @@ def _subscribe(endpoint, key):
     session.declare_subscriber(key, lambda s: received.__setitem__(
         str(s.key_expr), (str(s.encoding), json.loads(s.payload.to_bytes()))))
     return session, received
+
+
+def _peer_config(endpoint: str) -> str:
+    return json.dumps({"mode": "peer", "listen": {"endpoints": [endpoint]}, "connect": {"endpoints": []},
+                       "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}}})
 
 
 def _feed_until_received(feed, received, publish_all, wait_until):
@@ -203,9 +210,7 @@ def test_subscriber_receives_every_topic_under_its_key_as_json(endpoint, publish
 
 def test_feed_opened_from_a_zenoh_config_file_publishes(tmp_path, endpoint, publish_all, wait_until):
     config = tmp_path / "zenoh-companion.json5"
-    config.write_text(json.dumps({
-        "mode": "peer", "listen": {"endpoints": [endpoint]}, "connect": {"endpoints": []},
-        "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}}}))
+    config.write_text(_peer_config(endpoint))
     feed = open_feed(FeedSettings(zenoh_config=config, max_rate_hz=0.0))
     session, received = _subscribe(endpoint, "m4/m4/**")
     try:
@@ -221,6 +226,50 @@ def test_publishing_after_the_session_died_is_counted_not_raised(endpoint, publi
     publish_all(feed)
     assert feed.errors == len(TOPICS) and feed.published == 0
     feed.close()
+
+
+def test_a_missing_or_broken_zenoh_config_file_is_said_once_and_the_feed_comes_up_when_it_is_fixed(
+        tmp_path, endpoint, publish_all, wait_until, caplog):
+    config = tmp_path / "zenoh-companion.json5"
+    with caplog.at_level(logging.INFO, logger="companion.feed_publisher"):
+        feed = open_feed(FeedSettings(zenoh_config=config, max_rate_hz=0.0), retry_s=0.05)
+        try:
+            assert feed.enabled and not feed.up
+            publish_all(feed)                                       # nowhere to go: dropped, not an error
+            config.write_text("{ mode: 'peer', scouting: { multicast: { enabled: 'maybe' } } }")
+            time.sleep(0.2)                                         # tried again: broken now
+            assert not feed.up and feed.errors == 0
+            config.write_text(_peer_config(endpoint))
+            assert wait_until(lambda: feed.up)
+            session, received = _subscribe(endpoint, "m4/m4/**")
+            try:
+                assert _feed_until_received(feed, received, publish_all, wait_until)
+            finally:
+                session.close()
+        finally:
+            feed.close()
+    said = [r.getMessage() for r in caplog.records]
+    assert len([m for m in said if m.startswith("feed down")]) == 1, said
+    assert "no such Zenoh config file" in said[0] and str(config) in said[0]
+    assert any(m.startswith("feed up") for m in said)
+
+
+def test_a_client_feed_without_its_router_waits_for_it_and_publishes_once_it_is_there(
+        endpoint, publish_all, wait_until):
+    feed = open_feed(FeedSettings(vehicle="test", mode="client", connect=(endpoint,), max_rate_hz=0.0), retry_s=0.05)
+    router = None
+    try:
+        assert feed.enabled and not feed.up
+        router = open_session(config_from_endpoints("peer", listen=(endpoint,)), endpoint)
+        assert wait_until(lambda: feed.up)
+        received: dict[str, dict] = {}
+        router.declare_subscriber("m4/test/**", lambda s: received.__setitem__(str(s.key_expr), s))
+        assert _feed_until_received(feed, received, publish_all, wait_until)
+    finally:
+        feed.close()
+        if router is not None:
+            router.close()
+    assert not feed.enabled
 
 
 def test_client_session_to_an_endpoint_that_is_down_fails_with_a_clear_error():

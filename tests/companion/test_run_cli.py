@@ -13,6 +13,8 @@ import time
 import pytest
 
 from companion.cli import main
+from m4.airframe import load_airframe
+from support.loopback_fc import LoopbackFc
 
 
 @pytest.fixture(autouse=True)
@@ -114,3 +116,44 @@ def test_a_ready_fd_that_is_not_open_is_refused_before_the_nmpc_is_built(capsys)
     os.close(write_end)                                   # a descriptor number known to be closed now
     code, lines = run_cli(capsys, "--fc", "udpin:127.0.0.1:0", "--ready-fd", str(write_end))
     assert code == 2 and len(lines) == 1 and f"--ready-fd {write_end}" in lines[0]
+
+
+def _free_port(kind: int) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.parametrize("feed", [
+    'zenoh_config = "/etc/m4/no-such-zenoh-companion.json5"',            # the deploy default's path, not installed
+    'mode = "client"\nconnect = "tcp/127.0.0.1:{port}"',                  # no router there
+])
+def test_a_companion_whose_feed_cannot_reach_zenoh_says_so_once_and_flies(tmp_path, feed):
+    config = tmp_path / "companion.toml"
+    config.write_text("[feed]\n" + feed.format(port=_free_port(socket.SOCK_STREAM)) + "\n")
+    port = _free_port(socket.SOCK_DGRAM)
+    proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--config", str(config),
+                             "--fc", f"udpin:127.0.0.1:{port}"], stderr=subprocess.PIPE, text=True)
+    fc = LoopbackFc(port, load_airframe())
+    try:
+        said = []
+        while "ready" not in (line := proc.stderr.readline()) and line:
+            said.append(line)
+        assert "ready" in line, said
+        setpoints = 0
+        for k in range(50):                                   # one second of telemetry at 50 Hz
+            fc.heartbeat()
+            fc.frame(20 * k)
+            time.sleep(0.02)
+            setpoints += sum(m.get_type() == "M4_SETPOINT" for m in fc.received())
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(timeout=10)
+        said += proc.stderr.readlines()
+    finally:
+        fc.close()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert code == 0 and setpoints >= 25, (code, setpoints, said)
+    assert len([line for line in said if "feed down" in line]) == 1, said
+    assert "Traceback" not in "".join(said)
