@@ -119,6 +119,8 @@ class CompanionApp:
                 self._on_kept_fault(msg)
         if newest is not None and self._due(newest):
             self._answer(newest, now)
+        while self.flight_log.notices:             # a gap in the flight log (it has no link of its own)
+            self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, self.flight_log.notices.popleft())
         self.fc.tick(now)
 
     def _on_kept_fault(self, msg) -> None:
@@ -265,7 +267,8 @@ class CompanionApp:
                        msgs_per_s=self._msgs_per_s, bad_crc=h.bad_crc, bad_signature=h.bad_signature,
                        dropped_foreign=h.foreign, setpoint_lead_s=self.fc.delay.lead_s,
                        round_trip_s=self.fc.delay.round_trip_s, control_rate_hz=self.timing.rate_hz(now),
-                       overruns=self.timing.overruns)
+                       overruns=self.timing.overruns, flight_log_paused=self.flight_log.paused,
+                       flight_log_gaps=self.flight_log.gaps)
 
     # -- link loss ---------------------------------------------------------------------------------
     def _on_telemetry_back(self) -> None:

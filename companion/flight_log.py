@@ -25,7 +25,14 @@ nor packed again), packs the decisions with precompiled structs (m4/mavlink/fram
 pymavlink's packing, ten times slower, held the interpreter's lock long enough to delay
 control steps by milliseconds) and writes the batch in one call a file. If the folder
 cannot be written at start the companion says so and flies without a log (a flight without a
-log beats no flight); a write error later is reported once and ends the logging.
+log beats no flight).
+
+A write error later (a full disk: ENOSPC) pauses the log: what comes meanwhile is dropped,
+and every RETRY_S the writer tries again in a new file (one file per gap), so the log resumes
+when space returns. Both ends of a gap are said in the companion's log and queued as
+`notices` for the control loop, which sends them as STATUSTEXT warnings (the link is the
+control loop's alone); `gaps` and `paused` are on the feed. Closing never raises: a log
+problem does not change how a flight ends.
 """
 
 from __future__ import annotations
@@ -46,6 +53,7 @@ from m4.mavlink.tlog import TLOG_TIME
 log = logging.getLogger("m4-companion")
 
 FLUSH_S = 0.05                    # a batch: ~2.5 control steps, ~0.1-0.3 ms of the writer holding the GIL
+RETRY_S = 1.0                     # a paused log tries a new file this often
 PATTERN = "flight-*.tlog"
 _NEW_FLIGHT = object()            # a queue entry: start a new file here
 _FLOAT32_MAX = 3.4028234663852886e38
@@ -65,6 +73,10 @@ class FlightLog:
         self.dir = Path(settings.dir)
         self.files: list[Path] = []                   # written by this process, in order
         self.records = 0
+        self.gaps = 0                                 # times a write failed and the log paused
+        self.notices: collections.deque[str] = collections.deque()   # for the ground station, oldest first
+        self._paused_s: float | None = None           # monotonic time the current gap began
+        self._tried_s = 0.0                           # monotonic time of the last try at a new file
         self._clock_ns = clock_ns
         self._queue: collections.deque = collections.deque()
         self._armed: bool | None = None
@@ -84,6 +96,11 @@ class FlightLog:
     @property
     def enabled(self) -> bool:
         return self._thread is not None
+
+    @property
+    def paused(self) -> bool:
+        """A write failed and no new file could be written since."""
+        return self._paused_s is not None
 
     def start(self) -> FlightLog:
         self.dir.mkdir(parents=True, exist_ok=True)
@@ -125,32 +142,76 @@ class FlightLog:
     # -- the writer thread -------------------------------------------------------------------
     def _run(self) -> None:
         while not self._stop.wait(FLUSH_S):
-            if not self._drain():
-                return
-        self._drain()
+            self._flush()
+        self._flush()
 
-    def _drain(self) -> bool:
-        """Write what is queued, one write a file; False after a write error (reported once;
-        logging ends)."""
-        chunk: list[bytes] = []                       # tlog records for the current file
-        try:
-            while self._queue:
-                entry = self._queue.popleft()
-                if entry is _NEW_FLIGHT:
-                    chunk = self._next_file(chunk)
-                    continue
-                for record in self._records(*entry):
-                    if self._size >= self._max_file_bytes:
-                        chunk = self._next_file(chunk)
-                    chunk.append(record)
-                    self._size += len(record)
-            self._write(chunk)
-            return True
-        except OSError as e:
-            log.error("flight log: cannot write %s (%s); no more flight log this run", self.files[-1], e.strerror or e)
+    def _flush(self) -> None:
+        """Write what is queued; while paused, try a new file with it every RETRY_S, else drop it."""
+        if self._paused_s is None:
+            try:
+                self._drain()
+            except OSError as e:
+                self._pause(e)
+        elif self._queue and time.monotonic() - self._tried_s >= RETRY_S:
+            self._resume()
+        else:
             self._queue.clear()
-            self._thread = None
-            return False
+
+    def _pause(self, error: OSError) -> None:
+        reason = error.strerror or str(error)
+        log.error("flight log paused: cannot write %s (%s); trying a new file every %g s", self.files[-1], reason,
+                  RETRY_S)
+        self._let_go()
+        self._queue.clear()
+        self._paused_s = self._tried_s = time.monotonic()
+        self.gaps += 1
+        self.notices.append(f"companion: log paused: {reason}")
+
+    def _resume(self) -> None:
+        """A new file for what is queued now; the gap ends when it is written."""
+        self._tried_s = time.monotonic()
+        try:
+            self._open()
+            self._drain()
+        except OSError:                               # still failing: the gap goes on (said when it began)
+            self._let_go()
+            self._queue.clear()
+            return
+        gap_s = self._tried_s - self._paused_s
+        self._paused_s = None
+        log.warning("flight log resumed in %s after a %.1f s gap", self.files[-1], gap_s)
+        self.notices.append(f"companion: log resumed after a {gap_s:.1f} s gap")
+
+    def _let_go(self) -> None:
+        """Drop the file a write failed on: closing it may fail the same way (already said); a
+        file left empty is removed."""
+        file, self._file = self._file, None
+        if file is None:
+            return
+        try:
+            file.close()
+        except OSError:
+            pass
+        try:
+            if self.files[-1].stat().st_size == 0:
+                self.files.pop().unlink()
+        except OSError:
+            pass
+
+    def _drain(self) -> None:
+        """Write what is queued, one write a file."""
+        chunk: list[bytes] = []                       # tlog records for the current file
+        while self._queue:
+            entry = self._queue.popleft()
+            if entry is _NEW_FLIGHT:
+                chunk = self._next_file(chunk)
+                continue
+            for record in self._records(*entry):
+                if self._size >= self._max_file_bytes:
+                    chunk = self._next_file(chunk)
+                chunk.append(record)
+                self._size += len(record)
+        self._write(chunk)
 
     def _records(self, time_us: int, payload) -> list[bytes]:
         """The tlog records of one queue entry: a packet as it crossed the link, or a decision's
@@ -204,12 +265,16 @@ class FlightLog:
             old.unlink()
 
     def close(self) -> None:
-        """Write everything queued and close the file."""
+        """Write everything queued and close the file; a failure is said, never raised."""
         thread, self._thread = self._thread, None
         if thread is not None:
             self._stop.set()
             thread.join()
-        self._close_file()
+        try:
+            self._close_file()
+        except OSError as e:
+            log.error("flight log: cannot close %s (%s); its last records may be missing", self.files[-1],
+                      e.strerror or e)
 
 
 def _float32(value) -> float:

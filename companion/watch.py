@@ -138,7 +138,8 @@ def _link_line(link: dict[str, Any] | None) -> str:
     return (f"link         {'connected' if link.get('connected') else 'LOST'}"
             f"  last msg {_num(link.get('last_msg_age_s'), '.2f')} s ago  {_num(link.get('msgs_per_s'), '.0f')} msg/s"
             f"  bad crc {link.get('bad_crc', '-')}  bad signature {link.get('bad_signature', '-')}"
-            f"  foreign {link.get('dropped_foreign', '-')}  feed errors {link.get('feed_errors', '-')}")
+            f"  foreign {link.get('dropped_foreign', '-')}  feed errors {link.get('feed_errors', '-')}"
+            + ("  FLIGHT LOG PAUSED" if link.get("flight_log_paused") else ""))
 
 
 def _num(value: Any, spec: str) -> str:

@@ -132,8 +132,8 @@ def link_payload(t_s: float | None, wall_time_unix_s: float, *, connected: bool,
                  last_msg_age_s: float | None, msgs_per_s: float, bad_crc: int, bad_signature: int,
                  dropped_foreign: int, feed_errors: int, setpoint_lead_s: float | None = None,
                  round_trip_s: float | None = None, control_rate_hz: float | None = None,
-                 overruns: int = 0) -> dict[str, Any]:
-    """Health of the MAVLink link to the flight controller, and of this feed itself.
+                 overruns: int = 0, flight_log_paused: bool = False, flight_log_gaps: int = 0) -> dict[str, Any]:
+    """Health of the MAVLink link to the flight controller, of this feed itself and of the flight log.
 
     last_msg_age_s: wall-clock seconds since the last message from the flight controller
     (null before the first); dropped_foreign: packets from systems/components not ours;
@@ -141,7 +141,9 @@ def link_payload(t_s: float | None, wall_time_unix_s: float, *, connected: bool,
     setpoint_lead_ms: how long after the telemetry instant it answers a setpoint reaches the
     flight controller (its clock; TIMESYNC), round_trip_ms: the TIMESYNC round trip on the
     companion's clock (null until measured); control_rate_hz: setpoints sent in the last
-    second; overruns: control steps so far that took longer than the control period.
+    second; overruns: control steps so far that took longer than the control period;
+    flight_log_paused: the flight log cannot write (a full disk) and drops what comes until a
+    new file can be written; flight_log_gaps: times it paused so far.
     """
     return {
         **_stamp(t_s, wall_time_unix_s),
@@ -156,6 +158,8 @@ def link_payload(t_s: float | None, wall_time_unix_s: float, *, connected: bool,
         "round_trip_ms": _optional_ms("round_trip_s", round_trip_s),
         "control_rate_hz": _optional_float("control_rate_hz", control_rate_hz),
         "overruns": _count("overruns", overruns),
+        "flight_log_paused": _flag("flight_log_paused", flight_log_paused),
+        "flight_log_gaps": _count("flight_log_gaps", flight_log_gaps),
     }
 
 

@@ -13,15 +13,18 @@ import numpy as np
 import pytest
 
 from m4.airframe import load_airframe
+from companion import flight_log
 from companion.app import CompanionApp
-from companion.config import parse_config
+from companion.config import LogSettings, parse_config
 from companion.controller import Controller, ControllerSettings
 from companion.core.control_types import FaultState, FaultStatus
 from m4.fault_kind import FaultKind
 from companion.fc_link import FcLink
 from companion.feed_publisher import Feed
+from companion.flight_log import FlightLog
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
 from support.fake_transport import FakeTransport
+from support.full_disk import FullDisk
 
 AF = load_airframe()
 CONFIG = parse_config({"control": {"rate_hz": 50.0}, "link": {"fc_url": "udpin:127.0.0.1:0"}}, "test")
@@ -73,6 +76,16 @@ def rig(controller):
     link.close()
 
 
+def recording_feed() -> tuple[Feed, list[tuple[str, dict]]]:
+    """A feed whose payloads land in the list, (topic, payload) each."""
+    published = []
+    return Feed(SimpleNamespace(put=lambda topic, payload: published.append((topic, payload)), close=list)), published
+
+
+def statustexts(link: FakeTransport) -> list[tuple[int, str]]:
+    return [(m.severity, m.text) for m in link.sent_messages() if m.get_type() == "STATUSTEXT"]
+
+
 def setpoint_times(link: FakeTransport) -> list[int]:
     return [m.time_boot_ms for m in link.sent_messages() if m.get_type() == "M4_SETPOINT"]
 
@@ -105,8 +118,7 @@ def test_telemetry_loss_is_noticed_within_0_3_s_setpoints_stop_and_control_resum
     app, fc, link, clock = rig
     resumes = []
     monkeypatch.setattr(app.controller, "resume", lambda: resumes.append(clock.now))
-    published = []
-    app.feed = Feed(SimpleNamespace(put=lambda topic, payload: published.append((topic, payload)), close=list))
+    app.feed, published = recording_feed()
     fc.heartbeat()
     fly(app, fc, clock, 0, 10)
     last_frame_s = clock.now - 0.02
@@ -326,8 +338,7 @@ def test_a_long_setpoint_lead_is_warned_once_published_and_planned_through(rig):
     """The FC answers our TIMESYNC requests as if each setpoint arrived 150 ms after the instant
     it answers, then 40 ms: one warning, one notice, never CRITICAL; the feed shows the lead."""
     app, fc, link, clock = rig
-    published = []
-    app.feed = Feed(SimpleNamespace(put=lambda topic, payload: published.append((topic, payload)), close=list))
+    app.feed, published = recording_feed()
     fc.heartbeat()
     answered = set()
     for k in range(140):
@@ -341,6 +352,37 @@ def test_a_long_setpoint_lead_is_warned_once_published_and_planned_through(rig):
             assert app.fc.delay.lead_s == pytest.approx(0.15)
             assert [p["lead_ms"] for t, p in published if t == "nmpc"][-1] == pytest.approx(150.0)
             assert [p["setpoint_lead_ms"] for t, p in published if t == "link"][-1] == pytest.approx(150.0)
-    texts = [(m.severity, m.text) for m in link.sent_messages() if m.get_type() == "STATUSTEXT"]
-    assert texts == [(mavlink.MAV_SEVERITY_WARNING, "companion: link delay 150 ms"),
+    assert statustexts(link) == [(mavlink.MAV_SEVERITY_WARNING, "companion: link delay 150 ms"),
                      (mavlink.MAV_SEVERITY_NOTICE, "companion: link delay back to 40 ms")]
+
+
+def test_a_gap_in_the_flight_log_is_sent_as_a_statustext_warning_and_published(rig, tmp_path, monkeypatch,
+                                                                               wait_until):
+    app, fc, link, clock = rig
+    disk = FullDisk(tmp_path, monkeypatch)
+    monkeypatch.setattr(flight_log, "RETRY_S", 0.05)
+    app.flight_log = FlightLog(LogSettings(dir=tmp_path)).start()
+    app.feed, published = recording_feed()
+    fc.heartbeat()
+    frames = iter(range(0, 10**6, 20))
+
+    def fly_until(done) -> bool:
+        return wait_until(lambda: fly(app, fc, clock, next(frames), 1) or done())
+
+    try:
+        assert fly_until(lambda: app.flight_log.records > 0)
+        disk.full = True
+        assert fly_until(lambda: app.flight_log.paused)
+        fly(app, fc, clock, next(frames), 1)
+        assert [p["flight_log_paused"] for t, p in published if t == "link"][-1] is True
+        disk.full = False
+        assert fly_until(lambda: not app.flight_log.paused)
+        fly(app, fc, clock, next(frames), 1)
+    finally:
+        app.flight_log.close()
+    said = statustexts(link)
+    assert said[0] == (mavlink.MAV_SEVERITY_WARNING, "companion: log paused: No space left on device")
+    assert said[1][0] == mavlink.MAV_SEVERITY_WARNING and said[1][1].startswith("companion: log resumed after a ")
+    assert len(said) == 2
+    link_payload = [p for t, p in published if t == "link"][-1]
+    assert (link_payload["flight_log_paused"], link_payload["flight_log_gaps"]) == (False, 1)

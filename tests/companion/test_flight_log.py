@@ -1,17 +1,23 @@
 """The companion's flight log: every packet both ways and its decisions, one tlog per flight,
-rotated by size, the folder kept under its cap; an unwritable folder does not stop a flight."""
+rotated by size, the folder kept under its cap; an unwritable folder does not stop a flight, a
+full disk pauses the log until space returns."""
 
 from __future__ import annotations
 
 import logging
 import os
+import re
+import time
 from types import SimpleNamespace
 
 import numpy as np
 
+from companion import flight_log as flight_log_module
 from companion.config import LogSettings, parse_config
 from companion.flight_log import FlightLog, open_flight_log
 from m4.mavlink import COMPANION_COMPONENT_ID, mavlink, mavutil, new_mav
+from support.full_disk import FullDisk
+from support.packets import packed
 
 
 class _Packets:
@@ -126,3 +132,51 @@ def test_a_value_beyond_float32_is_logged_as_infinity_and_the_log_goes_on(tmp_pa
     costs = [(m.time_boot_ms, m.value) for m in _read(flight_log.files[0]) if m.get_type() == "NAMED_VALUE_FLOAT"
              and m.name == "nmpc_cost"]
     assert costs == [(20, float("inf")), (40, 0.5)]
+
+
+def _text(text: str) -> bytes:
+    return packed([mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_INFO, text.encode())])[0]
+
+
+def _texts(path) -> list[str]:
+    return [m.text for m in _read(path) if m.get_type() == "STATUSTEXT"]
+
+
+def test_a_full_disk_pauses_the_log_which_goes_on_in_a_new_file_when_space_returns(tmp_path, monkeypatch, caplog,
+                                                                                    wait_until):
+    disk = FullDisk(tmp_path, monkeypatch)
+    monkeypatch.setattr(flight_log_module, "RETRY_S", 0.1)
+    flight_log = FlightLog(LogSettings(dir=tmp_path)).start()
+    with caplog.at_level(logging.WARNING, logger="m4-companion"):
+        flight_log.record(_text("before"))
+        assert wait_until(lambda: flight_log.records == 1)
+        disk.full = True
+        assert wait_until(lambda: flight_log.record(_text("during")) or flight_log.paused)
+        for _ in range(10):                                 # several tries at a new file fail meanwhile
+            flight_log.record(_text("during"))
+            time.sleep(0.05)
+        assert flight_log.paused
+        disk.full = False
+        assert wait_until(lambda: flight_log.record(_text("after")) or not flight_log.paused)
+        flight_log.close()
+    assert len(flight_log.files) == 2 and sorted(tmp_path.glob("flight-*.tlog")) == sorted(flight_log.files)
+    assert _texts(flight_log.files[0]) == ["before"]
+    assert "after" in _texts(flight_log.files[1]) and "during" not in _texts(flight_log.files[1])
+    assert flight_log.gaps == 1 and len(flight_log.notices) == 2
+    assert flight_log.notices[0] == "companion: log paused: No space left on device"
+    assert re.fullmatch(r"companion: log resumed after a \d+\.\d s gap", flight_log.notices[1])
+    said = [r.getMessage() for r in caplog.records]
+    assert len(said) == 2 and said[0].startswith("flight log paused") and said[1].startswith("flight log resumed")
+
+
+def test_a_disk_full_at_the_end_of_a_flight_is_said_and_closing_the_log_does_not_raise(tmp_path, monkeypatch,
+                                                                                       caplog, wait_until):
+    disk = FullDisk(tmp_path, monkeypatch)
+    flight_log = FlightLog(LogSettings(dir=tmp_path)).start()
+    flight_log.record(_text("before"))
+    assert wait_until(lambda: flight_log.records == 1)
+    disk.full = True
+    flight_log.record(_text("last"))
+    with caplog.at_level(logging.WARNING, logger="m4-companion"):
+        flight_log.close()
+    assert "No space left on device" in caplog.text and _texts(flight_log.files[0]) == ["before"]

@@ -12,8 +12,11 @@ import time
 
 import pytest
 
+from companion.app import CompanionApp
 from companion.cli import main
+from companion.config import default_log_dir
 from m4.airframe import load_airframe
+from support.full_disk import FullDisk
 from support.loopback_fc import LoopbackFc
 
 
@@ -157,3 +160,22 @@ def test_a_companion_whose_feed_cannot_reach_zenoh_says_so_once_and_flies(tmp_pa
     assert code == 0 and setpoints >= 25, (code, setpoints, said)
     assert len([line for line in said if "feed down" in line]) == 1, said
     assert "Traceback" not in "".join(said)
+
+
+def test_a_disk_full_when_the_flight_ends_neither_changes_the_exit_code_nor_hides_the_final_statistics(
+        capsys, caplog, monkeypatch):
+    disk = FullDisk(default_log_dir(), monkeypatch)           # where the tests' companions log
+
+    def flight(app):                                          # the link's packets go to the log, then the disk fills
+        app.fc.statustext(6, "companion: flying")
+        while app.flight_log.records == 0:
+            time.sleep(0.01)
+        disk.full = True
+        app.fc.statustext(6, "companion: landed")
+
+    monkeypatch.setattr(CompanionApp, "run", flight)
+    with caplog.at_level(logging.INFO, logger="m4-companion"):
+        code, lines = run_cli(capsys, "--fc", "udpout:127.0.0.1:9")
+    said = [r.getMessage() for r in caplog.records]
+    assert code == 0 and not lines, lines
+    assert said[-1].startswith("stopped after 0 setpoints") and any("No space left on device" in m for m in said)
