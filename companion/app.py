@@ -182,7 +182,8 @@ class CompanionApp:
         self.fc.send_setpoint(t_ms, self.period_ms, step.setpoint, sent_s, step.fault)
         self.timing.answered(read_s, sent_s)
         if (report := self.timing.report(sent_s)) is not None:
-            log.warning("t=%.3f s: %s", t_s, report)
+            log.warning("t=%.3f s: %s", t_s, report.text)
+            self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, report.statustext)
         self.flight_log.decision(t_ms, step, sent_s - read_s)
         self._last_answered_ms = t_ms
         self.counters.answered += 1

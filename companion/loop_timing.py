@@ -2,8 +2,9 @@
 setpoint sent), the overruns (answers that took longer than the control period), and the rate
 achieved (answers in the last second), the mean answer time, and the process's CPU time per step between the first
 and the last answer (`cpu_ms_per_step`, time.process_time: what the loop costs, whatever else
-runs on the machine). `report(now_s)` gives a line at most every REPORT_S
-when something overran since the last one, so a slow computer is said, not flooded in the log.
+runs on the machine). `report(now_s)` gives an OverrunReport at most every REPORT_S
+when something overran since the last one, so a slow computer is said (in the log, and to the
+ground station as a STATUSTEXT warning), not flooded.
 """
 
 from __future__ import annotations
@@ -11,9 +12,30 @@ from __future__ import annotations
 import bisect
 import time
 from collections import deque
+from dataclasses import dataclass
 
 REPORT_S = 5.0
 RATE_WINDOW_S = 1.0
+
+
+@dataclass(frozen=True)
+class OverrunReport:
+    count: int                    # control steps over the period since the last report
+    slowest_s: float              # the slowest of them
+    total: int                    # overruns since the start
+    period_s: float
+    rate_hz: float                # control steps in the last second
+
+    @property
+    def text(self) -> str:
+        """For the companion's log."""
+        return (f"{self.count} control steps took longer than the {1e3 * self.period_s:.0f} ms period "
+                f"(slowest {1e3 * self.slowest_s:.0f} ms; {self.total} in all); {self.rate_hz:.0f} Hz achieved")
+
+    @property
+    def statustext(self) -> str:
+        """For the ground station: within a STATUSTEXT's 50 characters."""
+        return f"companion: {self.count} overruns, {self.rate_hz:.0f} Hz, max {1e3 * self.slowest_s:.0f} ms"
 
 
 class LoopTiming:
@@ -66,11 +88,11 @@ class LoopTiming:
         """Answers per second over the last RATE_WINDOW_S."""
         return (len(self._answers) - bisect.bisect_right(self._answers, now_s - RATE_WINDOW_S)) / RATE_WINDOW_S
 
-    def report(self, now_s: float) -> str | None:
+    def report(self, now_s: float) -> OverrunReport | None:
+        """The overruns since the last report, if any and if that was REPORT_S ago."""
         if self._since_report == 0 or now_s - self._last_report_s < REPORT_S:
             return None
-        text = (f"{self._since_report} control steps took longer than the {1e3 * self.period_s:.0f} ms period "
-                f"(slowest {1e3 * self._slowest_since_report_s:.0f} ms; {self.overruns} in all); "
-                f"{self.rate_hz(now_s):.0f} Hz achieved")
+        report = OverrunReport(self._since_report, self._slowest_since_report_s, self.overruns, self.period_s,
+                               self.rate_hz(now_s))
         self._since_report, self._slowest_since_report_s, self._last_report_s = 0, 0.0, now_s
-        return text
+        return report

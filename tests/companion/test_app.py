@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import random
+import re
 import struct
 from types import SimpleNamespace
 
@@ -386,3 +387,23 @@ def test_a_gap_in_the_flight_log_is_sent_as_a_statustext_warning_and_published(r
     assert len(said) == 2
     link_payload = [p for t, p in published if t == "link"][-1]
     assert (link_payload["flight_log_paused"], link_payload["flight_log_gaps"]) == (False, 1)
+
+
+def test_overruns_are_sent_as_statustext_warnings_at_most_every_5_s_with_their_count_and_published(rig, monkeypatch):
+    app, fc, link, clock = rig
+    real_step = app.controller.step
+
+    def slow_step(*args, **kwargs):
+        clock.now += 0.03                                   # 30 ms: over the 20 ms period
+        return real_step(*args, **kwargs)
+
+    monkeypatch.setattr(app.controller, "step", slow_step)
+    app.feed, published = recording_feed()
+    fc.heartbeat()
+    fly(app, fc, clock, 0, 250)                             # a step every 50 ms of the clock: 12.5 s
+    said = statustexts(link)
+    assert {severity for severity, _ in said} == {mavlink.MAV_SEVERITY_WARNING}
+    assert len(said) == 3 and said[0][1] == "companion: 1 overruns, 1 Hz, max 30 ms"
+    for _, text in said[1:]:                                # 5 s of steps 50 ms apart (give or take one)
+        assert re.fullmatch(r"companion: 10[01] overruns, 2[01] Hz, max 30 ms", text), text
+    assert [p["overruns"] for t, p in published if t == "link"][-1] == 250

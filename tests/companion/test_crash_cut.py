@@ -38,7 +38,8 @@ def test_upside_down_cuts_the_thrust_for_good_and_never_re_arms():
     assert len(cut) == 80
     first = cut.index(True)
     assert 20 + 24 <= first <= 20 + 26 and all(cut[first:])          # 0.5 s upside down, then cut for good
-    texts = [(m.severity, m.text) for m in sent if m.get_type() == "STATUSTEXT"]
+    texts = [(m.severity, m.text) for m in sent if m.get_type() == "STATUSTEXT"
+             and m.severity < mavlink.MAV_SEVERITY_WARNING]       # a loaded machine's overruns are warnings
     assert texts == [(mavlink.MAV_SEVERITY_EMERGENCY, "companion: crash (upside down), thrust cut")]
     commands = [m.command for m in sent if m.get_type() in ("COMMAND_LONG", "COMMAND_INT")]
     assert mavlink.MAV_CMD_COMPONENT_ARM_DISARM not in commands

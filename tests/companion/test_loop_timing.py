@@ -29,11 +29,12 @@ def test_overruns_are_counted_and_reported_at_most_every_few_seconds():
     assert timing.overruns == 50 and timing.slowest_s == pytest.approx(0.03)
     assert timing.rate_hz(2.0) == pytest.approx(50.0, abs=1.0)
     first = timing.report(2.0)
-    assert first.startswith("50 control steps took longer than the 20 ms period (slowest 30 ms")
-    assert first.endswith(f"{timing.rate_hz(2.0):.0f} Hz achieved")
+    assert first.text.startswith("50 control steps took longer than the 20 ms period (slowest 30 ms")
+    assert first.text.endswith(f"{timing.rate_hz(2.0):.0f} Hz achieved")
+    assert first.statustext == f"companion: 50 overruns, {timing.rate_hz(2.0):.0f} Hz, max 30 ms"
     timing.answered(2.0, 2.05)
     assert timing.report(2.05) is None                          # within REPORT_S of the last one
-    assert "1 control steps" in timing.report(2.0 + REPORT_S)
+    assert "1 control steps" in timing.report(2.0 + REPORT_S).text
     assert timing.report(4.0 + REPORT_S) is None                # nothing overran since
 
 
