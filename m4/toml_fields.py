@@ -71,17 +71,18 @@ class Table:
         return default
 
     def number(self, key: str, default: Any = None, *, lo: float | None = None,
-               hi: float | None = None, lo_open: bool = False) -> float:
-        """A finite real number within [lo, hi] (lo excluded when lo_open)."""
+               hi: float | None = None, lo_open: bool = False, why: str = "") -> float:
+        """A finite real number within [lo, hi] (lo excluded when lo_open); `why` the range is
+        what it is goes into the message of a value outside it."""
         value = self._raw(key, _REQUIRED if default is None else default)
-        return _check_number(self._name(key), value, lo, hi, lo_open)
+        return _check_number(self._name(key), value, lo, hi, lo_open, why)
 
     def integer(self, key: str, default: Any = None, *, lo: int | None = None,
-                hi: int | None = None) -> int:
+                hi: int | None = None, why: str = "") -> int:
         value = self._raw(key, _REQUIRED if default is None else default)
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(f"{self._name(key)} must be an integer, got {value!r}")
-        _check_range(self._name(key), value, lo, hi, False)
+        _check_range(self._name(key), value, lo, hi, False, why)
         return value
 
     def boolean(self, key: str, default: Any = None) -> bool:
@@ -99,12 +100,12 @@ class Table:
         return value
 
     def vector(self, key: str, length: int, default: Any = None, *, lo: float | None = None,
-               hi: float | None = None) -> tuple[float, ...]:
+               hi: float | None = None, why: str = "") -> tuple[float, ...]:
         """A list of exactly `length` finite numbers, each within [lo, hi]."""
         value = self._raw(key, _REQUIRED if default is None else default)
         if not isinstance(value, (list, tuple)) or len(value) != length:
             raise ConfigError(f"{self._name(key)} must be a list of {length} numbers, got {value!r}")
-        return tuple(_check_number(f"{self._name(key)}[{i}]", v, lo, hi, False)
+        return tuple(_check_number(f"{self._name(key)}[{i}]", v, lo, hi, False, why)
                      for i, v in enumerate(value))
 
     def strings(self, key: str, length: int, default: Any = None, *,
@@ -164,18 +165,19 @@ class _Required:
 _REQUIRED = _Required()
 
 
-def _check_number(name: str, value: Any, lo: float | None, hi: float | None, lo_open: bool) -> float:
+def _check_number(name: str, value: Any, lo: float | None, hi: float | None, lo_open: bool, why: str = "") -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(f"{name} must be a number, got {value!r}")
     value = float(value)
     if not math.isfinite(value):
         raise ConfigError(f"{name} must be finite, got {value!r}")
-    _check_range(name, value, lo, hi, lo_open)
+    _check_range(name, value, lo, hi, lo_open, why)
     return value
 
 
-def _check_range(name: str, value: float, lo: float | None, hi: float | None, lo_open: bool) -> None:
+def _check_range(name: str, value: float, lo: float | None, hi: float | None, lo_open: bool, why: str = "") -> None:
+    because = f" ({why})" if why else ""
     if lo is not None and (value <= lo if lo_open else value < lo):
-        raise ConfigError(f"{name} must be {'>' if lo_open else '>='} {lo:g}, got {value:g}")
+        raise ConfigError(f"{name} must be {'>' if lo_open else '>='} {lo:g}{because}, got {value:g}")
     if hi is not None and value > hi:
-        raise ConfigError(f"{name} must be <= {hi:g}, got {value:g}")
+        raise ConfigError(f"{name} must be <= {hi:g}{because}, got {value:g}")

@@ -27,6 +27,7 @@ from m4.toml_fields import ConfigError, Table
 MODES = ("peer", "client")
 DEFAULT_VEHICLE = "m4"
 DEFAULT_MAX_RATE_HZ = 20.0
+MAX_RATE_HZ_LIMIT = 100.0      # the companion publishes once a control step, at most 100 a second
 
 
 @dataclass(frozen=True)
@@ -74,7 +75,7 @@ def parse_feed_settings(t: Table, base_dir: Path | None = None) -> FeedSettings:
         mode=t.string("mode", "peer", choices=MODES),
         connect=_endpoint(t, "connect"),
         listen=_endpoint(t, "listen"),
-        max_rate_hz=t.number("max_rate_hz", DEFAULT_MAX_RATE_HZ, lo=0.0),
+        max_rate_hz=t.number("max_rate_hz", DEFAULT_MAX_RATE_HZ, lo=0.0, hi=MAX_RATE_HZ_LIMIT),
     )
     t.finish()
     try:

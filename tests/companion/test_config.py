@@ -143,6 +143,55 @@ def test_each_bad_key_or_value_is_rejected_with_its_name(tmp_path, text, names):
         load_config(write(tmp_path, text))
 
 
+@pytest.mark.parametrize("text, names", [
+    ("[control]\nrate_hz = 1e-300", "rate_hz must be >= 5"),
+    ("[nmpc]\ndt_s = 1e30", "dt_s must be <= 0.25"),
+    ("[nmpc]\ndt_s = 0.001", "dt_s must be >= 0.01"),
+    ("[nmpc]\nrk4_substeps = 1000", "rk4_substeps"),
+    ("[nmpc]\nmax_iterations = 100000", "max_iterations"),
+    ("[nmpc]\nroll_pitch_max_deg = 1.0", "roll_pitch_max_deg"),
+    ("[nmpc]\nfixed_hip_deg = 120.0", "fixed_hip_deg"),                         # beyond the joints
+    ("[nmpc]\ncost_tol_rel = 5.0", "cost_tol_rel"),
+    ("[nmpc.weights]\nposition = [1e300, 20.0, 40.0]", "position"),
+    ("[nmpc.weights]\nhip_accel = 1e-300", "hip_accel"),
+    ("[nmpc.weights]\nterminal_scale = 1e9", "terminal_scale"),
+    ("[reference]\naccel_max_m_s2 = 1e9", "accel_max_m_s2"),
+    ("[touchdown]\ndwell_s = 1e9", "dwell_s"),
+    ("[touchdown]\nheight_tolerance_m = 2.0", "height_tolerance_m"),
+    ("[upset]\ntilt_max_deg = 10.0", "tilt_max_deg"),
+    ("[upset]\nground_s = 1e9", "ground_s"),
+    ("[fault_detector]\nchi2_min = 1e300", "chi2_min"),
+    ("[fault_detector]\ndeficit_min_n = 31.0", "deficit_min_n"),           # more than a rotor gives
+    ("[fault_detector]\nconfirm_s = 100.0", "confirm_s"),
+    ("[fault_detector]\nforce_model_error_n = 1e6", "force_model_error_n"),
+    ("[link]\ntelemetry_timeout_s = 1e-9", "telemetry_timeout_s must be at least 3 control periods"),
+    ("[link]\ndelay_warning_s = 1e-9", "delay_warning_s"),
+    ("[log]\nmax_file_mb = 1e-300", "max_file_mb"),
+    ("[log]\nmax_file_mb = 100.0\nmax_total_mb = 10.0", "max_total_mb"),
+    ("[feed]\nlisten = \"tcp/127.0.0.1:7448\"\nmax_rate_hz = 1e300", "max_rate_hz"),
+])
+def test_a_value_outside_its_physical_range_is_rejected_with_its_name(tmp_path, text, names):
+    with pytest.raises(ConfigError, match=names):
+        load_config(write(tmp_path, text))
+
+
+def test_the_telemetry_timeout_is_at_least_3_control_periods(tmp_path):
+    with pytest.raises(ConfigError, match=r"telemetry_timeout_s must be at least 3 control periods \(0.6 s at 5 Hz;"):
+        load_config(write(tmp_path, "[control]\nrate_hz = 5.0\n"))              # the default 0.3 s
+    slow = load_config(write(tmp_path, "[control]\nrate_hz = 5.0\n[link]\ntelemetry_timeout_s = 0.6\n"))
+    assert slow.link.telemetry_timeout_s == 0.6
+    assert load_config(write(tmp_path, "[control]\nrate_hz = 10.0\n")).link.telemetry_timeout_s == 0.3
+
+
+def test_the_plan_reaches_the_next_solve_and_no_further_than_4_s(tmp_path):
+    for text in ("[nmpc]\nhorizon = 40\ndt_s = 0.2",                                # an 8 s plan
+                 "[control]\nrate_hz = 10.0\n[nmpc]\nhorizon = 5\ndt_s = 0.01"):   # 50 ms: ends before the next solve
+        with pytest.raises(ConfigError, match=r"\[nmpc\] horizon x dt_s"):
+            load_config(write(tmp_path, text))
+    longest = load_config(write(tmp_path, "[nmpc]\nhorizon = 40\ndt_s = 0.1\n")).nmpc
+    assert longest.horizon * longest.dt_s == pytest.approx(4.0)
+
+
 def test_a_bad_mission_file_is_reported_with_its_own_key(tmp_path):
     write(tmp_path, '[mission]\non_fault = "panic"\n', "m.toml")
     with pytest.raises(ConfigError, match="on_fault"):

@@ -179,3 +179,17 @@ def test_a_disk_full_when_the_flight_ends_neither_changes_the_exit_code_nor_hide
     said = [r.getMessage() for r in caplog.records]
     assert code == 0 and not lines, lines
     assert said[-1].startswith("stopped after 0 setpoints") and any("No space left on device" in m for m in said)
+
+
+@pytest.mark.parametrize("setting, key", [
+    ("[control]\nrate_hz = 1e-300", "rate_hz"),                   # was an OverflowError on connect
+    ("[nmpc]\ndt_s = 1e30", "dt_s"),                               # flew, and flipped the robot
+    ("[link]\ntelemetry_timeout_s = 1e-9", "telemetry_timeout_s"),
+])
+def test_an_extreme_setting_is_refused_at_start_in_one_line_naming_its_key(capsys, tmp_path, monkeypatch, setting,
+                                                                           key):
+    monkeypatch.setattr(CompanionApp, "run", lambda app: pytest.fail("the companion started flying"))
+    config = tmp_path / "companion.toml"
+    config.write_text(setting + "\n")
+    code, lines = run_cli(capsys, "--fc", "udpin:127.0.0.1:0", "--config", str(config))
+    assert code == 2 and len(lines) == 1 and lines[0].startswith("m4-companion: error:") and key in lines[0], lines
