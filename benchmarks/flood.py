@@ -13,7 +13,7 @@ import time
 from dataclasses import dataclass
 
 from m4.mavlink import mavlink
-from sitl.scenario import Scenario
+from m4.scenario import Scenario
 from sitl.serve import ServeOptions
 from sitl.standin_companion import StandInCompanion, served
 

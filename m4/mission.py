@@ -1,7 +1,7 @@
 """The scenario file's `[mission]` (docs/interfaces.md): what the companion flies.
 
 A `--mission FILE` may be a whole scenario (only its `[mission]` table is read here; the
-simulator reads the rest, `sitl.scenario`) or a file with only a `[mission]` table. Units SI,
+simulator reads the rest, `m4.scenario`) or a file with only a `[mission]` table. Units SI,
 positions local NED (z negative is up). Unknown keys and out-of-range values raise
 ConfigError naming the key.
 """

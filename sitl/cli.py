@@ -28,7 +28,7 @@ from m4 import extras
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID
 from m4.mavlink.link import LinkError
 from m4.mavlink.signing import load_key
-from sitl.scenario import Scenario
+from m4.scenario import Scenario
 from m4.toml_fields import ConfigError
 from sitl import flight_cli, scenarios
 from m4.arguments import positive_number, seed_number

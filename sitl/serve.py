@@ -48,7 +48,7 @@ from m4.mavlink.signing import StreamTimestamps
 from m4.mavlink.tlog import TlogWriter
 from sitl.links.emulation import EmulatedLink, LinkEmulation
 from sitl.fc.routing import Router
-from sitl.scenario import Scenario
+from m4.scenario import Scenario
 from sitl.plant.truth import TruthRecorder
 from sitl.vehicle import Vehicle, log
 

@@ -17,7 +17,7 @@ from typing import Protocol
 
 from m4.airframe import Airframe
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
-from sitl.scenario import Fault, Scenario
+from m4.scenario import Fault, Scenario
 from sitl.fc.esc_telemetry import EscTelemetry
 from sitl.fc.flight_controller import TICK_MS, FlightController
 from sitl.plant.mujoco_plant import Plant

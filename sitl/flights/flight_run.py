@@ -42,7 +42,7 @@ from m4.airframe import load_airframe
 from sitl.flights.feed_recorder import FeedRecorder
 from sitl.links.emulation import LinkEmulation
 from sitl.links.netem_proxy import Impairment, Netem
-from sitl.scenario import Scenario
+from m4.scenario import Scenario
 
 CONTROLLERS = ("nmpc", "fixed-posture")
 VEHICLE = "m4"

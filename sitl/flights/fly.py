@@ -15,7 +15,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from m4.airframe import Airframe, load_airframe
-from sitl.scenario import Scenario, load_scenario
+from m4.scenario import Scenario, load_scenario
 from sitl import scenarios
 from sitl.flights.flight_run import FlightFiles, FlightOptions, run_flight
 from sitl.flights.metrics import flight_metrics, reference_track

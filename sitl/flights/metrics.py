@@ -40,7 +40,7 @@ from analysis import detection
 from analysis.measures import tilt_deg, tilt_recovered_s, time_to_yaw_saturation, yaw_rate_final
 from m4.airframe import Airframe
 from m4.mission_plan import MissionPlan
-from sitl.scenario import Scenario
+from m4.scenario import Scenario
 from sitl.flights.records import FaultStatusLog, NmpcLog
 from sitl.plant.thrusters import fault_ceiling_n
 from sitl.plant.truth import Truth

@@ -18,7 +18,7 @@ import numpy as np
 from m4.airframe import ROTOR_COUNT, Airframe
 from m4.attitude import euler_from_quat_wxyz, quat_wxyz_from_euler
 from m4.fault_kind import INJECTABLE, FaultKind
-from sitl.scenario import PlantOptions
+from m4.scenario import PlantOptions
 from sitl.plant import frames
 from sitl.plant.battery import Battery
 from sitl.plant.drag import HullDrag

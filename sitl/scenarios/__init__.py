@@ -5,7 +5,7 @@ from __future__ import annotations
 from importlib import resources
 from pathlib import Path
 
-from sitl.scenario import Scenario, load_scenario
+from m4.scenario import Scenario, load_scenario
 from m4.toml_fields import ConfigError
 
 

@@ -21,7 +21,7 @@ from companion.core.nmpc import Nmpc
 from companion.core.nmpc_config import NmpcConfig
 from companion.core.reference import MissionReference
 from m4.mission import Mission, Waypoint
-from sitl.scenario import PlantOptions
+from m4.scenario import PlantOptions
 from companion.telemetry import VehicleSnapshot, rom_state
 from sitl.plant.mujoco_plant import Plant
 

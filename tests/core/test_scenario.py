@@ -1,7 +1,7 @@
 import pytest
 
 from m4.mission import load_mission
-from sitl.scenario import load_scenario
+from m4.scenario import load_scenario
 from m4.toml_fields import ConfigError
 from sitl.scenarios import builtin_names, resolve, scenario_path
 from m4.fault_kind import FaultKind

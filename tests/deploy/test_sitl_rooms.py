@@ -14,11 +14,10 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 OURS = {"sitl", "companion", "research", "analysis", "benchmarks", "tests", "m4"}
 
-FLOOR = ("sitl.scenario", "sitl.scenarios")     # the scenario format: read by every room
+FLOOR = ("sitl.scenarios",)     # the built-in scenarios (their format, m4.scenario, is on the shared floor)
 TOP = ("sitl.cli", "sitl.cli_args", "sitl.flight_cli", "sitl.serve", "sitl.vehicle", "sitl.standin_companion")
 # room -> the sitl modules (or packages) it may import besides its own and `m4`
 ALLOWED = {
-    "sitl.scenario": FLOOR,
     "sitl.scenarios": FLOOR,
     "sitl.plant": FLOOR,
     "sitl.fc": (*FLOOR, "sitl.plant.state"),
@@ -96,7 +95,7 @@ def test_nothing_outside_the_benchmarks_imports_them():
     ("sitl.flights.compare", {"sitl.campaigns.parallel"}, ["sitl.campaigns.parallel"]),
     ("sitl.log_bench", {"companion.app"}, ["companion.app"]),     # the tangle that started these rules
     ("sitl.flights.fly", {"companion.config"}, ["companion.config"]),
-    ("sitl.scenario", {"sitl.plant.thrusters"}, ["sitl.plant.thrusters"]),
+    ("sitl.scenarios", {"sitl.plant.thrusters"}, ["sitl.plant.thrusters"]),
     ("sitl.links.netem_proxy", {"sitl.cli_args"}, ["sitl.cli_args"]),
     ("sitl.flights.model_matching", {"companion.core.rom", "sitl.plant.mujoco_plant"}, []),
     ("sitl.serve", {"sitl.fc.routing", "sitl.vehicle", "sitl.links.emulation"}, []),

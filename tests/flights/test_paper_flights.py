@@ -18,7 +18,7 @@ from sitl.flights.figures import flight_tlog
 from sitl.flights.flight_run import FlightFiles
 from sitl.flights.fly import fly
 from sitl.flights.metrics import detection_faults
-from sitl.scenario import load_scenario
+from m4.scenario import load_scenario
 from sitl.plant.truth import load_truth
 
 pytestmark = pytest.mark.flight

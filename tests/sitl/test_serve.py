@@ -12,7 +12,7 @@ import pytest
 from m4.airframe import load_airframe
 from m4.mavlink import mavlink, mavutil
 from m4.mavlink.link import UdpLink, wait_readable
-from sitl.scenario import Fault, PlantOptions, Scenario
+from m4.scenario import Fault, PlantOptions, Scenario
 from sitl.serve import ServeOptions, Server
 from sitl.plant.truth import load_truth
 from sitl.standin_companion import StandInCompanion, served

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from m4.airframe import load_airframe
 from m4.mavlink import mavlink
-from sitl.scenario import Scenario
+from m4.scenario import Scenario
 from sitl.vehicle import OBSERVED_GRID_MS, Vehicle
 
 

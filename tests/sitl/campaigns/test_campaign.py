@@ -7,7 +7,7 @@ import tomllib
 import numpy as np
 
 from m4.airframe import ROTOR_COUNT, load_airframe
-from sitl.scenario import parse_scenario
+from m4.scenario import parse_scenario
 from sitl.campaigns import campaign, detection_campaign
 from sitl.flights import metrics
 from sitl.flights.records import FaultStatusLog

@@ -11,7 +11,7 @@ from m4.airframe import load_airframe
 from m4.mavlink import mavlink
 from sitl.fc.esc_telemetry import EscTelemetry, dshot_rpm
 from sitl.plant.mujoco_plant import Plant
-from sitl.scenario import Fault, PlantOptions, Scenario
+from m4.scenario import Fault, PlantOptions, Scenario
 from sitl.serve import ServeOptions
 from sitl.standin_companion import StandInCompanion, served
 from m4.fault_kind import FaultKind

@@ -13,7 +13,7 @@ import pytest
 
 from m4.mavlink import mavlink
 from m4.mavlink.link import UdpLink
-from sitl.scenario import Scenario
+from m4.scenario import Scenario
 from sitl.serve import ServeOptions, Server
 from sitl.standin_companion import StandInCompanion, served
 from tests.support.packets import packed

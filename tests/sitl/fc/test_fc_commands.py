@@ -10,7 +10,7 @@ import pytest
 from m4.airframe import load_airframe
 from m4.mavlink import mavlink
 from m4.units import RAD_S_TO_RPM
-from sitl.scenario import Scenario
+from m4.scenario import Scenario
 from sitl.serve import ServeOptions
 from sitl.standin_companion import StandInCompanion, served
 from sitl.fc.telemetry import Home

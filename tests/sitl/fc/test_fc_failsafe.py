@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from m4.airframe import load_airframe
-from sitl.scenario import PlantOptions, Scenario, Start
+from m4.scenario import PlantOptions, Scenario, Start
 from sitl.fc.failsafe import LAND_AFTER_S, LAND_SPEED_M_S
 from sitl.fc.flight_controller import STALE_MIN_MS, FcMode
 from sitl.serve import ServeOptions

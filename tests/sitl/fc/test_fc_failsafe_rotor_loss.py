@@ -18,7 +18,7 @@ from m4.airframe import load_airframe
 from m4.mavlink import mavlink
 from sitl.fc.flight_controller import FcMode
 from sitl.flights.flight_run import free_port
-from sitl.scenario import Fault, Scenario
+from m4.scenario import Fault, Scenario
 from sitl.serve import ServeOptions, Server
 from sitl.standin_companion import StandInCompanion, served
 from sitl.plant.truth import load_truth

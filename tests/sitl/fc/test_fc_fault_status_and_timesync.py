@@ -6,7 +6,7 @@ from __future__ import annotations
 import time
 
 from m4.mavlink import mavlink
-from sitl.scenario import Scenario
+from m4.scenario import Scenario
 from sitl.serve import ServeOptions
 from sitl.standin_companion import StandInCompanion, served
 

@@ -9,7 +9,7 @@ import pytest
 from m4.airframe import load_airframe
 from m4.mavlink import mavlink, new_mav
 from sitl.fc.flight_controller import TICK_MS
-from sitl.scenario import Scenario
+from m4.scenario import Scenario
 from sitl.vehicle import Vehicle
 from tests.support.packets import packed
 

@@ -9,7 +9,7 @@ import pytest
 
 from m4.airframe import load_airframe
 from m4.mavlink import mavlink
-from sitl.scenario import Scenario
+from m4.scenario import Scenario
 from sitl.serve import ServeOptions
 from sitl.standin_companion import StandInCompanion, served
 
@@ -93,7 +93,7 @@ def test_in_lockstep_thruster_status_marks_only_the_control_instants():
 
 
 def test_actuator_outputs_are_normalised_by_the_limit_the_fc_is_configured_with():
-    from sitl.scenario import PlantOptions
+    from m4.scenario import PlantOptions
     capped = Scenario(name="capped", duration_s=60.0, plant=PlantOptions(thrust_max_n=24.0))
     companion = StandInCompanion(answer=lambda t_ms: (np.full(4, 30.0), np.full(4, math.radians(45.0)),
                                                       np.zeros(4), 0))

@@ -9,7 +9,7 @@ import pytest
 from m4.airframe import load_airframe
 from m4.mavlink import mavlink
 from sitl.fc.flight_controller import TICK_MS
-from sitl.scenario import Scenario
+from m4.scenario import Scenario
 from sitl.fc.shortfall import DEADBAND_N, ShortfallMeter
 from m4.fault_kind import FaultKind
 from m4.units import RAD_S_TO_RPM

@@ -11,7 +11,7 @@ from m4.airframe import load_airframe
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
 from m4.mavlink.tlog import TlogWriter
 from m4.mission import Landing, Mission, Waypoint
-from sitl.scenario import Fault, Scenario, Start
+from m4.scenario import Fault, Scenario, Start
 from sitl.flights import metrics
 from sitl.flights.records import FaultStatusLog, NmpcLog, read_fault_status
 from m4.fault_kind import FaultKind

@@ -12,7 +12,7 @@ from m4.mavlink.link import UdpLink, wait_readable
 from sitl.links import emulation as link_emulation
 from sitl.cli import main
 from sitl.links.emulation import EmulationError, LinkEmulation, LossDraw
-from sitl.scenario import Scenario
+from m4.scenario import Scenario
 from sitl.serve import ServeOptions
 from sitl.standin_companion import StandInCompanion, served
 

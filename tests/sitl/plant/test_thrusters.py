@@ -6,7 +6,7 @@ import pytest
 
 from m4.airframe import ROTOR_COUNT, load_airframe
 from sitl.plant.mujoco_plant import Plant, PlantOptions
-from sitl.scenario import Fault, Scenario
+from m4.scenario import Fault, Scenario
 from m4.fault_kind import INJECTABLE, FaultKind
 from sitl.plant.thrusters import HEALTHY, Thrusters, figures
 from sitl.plant.truth import TruthRecorder, load_truth
