@@ -34,7 +34,8 @@ from companion.core.touchdown import TouchdownConfig
 from companion.core.upset import UpsetConfig
 from companion.realtime import PRIORITY_MAX
 from m4.feed.settings import FeedSettings, parse_feed_settings
-from m4.mission import Mission, load_mission
+from m4.mission import Mission
+from m4.scenario import load_mission
 from m4.toml_fields import ConfigError, Table, load_toml
 
 RATE_MIN_HZ = 5.0

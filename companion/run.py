@@ -58,7 +58,7 @@ def _say_ready(fd: int, text: str) -> None:
 
 def _config(args: argparse.Namespace):
     from companion.config import load_config
-    from m4.mission import load_mission
+    from m4.scenario import load_mission
 
     config = load_config(args.config)
     if args.fc is not None:          # checked when the link opens

@@ -1,17 +1,16 @@
 """The scenario file's `[mission]` (docs/interfaces.md): what the companion flies.
 
-A `--mission FILE` may be a whole scenario (only its `[mission]` table is read here; the
-simulator reads the rest, `m4.scenario`) or a file with only a `[mission]` table. Units SI,
-positions local NED (z negative is up). Unknown keys and out-of-range values raise
+The table as the companion and the simulator read it; a mission file (`--mission FILE`),
+which is a whole scenario or a `[mission]` table alone, is read by `m4.scenario.load_mission`.
+Units SI, positions local NED (z negative is up). Unknown keys and out-of-range values raise
 ConfigError naming the key.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
-from m4.toml_fields import ConfigError, Table, load_toml
+from m4.toml_fields import ConfigError, Table
 
 ON_FAULT_CHOICES = ("hold", "continue")
 MAX_SPEED_M_S = 15.0
@@ -36,18 +35,6 @@ class Mission:
     on_fault: str = "hold"    # "hold": hold where the fault was detected; "continue": keep tracking
     waypoints: tuple[Waypoint, ...] = ()
     land: Landing | None = None
-
-
-def load_mission(path: str | Path) -> Mission:
-    """The `[mission]` of a file: a whole scenario or a file holding only `[mission]`."""
-    path = Path(path)
-    data = load_toml(path)
-    if "mission" not in data:
-        raise ConfigError(f"{path.name}: no [mission] table")
-    top = Table({"mission": data["mission"]}, path.name)
-    mission = parse_mission(top.table("mission"))
-    top.finish()
-    return mission
 
 
 def parse_mission(t: Table) -> Mission:

@@ -4,6 +4,10 @@ The plant reads `[start]`, `[[fault]]` and `[plant]`; the companion reads `[miss
 (`m4.mission`, parsed here too so that a scenario is checked whole before it flies). Units
 SI, positions local NED (z negative is up), angles in degrees in the file. Unknown keys and
 out-of-range values raise ConfigError naming the key.
+
+A mission file (the companion's `--mission`) is a whole scenario, checked whole by the same
+rules, or a `[mission]` table alone (`load_mission`): the format lives on the shared floor so
+that the companion checks it without the simulator.
 """
 
 from __future__ import annotations
@@ -112,3 +116,18 @@ def _parse_plant(t: Table) -> PlantOptions:
                      battery_charge=t.number("battery_charge", 1.0, lo=0.0, hi=1.0))
     t.finish()
     return p
+
+
+def load_mission(path: str | Path) -> Mission:
+    """The `[mission]` of a mission file: a whole scenario (one with a name or a duration),
+    checked whole, or a file holding `[mission]` alone; anything else in it is an error naming it."""
+    path = Path(path)
+    data = load_toml(path)
+    if "mission" not in data:
+        raise ConfigError(f"{path.name}: no [mission] table")
+    if "name" in data or "duration_s" in data:
+        return parse_scenario(data, path.name).mission
+    if extra := sorted(data.keys() - {"mission"}):
+        raise ConfigError(f"{path.name}: unknown key(s) {', '.join(extra)} (a mission file holds [mission] alone, "
+                          f"or is a whole scenario with name and duration_s)")
+    return parse_mission(Table(data["mission"], f"{path.name} [mission]"))

@@ -16,6 +16,7 @@ from companion.app import CompanionApp
 from companion.cli import main
 from companion.config import default_log_dir
 from m4.airframe import load_airframe
+from sitl import scenarios
 from support.full_disk import FullDisk
 from support.loopback_fc import LoopbackFc
 
@@ -193,3 +194,12 @@ def test_an_extreme_setting_is_refused_at_start_in_one_line_naming_its_key(capsy
     config.write_text(setting + "\n")
     code, lines = run_cli(capsys, "--fc", "udpin:127.0.0.1:0", "--config", str(config))
     assert code == 2 and len(lines) == 1 and lines[0].startswith("m4-companion: error:") and key in lines[0], lines
+
+
+def test_a_scenario_given_as_the_mission_is_checked_whole_before_the_companion_starts(capsys, tmp_path, monkeypatch):
+    monkeypatch.setattr(CompanionApp, "run", lambda app: pytest.fail("the companion started flying"))
+    scenario = scenarios.scenario_path("hover-rotor-loss").read_text()
+    mission = tmp_path / "mission.toml"
+    mission.write_text(scenario.replace("rotor = 4", "rotor = 7"))          # a malformed [[fault]]
+    code, lines = run_cli(capsys, "--fc", "udpin:127.0.0.1:0", "--mission", str(mission))
+    assert code == 2 and len(lines) == 1 and "[[fault]] #1 rotor must be <= 4" in lines[0], lines

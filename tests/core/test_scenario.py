@@ -1,7 +1,6 @@
 import pytest
 
-from m4.mission import load_mission
-from m4.scenario import load_scenario
+from m4.scenario import load_mission, load_scenario
 from m4.toml_fields import ConfigError
 from sitl.scenarios import builtin_names, resolve, scenario_path
 from m4.fault_kind import FaultKind
@@ -93,6 +92,20 @@ def test_the_companion_reads_the_mission_alone_or_from_a_whole_scenario(tmp_path
     assert whole == alone
     with pytest.raises(ConfigError, match="no \\[mission\\] table"):
         load_mission(write(tmp_path, 'name = "x"\n', "n.toml"))
+
+
+@pytest.mark.parametrize("text, named", [
+    (GOOD.replace('kind = "damage"', 'kind = "gremlins"'), r"\[\[fault\]\] #1 kind must be one of"),
+    (GOOD.replace("rotor = 4", "rotor = 5"), r"\[\[fault\]\] #2 rotor must be <= 4"),
+    (GOOD.replace("mass_scale = 1.1", "mass_scale = 1.1\nwind_m_s = 3.0"), r"\[plant\]: unknown key\(s\) wind_m_s"),
+    (GOOD.replace("yaw_deg = 90.0", "yaw_deg = 900.0"), r"\[start\] yaw_deg must be <= 360"),
+    (GOOD + "[sensors]\ngyro_noise = 0.1\n", r"unknown key\(s\) sensors"),
+    ('[mission]\non_fault = "hold"\n[[fault]]\nat_s = 1.0\nrotor = 2\n', r"unknown key\(s\) fault \(a mission file"),
+    ('[mission]\non_fault = "hold"\n[misson.land]\nat_s = 1.0\n', r"unknown key\(s\) misson"),
+])
+def test_a_mission_file_is_checked_whole_a_scenario_by_the_scenario_rules(tmp_path, text, named):
+    with pytest.raises(ConfigError, match=named):
+        load_mission(write(tmp_path, text, "mission.toml"))
 
 
 def test_every_builtin_scenario_is_valid_and_the_paper_experiments_are_there():
