@@ -14,16 +14,16 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 OURS = {"sitl", "companion", "research", "analysis", "benchmarks", "tests", "m4"}
 
-FLOOR = ("sitl.scenarios",)     # the built-in scenarios (their format, m4.scenario, is on the shared floor)
+SCENARIOS = ("sitl.scenarios",)   # the built-in scenarios (their format, m4.scenario, is on the shared floor)
 TOP = ("sitl.cli", "sitl.cli_args", "sitl.flight_cli", "sitl.serve", "sitl.vehicle", "sitl.standin_companion")
 # room -> the sitl modules (or packages) it may import besides its own and `m4`
 ALLOWED = {
-    "sitl.scenarios": FLOOR,
-    "sitl.plant": FLOOR,
-    "sitl.fc": (*FLOOR, "sitl.plant.state"),
+    "sitl.scenarios": (),
+    "sitl.plant": (),
+    "sitl.fc": ("sitl.plant.state",),
     "sitl.links": (),
-    "sitl.flights": (*FLOOR, "sitl.plant", "sitl.links"),
-    "sitl.campaigns": (*FLOOR, "sitl.plant", "sitl.links", "sitl.flights"),
+    "sitl.flights": (*SCENARIOS, "sitl.plant", "sitl.links"),
+    "sitl.campaigns": (*SCENARIOS, "sitl.plant", "sitl.links", "sitl.flights"),
     **{top: ("sitl",) for top in TOP},
 }
 # outside sitl, what a sitl module may import, by importer (prefix match)
