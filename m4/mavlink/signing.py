@@ -9,12 +9,18 @@ pymavlink's own check (2.4.x) records a stream's timestamp before it checks the 
 so one forged packet with a far-future timestamp would make every genuine packet of that
 stream look replayed. `setup_signing` puts our check in its place on the protocol object.
 
+Our own timestamp follows the wall clock (10 us since 2015-01-01, as the spec asks of a system
+that knows the time): at least the clock's, one more for every packet sent, and at least the
+newest accepted from a peer. pymavlink alone only counts packets from the instant of set-up,
+so a peer that had kept our timestamps across its restart (below) would refuse us for as long
+as our packets take to count past them.
+
 Replay across a restart: pymavlink accepts a new stream (link id, system, component) whose
 timestamp is at most a minute behind its own clock, so a packet captured before a restart
-would pass again. `StreamTimestamps` keeps the last timestamp of each stream in a file (as
-the MAVLink signing spec asks), saved every `SAVE_PERIOD_S` and on close; on load each is
-advanced by that period (what may have been accepted after the last save), so no packet
-signed before the restart is accepted after it.
+would pass again. `StreamTimestamps` keeps the last timestamp of each stream, and our own, in
+a file (the spec asks for our own), saved every `SAVE_PERIOD_S` and on close; on load each
+is advanced by that period (what may have been accepted or sent after the last save), so no
+packet signed before the restart is accepted after it, and none of ours is signed twice.
 """
 
 from __future__ import annotations
@@ -67,6 +73,22 @@ def _wall_timestamp() -> int:
     return int((time.time() - _SIGNING_EPOCH_UNIX_S) * _TICKS_PER_S)
 
 
+class _WallClockSigning(mavlink.MAVLinkSigning):
+    """pymavlink's signing state whose own timestamp never falls behind the wall clock."""
+
+    @property
+    def timestamp(self) -> int:
+        return max(self._timestamp, _wall_timestamp())
+
+    @timestamp.setter
+    def timestamp(self, value: int) -> None:
+        self._timestamp = value
+
+
+def _signature(key: bytes, signed_part) -> bytes:
+    return hashlib.sha256(key + bytes(signed_part)).digest()[:SIGNATURE_BYTES]
+
+
 def _allow_unsigned(_mav, msg_id: int) -> bool:
     return msg_id in UNSIGNED_ALLOWED_IDS
 
@@ -77,8 +99,7 @@ def check_signature(mav: mavlink.MAVLink, msgbuf: bytearray, src_system: int, sr
     is newer than the last of its stream (link id, system, component), or, for a new stream,
     at most NEW_STREAM_BEHIND_S behind our own timestamp."""
     s = mav.signing
-    signature = hashlib.sha256(s.secret_key + bytes(msgbuf[:-SIGNATURE_BYTES])).digest()[:SIGNATURE_BYTES]
-    if not hmac.compare_digest(signature, bytes(msgbuf[-SIGNATURE_BYTES:])):
+    if not hmac.compare_digest(_signature(s.secret_key, msgbuf[:-SIGNATURE_BYTES]), bytes(msgbuf[-SIGNATURE_BYTES:])):
         log.info("signature mismatch: packet dropped")
         return False
     low, high = mav.mav_sign_unpacker.unpack(msgbuf[-12:-6])
@@ -99,12 +120,11 @@ def setup_signing(mav: mavlink.MAVLink, key: bytes, link_id: int = 0) -> None:
     badly signed (check_signature)."""
     if len(key) != KEY_BYTES:
         raise ValueError(f"signing key must be {KEY_BYTES} bytes, got {len(key)}")
-    s = mav.signing
+    s = mav.signing = _WallClockSigning()
     s.secret_key = key
     s.sign_outgoing = True
     s.allow_unsigned_callback = _allow_unsigned
     s.link_id = link_id
-    s.timestamp = max(s.timestamp, _wall_timestamp())
     mav.check_signature = partial(check_signature, mav)
 
 
@@ -124,7 +144,8 @@ class SigningCounters:
 
 class StreamTimestamps:
     """The last accepted signing timestamp of every stream the protocol objects `mavs` (the
-    links of one process) have heard, kept in `path`. ConfigError if it cannot be read or written."""
+    links of one process) have heard, and the newest they signed with, kept in `path`.
+    ConfigError if it cannot be read or written."""
 
     def __init__(self, mavs: list[mavlink.MAVLink], path: str | Path):
         self.mavs = mavs
@@ -132,13 +153,14 @@ class StreamTimestamps:
         try:
             stored = json.loads(self.path.read_text()) if self.path.exists() else {}
             streams = {tuple(int(x) for x in k.split(",")): int(v) for k, v in stored.get("streams", {}).items()}
+            own = int(stored.get("own", 0))
         except (OSError, ValueError, AttributeError) as e:
             raise ConfigError(f"signing timestamps {self.path}: cannot read ({e})") from None
         ahead = round(SAVE_PERIOD_S * _TICKS_PER_S)
         for mav in mavs:
             for stream, timestamp in streams.items():
                 mav.signing.stream_timestamps[stream] = timestamp + ahead
-            mav.signing.timestamp = max([mav.signing.timestamp, *mav.signing.stream_timestamps.values()])
+            mav.signing.timestamp = max([mav.signing.timestamp, own + ahead, *mav.signing.stream_timestamps.values()])
         self._saved_at = 0.0
         self.save(force=True)
 
@@ -153,9 +175,10 @@ class StreamTimestamps:
             for stream, timestamp in mav.signing.stream_timestamps.items():
                 key = ",".join(map(str, stream))
                 streams[key] = max(streams.get(key, 0), timestamp)
+        own = max(mav.signing.timestamp for mav in self.mavs)
         tmp = self.path.with_name(self.path.name + ".tmp")
         try:
-            tmp.write_text(json.dumps({"streams": streams}))
+            tmp.write_text(json.dumps({"streams": streams, "own": own}))
             os.replace(tmp, self.path)
         except OSError as e:
             raise ConfigError(f"signing timestamps {self.path}: cannot write ({e.strerror})") from None

@@ -1,4 +1,4 @@
-"""Signing: setpoints and commands must be signed; only HEARTBEAT and RADIO_STATUS pass unsigned."""
+"""Signing: setpoints and commands must be signed; only HEARTBEAT and RADIO_STATUS pass unsigned;\nour timestamps follow the wall clock and survive a restart."""
 
 from __future__ import annotations
 
@@ -6,10 +6,10 @@ import struct
 
 import pytest
 
-from m4.mavlink import mavlink, new_mav
+from m4.mavlink import mavlink, new_mav, signing
 from m4.mavlink.signing import SigningCounters, load_key, setup_signing
 from m4.toml_fields import ConfigError
-from tests.support.packets import packed
+from tests.support.packets import PacketSink, packed
 
 KEY = bytes(range(32))
 
@@ -108,3 +108,38 @@ def test_a_peer_with_the_wrong_key_does_not_flood_the_log(caplog):
     with caplog.at_level("INFO"):
         assert _types(_receiver(), packets) == ["BAD_DATA"] * 500
     assert 1 <= len(caplog.records) <= 2
+
+
+def _timestamp(packet: bytes) -> int:
+    low, high = struct.unpack("<IH", packet[-12:-6])
+    return low + (high << 32)
+
+
+def test_our_timestamps_follow_the_wall_clock_not_only_the_packet_count(monkeypatch):
+    """A peer that kept our stream's timestamps across its restart (one wall-clock second
+    ahead) must take our packets once that second has passed, not after 100,000 packets."""
+    sink = PacketSink()
+    tx = new_mav(sink, 1, 191)
+    setup_signing(tx, KEY)
+    later = signing._wall_timestamp() + 60 * 100_000            # a minute on
+    monkeypatch.setattr(signing, "_wall_timestamp", lambda: later)
+    tx.send(_heartbeat())
+    assert _timestamp(sink.packets[-1]) >= later
+
+
+def test_our_own_timestamp_survives_a_restart_whose_clock_is_behind(tmp_path, monkeypatch):
+    """A computer without a real-time clock boots in the past: what we signed before the
+    restart must not be signed again after it (the peer would take it for a replay)."""
+    sink = PacketSink()
+    before = new_mav(sink, 1, 191)
+    setup_signing(before, KEY)
+    state = signing.StreamTimestamps([before], tmp_path / "ts")
+    before.send(_heartbeat())
+    state.save(force=True)
+    last = _timestamp(sink.packets[-1])
+    monkeypatch.setattr(signing, "_wall_timestamp", lambda: last - 3600 * 100_000)    # an hour behind
+    after = new_mav(sink, 1, 191)
+    setup_signing(after, KEY)
+    signing.StreamTimestamps([after], tmp_path / "ts")
+    after.send(_heartbeat())
+    assert _timestamp(sink.packets[-1]) > last
