@@ -59,6 +59,14 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run.run)
 
 
+def _add_keygen(sub: argparse._SubParsersAction) -> None:
+    from companion import keygen
+
+    p = sub.add_parser("keygen", help="make a MAVLink signing key file for the companion and its flight controller")
+    keygen.add_arguments(p)
+    p.set_defaults(func=keygen.run)
+
+
 def _add_plot(sub: argparse._SubParsersAction) -> None:
     from companion import plot
 
@@ -73,6 +81,7 @@ SUBCOMMANDS = (
     _add_watch,
     _add_dashboard,
     _add_run,
+    _add_keygen,
     _add_plot,
 )
 

@@ -21,6 +21,12 @@ would pass again. `StreamTimestamps` keeps the last timestamp of each stream, an
 a file (the spec asks for our own), saved every `SAVE_PERIOD_S` and on close; on load each
 is advanced by that period (what may have been accepted or sent after the last save), so no
 packet signed before the restart is accepted after it, and none of ours is signed twice.
+
+Keys: `write_new_key` makes one (32 random bytes, or the SHA-256 of a passphrase, as MAVProxy's
+`signing setup PASSPHRASE` does, so a ground station given the passphrase puts the same key
+on a flight controller) into a file only its owner may read.
+`refusal(key, packet)` says why signing refused a packet: unsigned, a bad signature, or a
+good one on a timestamp not newer than its stream's (a replay).
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ import hmac
 import json
 import logging
 import os
+import secrets
 import time
 from functools import partial
 from dataclasses import dataclass
@@ -65,6 +72,26 @@ def load_key(path: str | Path) -> bytes:
     if len(key) != KEY_BYTES:
         raise ConfigError(f"signing key {path}: expected {KEY_BYTES} bytes (or {2 * KEY_BYTES} hex digits), "
                           f"got {len(key)} bytes")
+    return key
+
+
+def key_from_passphrase(passphrase: str) -> bytes:
+    """The key a ground station derives from a passphrase (MAVProxy's `signing setup`: SHA-256)."""
+    return hashlib.sha256(passphrase.encode("utf-8")).digest()
+
+
+def write_new_key(path: str | Path, passphrase: str | None = None) -> bytes:
+    """A new key (32 random bytes; with `passphrase`, its SHA-256) written to `path` as 64 hex
+    digits, readable and writable by its owner only (0600). ConfigError if `path` exists or
+    cannot be written: a key in use is never replaced by accident."""
+    path = Path(path)
+    key = secrets.token_bytes(KEY_BYTES) if passphrase is None else key_from_passphrase(passphrase)
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    except OSError as e:
+        raise ConfigError(f"signing key {path}: cannot create ({e.strerror})") from None
+    with os.fdopen(fd, "w") as f:
+        f.write(key.hex() + "\n")
     return key
 
 
@@ -113,6 +140,15 @@ def check_signature(mav: mavlink.MAVLink, msgbuf: bytearray, src_system: int, sr
     s.stream_timestamps[stream] = timestamp
     s.timestamp = max(s.timestamp, timestamp)
     return True
+
+
+def refusal(key: bytes, packet: bytes) -> str:
+    """Why signing with `key` refused `packet` (one whole frame): "unsigned", "bad signature", or
+    "replayed" (its signature is good: its timestamp was not newer than its stream's)."""
+    if len(packet) < 3 or packet[0] != mavlink.PROTOCOL_MARKER_V2 or not packet[2] & mavlink.MAVLINK_IFLAG_SIGNED:
+        return "unsigned"
+    good = hmac.compare_digest(_signature(key, packet[:-SIGNATURE_BYTES]), bytes(packet[-SIGNATURE_BYTES:]))
+    return "replayed" if good else "bad signature"
 
 
 def setup_signing(mav: mavlink.MAVLink, key: bytes, link_id: int = 0) -> None:

@@ -1,7 +1,8 @@
-"""Signing: setpoints and commands must be signed; only HEARTBEAT and RADIO_STATUS pass unsigned;\nour timestamps follow the wall clock and survive a restart."""
+"""Signing: setpoints and commands must be signed; only HEARTBEAT and RADIO_STATUS pass unsigned;\nour timestamps follow the wall clock and survive a restart; a refused packet says why; key files."""
 
 from __future__ import annotations
 
+import stat
 import struct
 
 import pytest
@@ -143,3 +144,38 @@ def test_our_own_timestamp_survives_a_restart_whose_clock_is_behind(tmp_path, mo
     signing.StreamTimestamps([after], tmp_path / "ts")
     after.send(_heartbeat())
     assert _timestamp(sink.packets[-1]) > last
+
+
+@pytest.mark.parametrize("key, tamper, reason", [
+    (None, False, "unsigned"), (bytes(32), False, "bad signature"), (KEY, False, "replayed"), (KEY, True, "bad signature"),
+], ids=["unsigned", "another key", "replayed", "tampered"])
+def test_a_refused_packet_says_why(key, tamper, reason):
+    (packet,) = _packets(key, _setpoint())
+    if tamper:
+        packet = packet[:-1] + bytes([packet[-1] ^ 1])
+    rx = _receiver()
+    if reason == "replayed":
+        _types(rx, [packet])
+    assert _types(rx, [packet]) == ["BAD_DATA"]
+    assert signing.refusal(KEY, packet) == reason
+
+
+def test_a_new_key_file_is_random_and_for_its_owner_only(tmp_path):
+    first, second = tmp_path / "a.key", tmp_path / "b.key"
+    key = signing.write_new_key(first)
+    assert load_key(first) == key != signing.write_new_key(second)
+    assert stat.S_IMODE(first.stat().st_mode) == 0o600
+
+
+def test_a_key_from_a_passphrase_is_the_one_mavproxy_sets_on_the_fc(tmp_path):
+    """MAVProxy's `signing setup PASSPHRASE` sends the passphrase's SHA-256 (its passphrase_to_key)."""
+    key = signing.write_new_key(tmp_path / "m.key", passphrase="abc")
+    assert key.hex() == "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+
+
+def test_a_key_file_is_never_overwritten(tmp_path):
+    path = tmp_path / "m.key"
+    key = signing.write_new_key(path)
+    with pytest.raises(ConfigError, match="cannot create"):
+        signing.write_new_key(path)
+    assert load_key(path) == key
