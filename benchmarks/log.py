@@ -49,7 +49,7 @@ class StepTimes:
 
 
 def step_times(scenario: str, seconds: float, log_dir: Path | None) -> StepTimes:
-    config = parse_config({"link": {"fc_url": "udpin:127.0.0.1:0"}}, "bench")
+    config = parse_config({"link": {"fc_url": "udpin:127.0.0.1:0", "signing": False}}, "bench")   # as the SITL below
     config = dataclasses.replace(config, mission=scenarios.resolve(scenario).mission,
                                  log=LogSettings(enabled=log_dir is not None, dir=log_dir or Path(".")))
     app = open_app(config)

@@ -13,6 +13,11 @@ published. When telemetry returns, control resumes; if the FC's clock moved on b
 than a couple of periods meanwhile, the controller drops its warm start and the stale
 previous state first.
 
+Signing (docs/authority.md): with a key, the signing timestamps are kept across restarts
+(m4.mavlink.signing.StreamTimestamps), so a restarted companion refuses a captured packet;
+without (`[link] signing = false`) it says so at start and, as STATUSTEXT WARNING, at every
+lock-on.
+
 A confirmed fault is announced: STATUSTEXT MAV_SEVERITY_CRITICAL "thrust loss rotor N (kind)"
 (that severity is used for nothing else), the same text on the feed's fault topic. When
 more evidence re-settles the kind (a damaged propeller turns out lost), the new text is
@@ -43,7 +48,7 @@ from m4.airframe import ROTOR_COUNT
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from m4.mavlink.connect import listens_for_peer, open_link
 from m4.mavlink.link import wait_readable
-from m4.mavlink.signing import load_key
+from m4.mavlink.signing import StreamTimestamps, load_key
 
 log = logging.getLogger("m4-companion")
 
@@ -73,8 +78,10 @@ class _Announcement(NamedTuple):
 
 class CompanionApp:
     def __init__(self, config: CompanionConfig, fc: FcLink, controller: Controller, feed: Feed | None = None,
-                 clock=time.monotonic, flight_log: FlightLog | None = None):
+                 clock=time.monotonic, flight_log: FlightLog | None = None,
+                 signing_state: StreamTimestamps | None = None):
         self.config = config
+        self.signing_state = signing_state
         self.fc = fc
         self.controller = controller
         self.feed = feed or Feed.disabled()
@@ -122,6 +129,8 @@ class CompanionApp:
         while self.flight_log.notices:             # a gap in the flight log (it has no link of its own)
             self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, self.flight_log.notices.popleft())
         self.fc.tick(now)
+        if self.signing_state is not None:
+            self.signing_state.save()
 
     def _on_kept_fault(self, msg) -> None:
         """The FC's copy of the last M4_FAULT_STATUS it had from us (from before this process
@@ -145,6 +154,8 @@ class CompanionApp:
                             self.fc.fc_address, self.fc.previous_address, self.period_ms)
             self.fc.request_fault_status()             # first: what it kept of a fault matters most
             self.fc.request_intervals(self.config.control_period_s)
+            if not self.config.link.signing:
+                self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, "companion: MAVLink signing OFF")
         elif event is LinkEvent.REBOOTED:
             log.warning("the flight controller's clock went back after a silence: it rebooted; the mission "
                         "starts over")
@@ -295,11 +306,17 @@ class CompanionApp:
 
 def open_app(config: CompanionConfig) -> CompanionApp:
     """The app with its link open, its feed open or trying to be, and its NMPC built (compiled on
-    a first start). A bad URL, a port in use or a bad key/feed setting raises LinkError/ConfigError."""
-    key = load_key(config.link.signing_key_path) if config.link.signing_key_path is not None else None
+    a first start). A bad URL, a port in use, signing on without a key, or a bad key/feed setting
+    raises LinkError/ConfigError."""
+    signing = config.link.signing_files()
+    key = load_key(signing[0]) if signing is not None else None
+    if signing is None:
+        log.warning("MAVLink signing is OFF ([link] signing = false): anyone on the link can command the flight "
+                    "controller as this companion and feed it telemetry")
     link = open_link(config.link.fc_url, FC_SYSTEM_ID, COMPANION_COMPONENT_ID, key=key)
     feed = None
     try:
+        signing_state = StreamTimestamps([link.mav], signing[1]) if signing is not None else None
         feed = open_feed(config.feed)
         controller = Controller(ControllerSettings.of(config))
     except BaseException:
@@ -311,10 +328,12 @@ def open_app(config: CompanionConfig) -> CompanionApp:
     fc = FcLink(link, config.link.fc_system_id, config.link.fc_component_id,
                 heartbeat_before_lock=not listens_for_peer(config.link.fc_url),
                 telemetry_timeout_s=config.link.telemetry_timeout_s)
-    return CompanionApp(config, fc, controller, feed, flight_log=flight_log)
+    return CompanionApp(config, fc, controller, feed, flight_log=flight_log, signing_state=signing_state)
 
 
 def close_app(app: CompanionApp) -> None:
+    if app.signing_state is not None:
+        app.signing_state.save(force=True)
     app.fc.link.close()
     app.feed.close()
     app.flight_log.close()

@@ -146,14 +146,31 @@ def setting_bounds(af: Airframe) -> dict[type, dict[str, Bounds]]:
     }
 
 
+SIGNING_STATE_SUFFIX = ".companion-timestamps"     # beside the key unless [link] signing_state_file says where
+
+
 @dataclass(frozen=True)
 class LinkConfig:
     fc_url: str = "udpin:127.0.0.1:14550"   # pymavlink form; serial: "/dev/ttyTHS1,921600"
-    signing_key_path: Path | None = None    # 32-byte key (hex or raw); None: unsigned
+    signing: bool = True                    # MAVLink 2 signing (docs/authority.md); False: unsigned, warned of
+    signing_key_path: Path | None = None    # 32-byte key (hex or raw; m4-companion keygen), needed while signing
+    signing_state_path: Path | None = None  # signing timestamps kept across restarts; None: beside the key
     telemetry_timeout_s: float = 0.3        # no telemetry for this long: the link is lost
     delay_warning_s: float = 0.1            # setpoints acting this long after their instant: warn
     fc_system_id: int = 1                   # only this flight controller is listened to
     fc_component_id: int = 1
+
+    def signing_files(self) -> tuple[Path, Path] | None:
+        """(key file, timestamps file) while signing is on; None when it is explicitly off.
+        ConfigError when it is on without a key: the companion does not fly unsigned by omission."""
+        if not self.signing:
+            return None
+        if self.signing_key_path is None:
+            raise ConfigError("[link] signing is on (the default) but no signing_key_file is set: make a key with "
+                              "`m4-companion keygen FILE` and give it to both ends (docs/authority.md), or set "
+                              "signing = false to fly unsigned")
+        key = self.signing_key_path
+        return key, self.signing_state_path or key.with_name(key.name + SIGNING_STATE_SUFFIX)
 
 
 LOG_DIR_ENVS = ("M4_LOG_DIR", "LOGS_DIRECTORY")       # ours, then systemd's (the unit's LogsDirectory)
@@ -318,7 +335,9 @@ def _link(t: Table, base_dir: Path | None, rate_hz: float) -> LinkConfig:
     d = LinkConfig()
     link = LinkConfig(
         fc_url=t.string("fc_url", d.fc_url),
+        signing=t.boolean("signing", d.signing),
         signing_key_path=t.path("signing_key_file", base_dir),
+        signing_state_path=t.path("signing_state_file", base_dir),
         telemetry_timeout_s=t.number("telemetry_timeout_s", d.telemetry_timeout_s, lo=0.0, lo_open=True, hi=10.0,
                                      why="the FC's own failsafe lands 2 s after the setpoints stop"),
         delay_warning_s=t.number("delay_warning_s", d.delay_warning_s, lo=0.004, hi=1.0,
@@ -333,6 +352,9 @@ def _link(t: Table, base_dir: Path | None, rate_hz: float) -> LinkConfig:
         raise ConfigError(f"{t.where} telemetry_timeout_s must be at least {TELEMETRY_TIMEOUT_PERIODS} control "
                           f"periods ({periods_s:g} s at {rate_hz:g} Hz; fewer would call one late frame a loss), "
                           f"got {link.telemetry_timeout_s:g}")
+    if not link.signing and (link.signing_key_path or link.signing_state_path):
+        raise ConfigError(f"{t.where}: signing = false but a signing key or state file is set: remove one or the "
+                          "other")
     # Imported here, not at the top: the pure-logic controller imports this module, and
     # pymavlink should load only where a link is read or opened.
     from m4.mavlink.connect import LinkError, check_url

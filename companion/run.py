@@ -1,4 +1,4 @@
-"""`m4-companion run [--fc URL] [--config FILE] [--mission FILE]`: the companion in flight.
+"""`m4-companion run [--fc URL] [--config FILE] [--mission FILE] [--signing-key FILE]`: the companion in flight.
 
 Reads the configuration (defaults without --config), builds the NMPC (compiling it on a
 first start, cached) and opens the link before it says "ready" (in its log and, with
@@ -32,6 +32,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", type=Path, metavar="FILE", help="the companion's TOML configuration")
     p.add_argument("--mission", type=Path, metavar="FILE",
                    help="a scenario file or a file with a [mission] table (default: the configuration's)")
+    p.add_argument("--signing-key", type=Path, metavar="FILE",
+                   help="the MAVLink signing key (m4-companion keygen; default: the configuration's [link] "
+                        "signing_key_file), the one the flight controller has")
     p.add_argument("--ready-fd", type=int, metavar="FD",
                    help="an open file descriptor: once the NMPC is built and the link is open, write one line "
                         "to it and close it (for a supervisor, e.g. m4-sitl fly)")
@@ -58,11 +61,16 @@ def _say_ready(fd: int, text: str) -> None:
 
 def _config(args: argparse.Namespace):
     from companion.config import load_config
+    from m4.mavlink.connect import check_url
     from m4.scenario import load_mission
 
     config = load_config(args.config)
-    if args.fc is not None:          # checked when the link opens
-        config = dataclasses.replace(config, link=dataclasses.replace(config.link, fc_url=args.fc))
+    link = {}
+    if args.fc is not None:
+        link["fc_url"] = check_url(args.fc)
+    if args.signing_key is not None:
+        link.update(signing=True, signing_key_path=args.signing_key)
+    config = dataclasses.replace(config, link=dataclasses.replace(config.link, **link))
     if args.mission is not None:
         config = dataclasses.replace(config, mission=load_mission(args.mission), mission_path=args.mission)
     return config

@@ -5,6 +5,8 @@
 - companion.toml: the companion's configuration for this flight (controller variant, link,
   feed; in lockstep no wall-clock time budget for the NMPC, so that the flight does not depend
   on the machine's load); the companion reads the scenario's [mission] from scenario.toml;
+- mavlink.key: the flight's own signing key, new for each flight: both ends sign and check
+  everything, as on the robot (docs/authority.md); their signing timestamps beside it;
 - flight.tlog (every packet both ways), truth.npz (the plant's true state, sitl.plant.truth),
   feed.jsonl (the companion's Zenoh feed), sitl.log and companion.log (their stderr),
   companion-log/flight-*.tlog (the companion's own flight log: its side of the link and its
@@ -39,6 +41,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from m4.airframe import load_airframe
+from m4.mavlink.signing import write_new_key
 from sitl.flights.feed_recorder import FeedRecorder
 from sitl.links.emulation import LinkEmulation
 from sitl.links.netem_proxy import Impairment, Netem
@@ -78,6 +81,7 @@ class FlightOptions:
 
 
 COMPANION_LOG_DIR = "companion-log"      # the companion's own flight log, in the flight's folder
+SIGNING_KEY = "mavlink.key"              # both ends', in the flight's folder
 
 
 class FlightFiles:
@@ -87,6 +91,7 @@ class FlightFiles:
         self.out_dir = Path(out_dir)
         self.scenario = self.out_dir / "scenario.toml"
         self.companion_config = self.out_dir / "companion.toml"
+        self.signing_key = self.out_dir / SIGNING_KEY
         self.tlog = self.out_dir / "flight.tlog"
         self.truth = self.out_dir / "truth.npz"
         self.feed = self.out_dir / "feed.jsonl"
@@ -127,7 +132,7 @@ def companion_config_text(options: FlightOptions, mavlink_port: int, feed_port: 
     priority = [f"realtime_priority = {options.companion_priority}"] * bool(options.companion_priority)
     lines = ["# The companion's configuration for this flight (written by m4-sitl fly).",
              "[control]", *rate, *priority, "", "[link]",
-             f'fc_url = "udpin:127.0.0.1:{mavlink_port}"', "",
+             f'fc_url = "udpin:127.0.0.1:{mavlink_port}"', f'signing_key_file = "{SIGNING_KEY}"', "",
              "[log]", f'dir = "{COMPANION_LOG_DIR}"', ""]
     nmpc = []
     if not options.realtime:
@@ -172,6 +177,8 @@ def run_flight(scenario: Scenario, scenario_text: str, out_dir: Path, options: F
     files = FlightFiles(Path(out_dir))
     make_output_dir(files.out_dir)
     files.scenario.write_text(scenario_text)
+    files.signing_key.unlink(missing_ok=True)
+    write_new_key(files.signing_key)
     port = options.port or free_port()
     with contextlib.ExitStack() as stack:
         recorder = None
@@ -200,7 +207,8 @@ def run_flight(scenario: Scenario, scenario_text: str, out_dir: Path, options: F
             sitl_port = proxy.listen_port
         cmd = [sys.executable, "-m", "sitl.cli", "serve", "--scenario", str(files.scenario),
                "--mavlink", f"udpout:127.0.0.1:{sitl_port}", "--duration", f"{scenario.duration_s:g}",
-               "--tlog", str(files.tlog), "--truth-log", str(files.truth), "--seed", str(options.seed)]
+               "--tlog", str(files.tlog), "--truth-log", str(files.truth), "--seed", str(options.seed),
+               "--signing-key", str(files.signing_key)]
         if options.link is not None and not options.realtime:
             cmd += ["--link-delay-ms", f"{options.link.delay_ms:g}", "--link-loss", f"{options.link.loss:g}"]
         cmd += ["--realtime"] * options.realtime + ["--viewer"] * options.viewer

@@ -47,7 +47,8 @@ def _serve(app, *serve_args):
 
 
 def _fly(tmp_path):
-    config = parse_config({"control": {"rate_hz": RATE_HZ}, "link": {"fc_url": "udpin:127.0.0.1:0"},
+    config = parse_config({"control": {"rate_hz": RATE_HZ}, "link": {"fc_url": "udpin:127.0.0.1:0",
+                                                                      "signing": False},
                            "log": {"dir": str(tmp_path / "logs")}}, "test")
     config = dataclasses.replace(config, mission=scenarios.resolve(SCENARIO).mission)
     app = open_app(config)

@@ -14,6 +14,7 @@ import pytest
 
 from companion import realtime
 from companion.realtime import use_realtime
+from m4.mavlink.signing import write_new_key
 
 PRIORITY = 10
 
@@ -33,7 +34,9 @@ def _may_use_fifo(priority: int) -> bool:
 
 def _start_companion(tmp_path, prelude: str = "") -> subprocess.Popen:
     config = tmp_path / "companion.toml"
-    config.write_text(f"[control]\nrealtime_priority = {PRIORITY}\n[log]\nenabled = false\n")
+    write_new_key(tmp_path / "mavlink.key")
+    config.write_text(f"[control]\nrealtime_priority = {PRIORITY}\n[link]\nsigning_key_file = \"mavlink.key\"\n"
+                      "[log]\nenabled = false\n")
     main = "from companion.cli import main; raise SystemExit(main(sys.argv[1:]))"
     return subprocess.Popen([sys.executable, "-c", f"import sys\n{prelude}\n{main}", "run", "--fc",
                              "udpin:127.0.0.1:0", "--config", str(config)], stderr=subprocess.PIPE, text=True)

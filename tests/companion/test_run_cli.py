@@ -16,6 +16,7 @@ from companion.app import CompanionApp
 from companion.cli import main
 from companion.config import default_log_dir
 from m4.airframe import load_airframe
+from m4.mavlink.signing import write_new_key
 from sitl import scenarios
 from support.full_disk import FullDisk
 from support.loopback_fc import LoopbackFc
@@ -30,6 +31,13 @@ def _root_logging_restored():
     for handler in root.handlers[:]:
         if handler not in handlers:
             root.removeHandler(handler)
+
+
+@pytest.fixture
+def signed(tmp_path) -> list[str]:
+    """The arguments that give the companion a signing key (it refuses to fly unsigned by omission)."""
+    write_new_key(tmp_path / "mavlink.key")
+    return ["--signing-key", str(tmp_path / "mavlink.key")]
 
 
 def run_cli(capsys, *args) -> tuple[int, list[str]]:
@@ -70,16 +78,16 @@ def test_a_mission_file_without_a_mission_is_refused(capsys, tmp_path):
     assert code == 2 and len(lines) == 1 and "[mission]" in lines[0]
 
 
-def test_a_port_in_use_is_one_clear_line_and_exit_2(capsys):
+def test_a_port_in_use_is_one_clear_line_and_exit_2(capsys, signed):
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as busy:
         busy.bind(("127.0.0.1", 0))
-        code, lines = run_cli(capsys, "--fc", f"udpin:127.0.0.1:{busy.getsockname()[1]}")
+        code, lines = run_cli(capsys, "--fc", f"udpin:127.0.0.1:{busy.getsockname()[1]}", *signed)
     assert code == 2 and len(lines) == 1 and "in use" in lines[0]
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
-def test_a_signal_stops_the_companion_cleanly(sig):
-    proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--fc", "udpin:127.0.0.1:0"],
+def test_a_signal_stops_the_companion_cleanly(sig, signed):
+    proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--fc", "udpin:127.0.0.1:0", *signed],
                             stderr=subprocess.PIPE, text=True)
     try:
         ready = proc.stderr.readline()
@@ -96,9 +104,9 @@ def test_a_signal_stops_the_companion_cleanly(sig):
     assert "stopped after 0 setpoints" in rest and "Traceback" not in rest
 
 
-def test_the_ready_line_goes_to_the_ready_fd_which_is_then_closed_while_the_companion_runs_on():
+def test_the_ready_line_goes_to_the_ready_fd_which_is_then_closed_while_the_companion_runs_on(signed):
     read_end, write_end = os.pipe()
-    proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--fc", "udpin:127.0.0.1:0",
+    proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--fc", "udpin:127.0.0.1:0", *signed,
                              "--ready-fd", str(write_end)], pass_fds=(write_end,), stderr=subprocess.DEVNULL)
     os.close(write_end)
     try:

@@ -83,6 +83,13 @@ def test_flight_logs_go_to_the_folder_systemd_makes_for_them(unit, monkeypatch):
     assert default_log_dir() == Path("/var/log/m4")
 
 
+def test_the_example_config_signs_with_a_root_owned_key_and_keeps_its_timestamps_where_it_may_write(unit):
+    link = load_config(UNIT.parent / "companion.toml").link
+    key, timestamps = link.signing_files()
+    assert key.parent == Path("/etc/m4")                    # read-only to the service (ProtectSystem=strict)
+    assert timestamps.parent == Path("/var/lib") / one(unit, "Service", "StateDirectory")
+
+
 def test_the_control_loop_may_take_the_real_time_priority_its_config_asks_for_and_no_more(unit):
     """The in-process route (companion/realtime.py): an RLIMIT_RTPRIO, no capability, no
     systemd-wide real-time class (the compiler at first start and the feed's threads stay normal)."""

@@ -31,7 +31,7 @@ FAULT_S, KILL_S = 1.0, 2.0
 def _companion(tmp_path, port):
     """The real companion, returned once it has said it is ready (m4-companion run --ready-fd)."""
     config = tmp_path / "companion.toml"
-    config.write_text(f'[link]\nfc_url = "udpin:127.0.0.1:{port}"\n')
+    config.write_text(f'[link]\nfc_url = "udpin:127.0.0.1:{port}"\nsigning = false\n')
     log_path = tmp_path / "companion.log"
     read_end, write_end = os.pipe()
     with log_path.open("w") as log:

@@ -61,3 +61,15 @@ def test_a_sitl_priority_that_cannot_be_had_is_one_line(tmp_path, monkeypatch):
     stack, proc, _, _ = _companion(tmp_path, "import time; time.sleep(30)")
     with stack, pytest.raises(FlightError, match="^cannot give the SITL real-time priority 45: Operation not permitted$"):
         _real_time(proc, 45)
+
+
+def test_both_ends_of_a_flight_sign_with_the_flights_own_key(tmp_path):
+    """As on the robot: the companion's config names the key the SITL is given (run_flight writes
+    a new one into the flight's folder for every flight)."""
+    from companion.config import load_config
+    from sitl.flights.flight_run import FlightFiles, FlightOptions, companion_config_text
+
+    files = FlightFiles(tmp_path)
+    files.companion_config.write_text(companion_config_text(FlightOptions(), 14550, None))
+    key, _ = load_config(files.companion_config).link.signing_files()
+    assert key == files.signing_key

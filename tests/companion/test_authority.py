@@ -1,0 +1,104 @@
+"""Authority by default (docs/authority.md): the companion signs unless its config says not to,
+and then says so; a restarted companion keeps its signing timestamps and refuses what was
+captured before it restarted. Over real loopback sockets."""
+
+from __future__ import annotations
+
+import logging
+import socket
+import time
+
+import pytest
+
+from companion.app import CompanionApp, close_app, open_app
+from companion.config import parse_config
+from companion.controller import Controller, ControllerSettings
+from companion.fc_link import FcLink
+from m4.airframe import load_airframe
+from m4.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav, signing
+from m4.mavlink.signing import load_key, write_new_key
+from m4.toml_fields import ConfigError
+from support.fake_transport import FakeTransport
+from tests.support.packets import packed
+
+AF = load_airframe()
+FC_ADDRESS = ("127.0.0.1", 9)
+
+
+def _fc_frame(t_ms: int) -> list:
+    """A heartbeat and a telemetry frame of a flight controller hovering at 2 m."""
+    return [mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_GENERIC, 0, 0, 4, 3),
+            mavlink.MAVLink_attitude_message(t_ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+            mavlink.MAVLink_local_position_ned_message(t_ms, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0),
+            mavlink.MAVLink_m4_joint_state_message(t_ms, [AF.nominal_hip_rad] * 4, [0.0] * 4),
+            mavlink.MAVLink_m4_thruster_status_message(t_ms, [AF.hover_thrust_per_rotor_n] * 4,
+                                                       [AF.thrust_max_n] * 4)]
+
+
+def _send(sock: socket.socket, packets: list[bytes], app) -> None:
+    for packet in packets:
+        sock.sendto(packet, ("127.0.0.1", app.fc.link.local_port))
+    deadline = time.monotonic() + 0.3
+    while time.monotonic() < deadline:
+        app.poll()
+        time.sleep(0.01)
+
+
+def _signed_config(tmp_path):
+    write_new_key(tmp_path / "mavlink.key")
+    return parse_config({"link": {"fc_url": "udpin:127.0.0.1:0", "signing_key_file": "mavlink.key"},
+                         "log": {"enabled": False}}, "companion.toml", tmp_path)
+
+
+def test_without_a_key_the_companion_does_not_start_unless_signing_is_turned_off():
+    config = parse_config({"link": {"fc_url": "udpin:127.0.0.1:0"}, "log": {"enabled": False}}, "test")
+    with pytest.raises(ConfigError, match="signing is on .*m4-companion keygen.*signing = false"):
+        close_app(open_app(config))
+
+
+def test_signing_turned_off_with_a_key_named_is_refused_as_ambiguous(tmp_path):
+    with pytest.raises(ConfigError, match="signing = false but a signing key"):
+        parse_config({"link": {"signing": False, "signing_key_file": "k"}}, "test", tmp_path)
+
+
+def test_unsigned_by_choice_is_said_at_start_and_to_the_fc_at_every_lock_on(caplog):
+    config = parse_config({"link": {"fc_url": "udpin:127.0.0.1:0", "signing": False}, "log": {"enabled": False}},
+                          "test")
+    with caplog.at_level(logging.WARNING, logger="m4-companion"):
+        close_app(open_app(config))
+    assert [r.getMessage() for r in caplog.records if "signing is OFF" in r.getMessage()]
+    link = FakeTransport(FC_SYSTEM_ID, 191)
+    app = CompanionApp(config, FcLink(link), Controller(ControllerSettings.of(config)), clock=lambda: 100.0)
+    link.deliver(FC_ADDRESS, *_fc_frame(0)[:1], mav=new_mav(None, FC_SYSTEM_ID, FC_COMPONENT_ID))
+    app.poll()
+    texts = [(m.severity, m.text) for m in link.sent_messages() if m.get_type() == "STATUSTEXT"]
+    assert texts == [(mavlink.MAV_SEVERITY_WARNING, "companion: MAVLink signing OFF")]
+
+
+def test_a_restarted_companion_refuses_fc_packets_captured_before_it_restarted(tmp_path, monkeypatch):
+    """The probe: a companion restarted while an attacker replays a captured signed HEARTBEAT and
+    telemetry locked on to it and took its mission altitude from it. Kept timestamps refuse the
+    replay; the genuine FC, signing at the time of day, is taken at once."""
+    config = _signed_config(tmp_path)
+    key = load_key(tmp_path / "mavlink.key")
+    captured = packed(_fc_frame(5000), FC_SYSTEM_ID, FC_COMPONENT_ID, key)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as fc, \
+            socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as attacker:
+        first = open_app(config)
+        try:
+            _send(fc, captured, first)
+            assert first.fc.locked and first.fc.connected
+        finally:
+            close_app(first)
+        second = open_app(config)
+        try:
+            _send(attacker, captured, second)
+            assert not second.fc.locked and second.telemetry.snapshot() is None
+            assert second.fc.health().bad_signature == len(captured) - 1     # the heartbeat passes unsigned
+            restart_s = 2.0                                                  # what a restart takes
+            now = signing._wall_timestamp() + round(restart_s * 100_000)
+            monkeypatch.setattr(signing, "_wall_timestamp", lambda: now)
+            _send(fc, packed(_fc_frame(7000), FC_SYSTEM_ID, FC_COMPONENT_ID, key), second)
+            assert second.fc.locked and second.fc.connected
+        finally:
+            close_app(second)
