@@ -26,12 +26,17 @@
   stored M4_FAULT_STATUS (MAV_CMD_REQUEST_MESSAGE), which arrives as a message.
 - Out: M4_SETPOINT, M4_FAULT_STATUS, STATUSTEXT.
 - Health counters: bad CRC (garbled packets), bad signature (unsigned or badly signed,
-  dropped by signing), foreign (other systems, components or addresses).
+  dropped by signing), foreign (other systems, components or addresses), second sender.
+- A second sender claiming the FC's ids (m4/mavlink/second_sender.py) is counted and reported
+  (log, STATUSTEXT WARNING, rate-limited): a packet signing refused (unsigned, badly signed,
+  replayed) or let pass unsigned (HEARTBEAT) though we sign, and, while the telemetry flows,
+  one from another address than the FC's.
 """
 
 from __future__ import annotations
 
 import enum
+import logging
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -42,7 +47,8 @@ from companion.fc_commands import Command, CommandQueue
 from companion.link_delay import LinkDelay
 from companion.telemetry import REQUESTED, STREAMS
 from m4.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
-from m4.mavlink.signing import SigningCounters
+from m4.mavlink.second_sender import OTHER_ADDRESS, SecondSender, address_text
+from m4.mavlink.signing import SigningCounters, refusal
 from m4.setpoint import Setpoint
 
 HEARTBEAT_PERIOD_S = 1.0
@@ -74,6 +80,8 @@ class FcTransport(Protocol):
 
     def signing_counters(self) -> SigningCounters: ...
 
+    on_refused: Any                                     # told of refused packets claiming an identity
+
     def fileno(self) -> int: ...                        # to wait on; < 0: nothing to wait on
 
     def close(self) -> None: ...
@@ -102,6 +110,7 @@ class LinkHealth:
     foreign: int
     commands_acked: int
     commands_pending: int
+    second_sender: int          # packets from a second sender claiming the FC's ids
 
 
 def _floats(values) -> list[float]:
@@ -133,6 +142,9 @@ class FcLink:
         self.commands = CommandQueue(fc_system_id, fc_component_id)
         self.delay = LinkDelay()
         self._signing = link.signing_key is not None
+        self.second_sender = SecondSender("the flight controller", self.fc_ids, "companion",
+                                          logging.getLogger("m4-companion").warning, self._warn_fc)
+        link.on_refused = self._refused
 
     @property
     def locked(self) -> bool:
@@ -149,9 +161,13 @@ class FcLink:
                 if (msg.get_srcSystem(), msg.get_srcComponent()) != self.fc_ids:
                     self._foreign += 1
                     continue
+                if self._signing and not msg.get_signed():      # a HEARTBEAT passes signing unsigned
+                    self.second_sender(address_text(sender), refusal(self.link.signing_key, msg.get_msgbuf()))
                 if sender != self.fc_address:        # the transport may read ahead of a lock, or hear others
                     if not (self._proves_fc(msg) and self._may_lock()):
                         self._foreign += self.locked
+                        if self.connected:
+                            self._refused(sender, *self.fc_ids, OTHER_ADDRESS)
                         continue
                     self._lock(sender)
                     events.add(LinkEvent.LOCKED)
@@ -167,6 +183,17 @@ class FcLink:
             self.link.lock_peer(self.fc_address, hear_others=True)     # a restarted FC may come from elsewhere
             events.add(LinkEvent.LOST)
         return Received(tuple(e for e in LinkEvent if e in events), out)
+
+    def _warn_fc(self, text: str) -> None:
+        """A STATUSTEXT WARNING to the FC, once there is one (nothing is sent before)."""
+        if self.locked:
+            self.statustext(mavlink.MAV_SEVERITY_WARNING, text)
+
+    def _refused(self, sender, system: int, component: int, why: str) -> None:
+        """A packet claiming `system/component` refused here or by the link (FcTransport.on_refused)."""
+        if (system, component) == self.fc_ids:
+            detail = f"the flight controller is at {address_text(self.fc_address)}" if why == OTHER_ADDRESS else ""
+            self.second_sender(address_text(sender), why, detail)
 
     def _proves_fc(self, msg) -> bool:
         return msg.get_msgId() == mavlink.MAVLINK_MSG_ID_HEARTBEAT and (msg.get_signed() or not self._signing)
@@ -268,4 +295,5 @@ class FcLink:
         signing = self.link.signing_counters()
         return LinkHealth(locked=self.locked, bad_crc=max(self.link.bad_packets - signing.rejected, 0),
                           bad_signature=signing.rejected, foreign=self._foreign + self.link.foreign_datagrams,
-                          commands_acked=self.commands.acked, commands_pending=self.commands.pending)
+                          commands_acked=self.commands.acked, commands_pending=self.commands.pending,
+                          second_sender=self.second_sender.count)

@@ -32,6 +32,11 @@ link (the rest waits in the socket, and the kernel drops what does not fit), so 
 and the telemetry streams keep their pace. A udpin link answers the paired companion's
 address only (signed, with a key): nobody else can redirect the telemetry. With a key and
 `signing_state_path`, the signing timestamps survive a restart (m4.mavlink.signing).
+
+A second sender claiming the companion's ids is reported by the FC (m4/mavlink/second_sender.py):
+a packet signing refused (unsigned, badly signed, replayed), one that passed signing unsigned
+(HEARTBEAT) though the key requires signatures, or one from another place (link and address)
+while the companion's own is live. Without a key it is still obeyed: only signing refuses it.
 """
 
 from __future__ import annotations
@@ -39,12 +44,14 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 from m4.airframe import Airframe, load_airframe
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID
 from m4.mavlink.link import UdpLink, wait_readable
-from m4.mavlink.signing import StreamTimestamps
+from m4.mavlink.second_sender import OTHER_ADDRESS, PairedPlace, address_text
+from m4.mavlink.signing import StreamTimestamps, refusal
 from m4.mavlink.tlog import TlogWriter
 from sitl.links.emulation import EmulatedLink, LinkEmulation
 from sitl.fc.routing import Router
@@ -97,6 +104,7 @@ class Server:
         self.links: list[UdpLink] = []
         self.emulated: EmulatedLink | None = None
         self.timestamps: StreamTimestamps | None = None
+        self.companion_place = PairedPlace()
         try:
             self.tlog = TlogWriter(options.tlog_path) if options.tlog_path else None
         except OSError as e:
@@ -105,6 +113,7 @@ class Server:
             for i, url in enumerate(options.mavlink_urls):
                 self.links.append(self._open_link(i, url))
                 self.links[-1].peer_filter = self.vehicle.fc.from_companion
+                self.links[-1].on_refused = partial(self._refused, i)
             if options.signing_key is not None and options.signing_state_path is not None:
                 self.timestamps = StreamTimestamps([link.mav for link in self.links], options.signing_state_path)
         except Exception:
@@ -137,7 +146,30 @@ class Server:
         if self.timestamps is not None:
             self.timestamps.save()
 
+    def _where(self, i: int, sender) -> str:
+        return address_text(sender) + (f" on link {i}" if len(self.links) > 1 else "")
+
+    def _refused(self, i: int, sender, system: int, component: int, why: str) -> None:
+        """A packet link i refused that claims an identity (UdpLink.on_refused)."""
+        if (system, component) == self.vehicle.fc.companion_ids:
+            self.vehicle.fc.second_sender(self._where(i, sender), why)
+
+    def _watch_companion(self, i: int, datagrams) -> None:
+        """Packets that passed the link claiming the companion's ids: unsigned where the key asks
+        for signatures (a HEARTBEAT), or from another place while the companion's is live."""
+        fc = self.vehicle.fc
+        for sender, batch in datagrams:
+            for msg in batch:
+                if (msg.get_srcSystem(), msg.get_srcComponent()) != fc.companion_ids:
+                    continue
+                if not fc.from_companion(msg):
+                    fc.second_sender(self._where(i, sender), refusal(self.options.signing_key, msg.get_msgbuf()))
+                elif self.companion_place.other((i, sender)):
+                    fc.second_sender(self._where(i, sender), OTHER_ADDRESS,
+                                     f"the companion is at {self._where(*self.companion_place.place)}")
+
     def _handle(self, i: int, datagrams) -> None:
+        self._watch_companion(i, datagrams)
         msgs = [msg for _, batch in datagrams for msg in batch]
         if msgs:
             self.router.forward(i, msgs)
@@ -198,8 +230,9 @@ class Server:
             self._open_viewer()
         wall0, cpu0 = time.monotonic(), time.process_time()
         mode = "real time" if self.options.realtime else "lockstep"
+        unsigned = "" if self.options.signing_key else "; MAVLink signing off (no --signing-key): anyone may command it"
         log(f"serving {self.options.scenario.name!r} in {mode} on "
-             + ", ".join(link.endpoint.url for link in self.links))
+             + ", ".join(link.endpoint.url for link in self.links) + unsigned)
         try:
             (self._run_realtime if self.options.realtime else self._run_lockstep)()
         finally:
@@ -213,7 +246,8 @@ class Server:
                  f"setpoints accepted {c.setpoints_accepted}, dropped {c.setpoints_dropped}"
                  f"{f' ({reasons})' if reasons else ''}; commands {c.commands_acked}; "
                  f"refused from others {c.refused_foreign}; unsigned/bad-signature packets rejected {rejected}; "
-                 f"garbled {sum(link.bad_packets for link in self.links) - rejected}")
+                 f"garbled {sum(link.bad_packets for link in self.links) - rejected}; "
+                 f"from a second sender claiming the companion {self.vehicle.fc.second_sender.count}")
             if self.emulated is not None:
                 log(f"link emulated ({self.options.link.describe()}): {self.emulated.counters.summary()}")
 

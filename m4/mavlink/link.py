@@ -9,6 +9,9 @@ HEARTBEAT came): datagrams from anyone else are then dropped and counted (`forei
 and can no longer redirect the replies. Short of that, `peer_filter` says which messages may
 redirect a udpin link's replies to their sender (default: any good message; garbage never).
 `receive_from(max_datagrams)` bounds the work of one call, so a flood cannot starve the caller.
+`on_refused(sender, system, component, why)`, when set, hears of every packet the link refused
+that claims an identity: one signing refused (why: m4.mavlink.signing.refusal) or, once
+locked, a datagram from another address (why: "other address"; its first frame's header).
 """
 
 from __future__ import annotations
@@ -18,15 +21,18 @@ import socket
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 from m4.mavlink.dialect import mavlink, new_mav
 from m4.mavlink.frame_reader import read_datagram
-from m4.mavlink.signing import SigningCounters, setup_signing
+from m4.mavlink.second_sender import OTHER_ADDRESS
+from m4.mavlink.signing import SigningCounters, refusal, setup_signing
 from m4.mavlink.tlog import TlogWriter
 
 MODES = ("udpin", "udpout")
 _DATAGRAM_MAX = 65535
 DATAGRAM_PAYLOAD_MAX = 1400      # below a 1500-byte Ethernet MTU with IP and UDP headers
+_SIGNATURE_REFUSED = "Invalid signature"      # pymavlink's BAD_DATA reason
 
 
 class LinkError(ValueError):
@@ -58,8 +64,8 @@ def parse_url(url: str) -> Endpoint:
 
 class MavlinkLink:
     """What every link shares: the protocol object writing to `self.write(packet)` (signing
-    with `key` when one is given), `send`, `receive` and the signing counters. A subclass
-    provides `write(packet)` and `receive_from()`."""
+    with `key` when one is given), `send`, `receive`, `parse` and the signing counters. A
+    subclass provides `write(packet)` and `receive_from()`."""
 
     def __init__(self, source_system: int, source_component: int, tlog: TlogWriter | None, key: bytes | None,
                  link_id: int):
@@ -68,6 +74,23 @@ class MavlinkLink:
         if key is not None:
             setup_signing(self.mav, key, link_id)
         self.bad_packets = 0
+        self.on_refused: Callable[[Any, int, int, str], None] | None = None
+
+    def parse(self, data: bytes, sender: Any) -> list[mavlink.MAVLink_message]:
+        """The good messages in `data` from `sender`; the rest counted in bad_packets, and each
+        packet signing refused told to on_refused."""
+        out, bad = parse_bytes(self.mav, data, self.tlog)
+        self.bad_packets += len(bad)
+        for msg in bad:
+            if msg.reason == _SIGNATURE_REFUSED:
+                self.refused(sender, bytes(msg.data), refusal(self.mav.signing.secret_key, bytes(msg.data)))
+        return out
+
+    def refused(self, sender: Any, packet: bytes, why: str) -> None:
+        """Tell on_refused of a refused `packet` claiming an identity."""
+        ids = claimed_ids(packet)
+        if self.on_refused is not None and ids is not None:
+            self.on_refused(sender, *ids, why)
 
     def send(self, msg: mavlink.MAVLink_message) -> None:
         self.mav.send(msg)
@@ -185,9 +208,10 @@ class UdpLink(MavlinkLink):
         others = self.locked_peer is not None and sender != self.locked_peer
         if others and not self.hear_others:
             self.foreign_datagrams += 1
+            self.refused(sender, data, OTHER_ADDRESS)
             return []
-        out, bad = parse_bytes(self.mav, data, self.tlog)
-        self.bad_packets += bad + drop_cut_frame(self.mav)
+        out = self.parse(data, sender)
+        self.bad_packets += drop_cut_frame(self.mav)
         if self.endpoint.mode == "udpin" and not others and any(map(self.peer_filter, out)):
             self.peer = sender
         return out
@@ -204,17 +228,23 @@ class UdpLink(MavlinkLink):
         self.sock.close()
 
 
-def parse_bytes(mav: mavlink.MAVLink, data: bytes, tlog: TlogWriter | None) -> tuple[list, int]:
-    """(good messages, count of rejected or garbled packets) in `data`; everything to the tlog."""
-    out, bad = [], 0
+def parse_bytes(mav: mavlink.MAVLink, data: bytes, tlog: TlogWriter | None) -> tuple[list, list]:
+    """(good messages, BAD_DATA of each rejected or garbled packet) in `data`; everything to the tlog."""
+    out, bad = [], []
     for msg in read_datagram(mav, data):
         if tlog is not None:
             tlog.record(msg.get_msgbuf() if msg.get_type() != "BAD_DATA" else bytes(msg.data))
-        if msg.get_type() == "BAD_DATA":
-            bad += 1
-        else:
-            out.append(msg)
+        (bad if msg.get_type() == "BAD_DATA" else out).append(msg)
     return out, bad
+
+
+def claimed_ids(packet: bytes) -> tuple[int, int] | None:
+    """(system, component) a MAVLink 2 or 1 frame's header claims (None: too short to say)."""
+    if len(packet) >= 7 and packet[0] == mavlink.PROTOCOL_MARKER_V2:
+        return packet[5], packet[6]
+    if len(packet) >= 5 and packet[0] == mavlink.PROTOCOL_MARKER_V1:
+        return packet[3], packet[4]
+    return None
 
 
 def drop_cut_frame(mav: mavlink.MAVLink) -> int:

@@ -16,7 +16,7 @@ import socket
 import time
 
 from m4.mavlink.dialect import mavlink
-from m4.mavlink.link import LinkError, MavlinkLink, parse_bytes
+from m4.mavlink.link import LinkError, MavlinkLink
 from m4.mavlink.tlog import TlogWriter
 
 SERIAL_DEFAULT_BAUD = 115200
@@ -177,9 +177,7 @@ class StreamLink(MavlinkLink):
     def receive_from(self) -> list[tuple[object, list[mavlink.MAVLink_message]]]:
         out = []
         while data := self.stream.read():
-            msgs, bad = parse_bytes(self.mav, data, self.tlog)
-            self.bad_packets += bad
-            out.append((self.stream.peer, msgs))
+            out.append((self.stream.peer, self.parse(data, self.stream.peer)))
         return out
 
     def lock_peer(self, address, hear_others: bool = False) -> None:

@@ -11,7 +11,9 @@ default). Setpoints, commands (rotor faults, arming, stream rates, requests) and
 M4_FAULT_STATUS are taken from it only (with `require_signed`, only signed); from anyone
 else they are refused and counted, a command with COMMAND_ACK DENIED. A setpoint is judged
 by the instant it answers (time_boot_ms, the FC's clock), with `MAX_AGE_MIN_MS`,
-`MAX_AGE_PERIODS` and `MAX_PERIOD_MS`; what it refuses is counted by reason.
+`MAX_AGE_PERIODS` and `MAX_PERIOD_MS`; what it refuses is counted by reason. A second sender
+using the companion's ids (its caller, sitl/serve.py, knows the addresses) is reported by
+`second_sender` (m4/mavlink/second_sender.py): counted, a log line and a STATUSTEXT WARNING.
 
 Arming: the FC starts armed (the scenarios start in the air). Once it has landed or applied
 a thrust cut it is disarmed: setpoints are refused (counted) and the motors stay off until
@@ -38,6 +40,7 @@ from m4.airframe import ROTOR_COUNT, Airframe
 from m4.fault_kind import FaultKind
 from m4.log_limit import RepeatLimiter
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from m4.mavlink.second_sender import SecondSender
 from m4.setpoint import RateFeedback, Setpoint, ShortfallCover
 from m4.units import RAD_S_TO_RPM
 from sitl.fc.commands import CommandHandler
@@ -115,6 +118,8 @@ class FlightController:
         self.require_signed = require_signed
         self.log = log
         self._repeats = RepeatLimiter()
+        self.second_sender = SecondSender("the companion", companion_ids, "FC", log,
+                                          lambda text: self.announce(mavlink.MAV_SEVERITY_WARNING, text))
         self.armed = True
         self.fault_status: mavlink.MAVLink_m4_fault_status_message | None = None
         self.rotor_watch = RotorWatch(airframe)

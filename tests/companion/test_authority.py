@@ -1,6 +1,7 @@
 """Authority by default (docs/authority.md): the companion signs unless its config says not to,
 and then says so; a restarted companion keeps its signing timestamps and refuses what was
-captured before it restarted. Over real loopback sockets."""
+captured before it restarted (over real loopback sockets); a second sender claiming the flight
+controller's ids is counted and reported (on a socket-free transport)."""
 
 from __future__ import annotations
 
@@ -102,3 +103,61 @@ def test_a_restarted_companion_refuses_fc_packets_captured_before_it_restarted(t
             assert second.fc.locked and second.fc.connected
         finally:
             close_app(second)
+
+
+# -- a second sender claiming the flight controller's ids -------------------------------------------
+KEY = bytes(range(32))
+STRAY = ("10.0.0.66", 14555)
+
+
+def _signed_fc_mav():
+    mav = new_mav(None, FC_SYSTEM_ID, FC_COMPONENT_ID)
+    signing.setup_signing(mav, KEY)
+    return mav
+
+
+def _flowing(key=None):
+    """An FcLink locked on to FC_ADDRESS with its telemetry flowing (signed with `key`)."""
+    transport = FakeTransport(FC_SYSTEM_ID, 191, key=key)
+    fc_link = FcLink(transport, telemetry_timeout_s=0.3)
+    fc_mav = _signed_fc_mav() if key else new_mav(None, FC_SYSTEM_ID, FC_COMPONENT_ID)
+    transport.deliver(FC_ADDRESS, *_fc_frame(100), mav=fc_mav)
+    fc_link.receive(10.0)
+    assert fc_link.locked and fc_link.connected
+    return fc_link, transport, fc_mav
+
+
+def _warnings(transport) -> list[str]:
+    return [m.text for m in transport.sent_messages()
+            if m.get_type() == "STATUSTEXT" and m.severity == mavlink.MAV_SEVERITY_WARNING]
+
+
+def test_the_fc_ids_from_another_address_are_reported_once_counted_always(caplog):
+    fc_link, transport, _ = _flowing()
+    stray = new_mav(None, FC_SYSTEM_ID, FC_COMPONENT_ID)
+    with caplog.at_level(logging.WARNING, logger="m4-companion"):
+        for k in range(100):
+            transport.deliver(STRAY, *_fc_frame(120 + k)[1:2], mav=stray)
+            fc_link.receive(10.01)
+    assert fc_link.health().second_sender == 100
+    assert _warnings(transport) == ["companion: second sender as 1/1 (other address)"]
+    lines = [r.getMessage() for r in caplog.records if "second sender" in r.getMessage()]
+    assert len(lines) == 1 and "10.0.0.66:14555" in lines[0] and "127.0.0.1:9" in lines[0]
+
+
+def test_with_signing_a_replayed_fc_packet_is_refused_and_reported_from_any_address():
+    """A timestamp stream that goes backwards: a second sender (or a relay) replaying the FC."""
+    fc_link, transport, fc_mav = _flowing(KEY)
+    captured = _fc_frame(120)[1]
+    transport.deliver(FC_ADDRESS, captured, mav=fc_mav)
+    fc_link.receive(10.01)
+    transport.inbox.append((bytes(captured.get_msgbuf()), FC_ADDRESS))      # the same bytes again
+    assert fc_link.receive(10.02).messages == []
+    assert fc_link.health().second_sender == 1 and _warnings(transport) == ["companion: second sender as 1/1 (replayed)"]
+
+
+def test_with_signing_an_unsigned_heartbeat_with_the_fc_ids_is_reported():
+    fc_link, transport, _ = _flowing(KEY)
+    transport.deliver(FC_ADDRESS, _fc_frame(0)[0], mav=new_mav(None, FC_SYSTEM_ID, FC_COMPONENT_ID))
+    fc_link.receive(10.01)
+    assert fc_link.health().second_sender == 1 and _warnings(transport) == ["companion: second sender as 1/1 (unsigned)"]

@@ -97,9 +97,11 @@ def test_a_stray_sender_with_the_fc_ids_is_ignored_and_cannot_redirect_our_repli
     fc.send(position(60, x=1.0))
     got = drain(received(companion))
     assert [(m.get_type(), m.x) for m in got] == [("LOCAL_POSITION_NED", 1.0)]
-    assert companion.health().foreign == 4
+    assert companion.health().foreign == 4 == companion.health().second_sender
     companion.send_setpoint(60, 20, SETPOINT, 0.0)
-    assert [m.get_type() for m in drain(fc.receive)] == ["M4_SETPOINT", "TIMESYNC"]
+    got = drain(fc.receive, want=3)
+    assert [m.get_type() for m in got] == ["STATUSTEXT", "M4_SETPOINT", "TIMESYNC"]     # the stray reported, once
+    assert got[0].text == "companion: second sender as 1/1 (other address)"
     time.sleep(0.05)
     assert stray.receive() == []
 

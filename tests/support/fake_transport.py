@@ -1,7 +1,8 @@
 """A socket-free FcTransport: what arrives is queued by the test, what is sent is kept.
 
-The bytes still go through a real MAVLink parser (and signing, with a key), so a test feeds
-it what a flight controller would put on the wire, garbage included; only the socket is gone.
+The bytes still go through a real MAVLink parser (and signing, with a key; m4.mavlink.link's
+MavlinkLink), so a test feeds it what a flight controller would put on the wire, garbage
+included; only the socket is gone.
 """
 
 from __future__ import annotations
@@ -9,20 +10,17 @@ from __future__ import annotations
 from collections import deque
 
 from m4.mavlink import mavlink, new_mav
-from m4.mavlink.link import parse_bytes
-from m4.mavlink.signing import SigningCounters, setup_signing
+from m4.mavlink.link import MavlinkLink
+from m4.mavlink.second_sender import OTHER_ADDRESS
 
 
-class FakeTransport:
+class FakeTransport(MavlinkLink):
     def __init__(self, source_system: int, source_component: int, key: bytes | None = None):
-        self.mav = new_mav(self, source_system, source_component)
-        if key is not None:
-            setup_signing(self.mav, key)
+        super().__init__(source_system, source_component, None, key, 0)
         self.inbox: deque[tuple[bytes, object]] = deque()
         self.sent: list[bytes] = []
         self.locked_peer = None
         self.hear_others = False
-        self.bad_packets = 0
         self.foreign_datagrams = 0
 
     # -- the test's side ---------------------------------------------------------------------------
@@ -35,19 +33,8 @@ class FakeTransport:
         return [m for p in self.sent for m in parser.parse_buffer(p) or ()]
 
     # -- FcTransport -------------------------------------------------------------------------------
-    @property
-    def signing_key(self) -> bytes | None:
-        return self.mav.signing.secret_key
-
     def write(self, packet: bytes) -> None:
         self.sent.append(bytes(packet))
-
-    def send(self, msg: mavlink.MAVLink_message) -> None:
-        self.mav.send(msg)
-
-    def send_all(self, msgs) -> None:
-        for msg in msgs:
-            self.mav.send(msg)
 
     def receive_from(self):
         out = []
@@ -55,17 +42,13 @@ class FakeTransport:
             data, sender = self.inbox.popleft()
             if self.locked_peer is not None and sender != self.locked_peer and not self.hear_others:
                 self.foreign_datagrams += 1
+                self.refused(sender, data, OTHER_ADDRESS)
                 continue
-            msgs, bad = parse_bytes(self.mav, data, None)
-            self.bad_packets += bad
-            out.append((sender, msgs))
+            out.append((sender, self.parse(data, sender)))
         return out
 
     def lock_peer(self, address, hear_others: bool = False) -> None:
         self.locked_peer, self.hear_others = address, hear_others
-
-    def signing_counters(self) -> SigningCounters:
-        return SigningCounters.of(self.mav)
 
     def fileno(self) -> int:
         return -1

@@ -1,7 +1,7 @@
 """The simulated FC obeys its paired companion only (issue 10): setpoints, commands and stream
 rates from anyone else are refused and counted; setpoints are judged by the instant they
-answer; with signing, replies go to the signed peer only and a replay across a restart fails.
-All over real loopback sockets."""
+answer; with signing, replies go to the signed peer only and a replay across a restart fails;
+a second sender using the companion's ids is reported (issue 20). All over real loopback sockets."""
 
 from __future__ import annotations
 
@@ -167,3 +167,59 @@ def test_a_captured_signed_setpoint_replayed_into_a_restarted_fc_is_refused(tmp_
         assert refused and accepted == 0
     else:                  # what the persisted timestamps prevent: pymavlink alone takes the replay
         assert not refused and accepted == 1
+
+
+# -- the probes of issue 20: a second sender using the companion's ids, from another UDP port --------
+FORCE_DISARM = (m.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196)
+
+
+def _second_sender_texts(companion) -> list[str]:
+    return [s.text for s in companion.of_type("STATUSTEXT")
+            if s.severity == m.MAV_SEVERITY_WARNING and "second sender" in s.text]
+
+
+def _in_flight(key=None):
+    companion = StandInCompanion(key=key)
+    return companion, served(companion, ServeOptions(scenario=HOVER, realtime=True, signing_key=key))
+
+
+@pytest.mark.parametrize("attack", ["force disarm", "zero thrust"])
+def test_with_signing_a_spoofed_disarm_or_zero_thrust_from_another_port_is_refused_and_reported(attack):
+    """Before signing by default: one unsigned force-disarm (or zero-thrust setpoint) claiming
+    1/191 from any port grounded the robot in flight, and the FC said nothing of it."""
+    companion, serving = _in_flight(KEY)
+    with serving as server:
+        companion.wait_for("M4_THRUSTER_STATUS", lambda s: s.time_boot_ms >= 300)
+        forged = _command(*FORCE_DISARM) if attack == "force disarm" else _setpoint(_now_ms(companion), thrust=0.0)
+        for _ in range(3):
+            _send_to_fc(server, _packet(forged))                      # ids of the companion, unsigned
+        assert _wait(lambda: _second_sender_texts(companion), 3.0)
+        t_ms = _now_ms(companion)
+        companion.wait_for("M4_THRUSTER_STATUS", lambda s: s.time_boot_ms >= t_ms + 200, 3.0)
+        fc = server.vehicle.fc
+        assert fc.armed and fc.second_sender.count == 3
+    assert _second_sender_texts(companion) == ["FC: second sender as 1/191 (unsigned)"]     # once: rate-limited
+    assert min(companion.of_type("M4_THRUSTER_STATUS")[-1].thrust_cmd_n) > 10.0
+
+
+def test_with_signing_a_captured_signed_command_replayed_from_another_port_is_refused_and_reported():
+    companion, serving = _in_flight(KEY)
+    with serving as server:
+        companion.wait_for("M4_THRUSTER_STATUS", lambda s: s.time_boot_ms >= 300)
+        captured = _packet(_command(m.MAV_CMD_REQUEST_MESSAGE, m.MAVLINK_MSG_ID_AUTOPILOT_VERSION), key=KEY)
+        _send_to_fc(server, captured)                                 # taken once (the first time) ...
+        _send_to_fc(server, captured)                                 # ... and then replayed
+        assert _wait(lambda: _second_sender_texts(companion), 3.0)
+    assert _second_sender_texts(companion) == ["FC: second sender as 1/191 (replayed)"]
+
+
+def test_unsigned_by_choice_a_second_sender_is_still_obeyed_but_no_longer_silently():
+    """What signing by default prevents: without a key the force-disarm grounds the robot."""
+    companion, serving = _in_flight()
+    with serving as server:
+        companion.wait_for("M4_THRUSTER_STATUS", lambda s: s.time_boot_ms >= 300)
+        _send_to_fc(server, _packet(_command(*FORCE_DISARM)))
+        assert _wait(lambda: _second_sender_texts(companion), 3.0)
+        fc = server.vehicle.fc
+        assert not fc.armed and fc.second_sender.count == 1
+    assert _second_sender_texts(companion) == ["FC: second sender as 1/191 (other address)"]
