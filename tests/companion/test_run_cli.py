@@ -16,7 +16,7 @@ from companion.app import CompanionApp
 from companion.cli import main
 from companion.config import default_log_dir
 from m4.airframe import load_airframe
-from m4.mavlink.signing import write_new_key
+from m4.mavlink.signing import load_key, write_new_key
 from sitl import scenarios
 from support.full_disk import FullDisk
 from support.loopback_fc import LoopbackFc
@@ -140,13 +140,13 @@ def _free_port(kind: int) -> int:
     'zenoh_config = "/etc/m4/no-such-zenoh-companion.json5"',            # the deploy default's path, not installed
     'mode = "client"\nconnect = "tcp/127.0.0.1:{port}"',                  # no router there
 ])
-def test_a_companion_whose_feed_cannot_reach_zenoh_says_so_once_and_flies(tmp_path, feed):
+def test_a_companion_whose_feed_cannot_reach_zenoh_says_so_once_and_flies(tmp_path, feed, signed):
     config = tmp_path / "companion.toml"
     config.write_text("[feed]\n" + feed.format(port=_free_port(socket.SOCK_STREAM)) + "\n")
     port = _free_port(socket.SOCK_DGRAM)
     proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--config", str(config),
-                             "--fc", f"udpin:127.0.0.1:{port}"], stderr=subprocess.PIPE, text=True)
-    fc = LoopbackFc(port, load_airframe())
+                             "--fc", f"udpin:127.0.0.1:{port}", *signed], stderr=subprocess.PIPE, text=True)
+    fc = LoopbackFc(port, load_airframe(), key=load_key(tmp_path / "mavlink.key"))
     try:
         said = []
         while "ready" not in (line := proc.stderr.readline()) and line:
@@ -172,7 +172,7 @@ def test_a_companion_whose_feed_cannot_reach_zenoh_says_so_once_and_flies(tmp_pa
 
 
 def test_a_disk_full_when_the_flight_ends_neither_changes_the_exit_code_nor_hides_the_final_statistics(
-        capsys, caplog, monkeypatch):
+        capsys, caplog, monkeypatch, signed):
     disk = FullDisk(default_log_dir(), monkeypatch)           # where the tests' companions log
 
     def flight(app):                                          # the link's packets go to the log, then the disk fills
@@ -184,7 +184,7 @@ def test_a_disk_full_when_the_flight_ends_neither_changes_the_exit_code_nor_hide
 
     monkeypatch.setattr(CompanionApp, "run", flight)
     with caplog.at_level(logging.INFO, logger="m4-companion"):
-        code, lines = run_cli(capsys, "--fc", "udpout:127.0.0.1:9")
+        code, lines = run_cli(capsys, "--fc", "udpout:127.0.0.1:9", *signed)
     said = [r.getMessage() for r in caplog.records]
     assert code == 0 and not lines, lines
     assert said[-1].startswith("stopped after 0 setpoints") and any("No space left on device" in m for m in said)
