@@ -74,6 +74,8 @@ class Airframe:
     drag_quadratic_n_s2_m2: float
     drag_rotational_linear_n_m_s: float
     drag_yaw_quadratic_n_m_s2: float
+    drag_rotor_n_s_m_per_rad_s: float   # plant only, in wind: rotor drag per rotor speed (sitl/plant/rotor_aero.py)
+    inflow_reference_speed_m_s: float   # plant only, in wind: axial inflow that would cancel a rotor's thrust
     position_noise_m: float             # [sensors]: plant only, standard deviations
     velocity_noise_m_s: float
     attitude_noise_rad: float
@@ -255,6 +257,8 @@ def _parse(data: dict, filename: str) -> Airframe:
         drag_quadratic_n_s2_m2=drag.number("quadratic_n_s2_m2", lo=0.0),
         drag_rotational_linear_n_m_s=drag.number("rotational_linear_n_m_s", lo=0.0),
         drag_yaw_quadratic_n_m_s2=drag.number("yaw_quadratic_n_m_s2", lo=0.0),
+        drag_rotor_n_s_m_per_rad_s=drag.number("rotor_n_s_m_per_rad_s", lo=0.0),
+        inflow_reference_speed_m_s=rotors.number("inflow_reference_speed_m_s", lo=0.0, lo_open=True),
         position_noise_m=sensors.number("position_noise_m", lo=0.0),
         velocity_noise_m_s=sensors.number("velocity_noise_m_s", lo=0.0),
         attitude_noise_rad=sensors.number("attitude_noise_rad", lo=0.0),

@@ -1,6 +1,6 @@
 """Scenario files (docs/interfaces.md): what is flown, what fails, how the plant differs.
 
-The plant reads `[start]`, `[[fault]]` and `[plant]`; the companion reads `[mission]`
+The plant reads `[start]`, `[[fault]]`, `[plant]` and `[wind]`; the companion reads `[mission]`
 (`m4.mission`, parsed here too so that a scenario is checked whole before it flies). Units
 SI, positions local NED (z negative is up), angles in degrees in the file. Unknown keys and
 out-of-range values raise ConfigError naming the key.
@@ -54,6 +54,27 @@ class PlantOptions:
     battery_charge: float = 1.0           # state of charge at t = 0 when the pack sags
 
 
+TURBULENCE_LEVELS = ("none", "light", "moderate", "severe")
+WIND_SPEED_MAX_M_S = 30.0          # any wind, mean or gust peak, per axis: beyond it the robot cannot fly
+
+
+@dataclass(frozen=True)
+class Gust:
+    """A discrete 1-cosine gust: peak_ned_m_s x (1 - cos(2 pi (t - at_s) / duration_s)) / 2 while
+    at_s <= t <= at_s + duration_s (sitl/plant/wind.py)."""
+    at_s: float
+    peak_ned_m_s: tuple[float, float, float]
+    duration_s: float
+
+
+@dataclass(frozen=True)
+class Wind:
+    """The air the robot flies in (sitl/plant/wind.py): the air's velocity over the ground."""
+    mean_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    turbulence: str = "none"              # one of TURBULENCE_LEVELS: Dryden, MIL-HDBK-1797 low altitude
+    gusts: tuple[Gust, ...] = ()
+
+
 @dataclass(frozen=True)
 class Scenario:
     name: str
@@ -62,6 +83,7 @@ class Scenario:
     mission: Mission = field(default_factory=Mission)
     faults: tuple[Fault, ...] = ()
     plant: PlantOptions = field(default_factory=PlantOptions)
+    wind: Wind | None = None              # None: no [wind] table, still air (the plant as calibrated)
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -78,10 +100,12 @@ def parse_scenario(data: dict, where: str) -> Scenario:
     mission = parse_mission(top.table("mission"))
     faults = tuple(sorted((_parse_fault(t, duration_s) for t in top.tables("fault")), key=lambda f: f.at_s))
     plant = _parse_plant(top.table("plant"))
+    wind = _parse_wind(top.table("wind"), duration_s) if top.has("wind") else None
     top.finish()
     if mission.land is not None and mission.land.at_s > duration_s:
         raise ConfigError(f"{where} [mission.land] at_s ({mission.land.at_s:g}) is after duration_s ({duration_s:g})")
-    return Scenario(name=name, duration_s=duration_s, start=start, mission=mission, faults=faults, plant=plant)
+    return Scenario(name=name, duration_s=duration_s, start=start, mission=mission, faults=faults, plant=plant,
+                    wind=wind)
 
 
 def _parse_start(t: Table) -> Start:
@@ -116,6 +140,24 @@ def _parse_plant(t: Table) -> PlantOptions:
                      battery_charge=t.number("battery_charge", 1.0, lo=0.0, hi=1.0))
     t.finish()
     return p
+
+
+def _parse_wind(t: Table, duration_s: float) -> Wind:
+    lim = WIND_SPEED_MAX_M_S
+    w = Wind(mean_ned_m_s=t.vector("mean_ned_m_s", 3, [0.0, 0.0, 0.0], lo=-lim, hi=lim),
+             turbulence=t.string("turbulence", "none", choices=TURBULENCE_LEVELS),
+             gusts=tuple(sorted((_parse_gust(g, duration_s) for g in t.tables("gust")), key=lambda g: g.at_s)))
+    t.finish()
+    return w
+
+
+def _parse_gust(t: Table, duration_s: float) -> Gust:
+    lim = WIND_SPEED_MAX_M_S
+    g = Gust(at_s=t.number("at_s", lo=0.0, hi=duration_s),
+             peak_ned_m_s=t.vector("peak_ned_m_s", 3, lo=-lim, hi=lim),
+             duration_s=t.number("duration_s", lo=0.0, lo_open=True, hi=60.0))
+    t.finish()
+    return g
 
 
 def load_mission(path: str | Path) -> Mission:

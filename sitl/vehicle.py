@@ -45,7 +45,7 @@ class Vehicle:
                  companion_ids: tuple[int, int] = (FC_SYSTEM_ID, COMPANION_COMPONENT_ID), require_signed: bool = False):
         self.scenario = scenario
         self.plant = Plant(airframe, scenario.plant, start_ned_m=scenario.start.ned_m,
-                           start_yaw_rad=scenario.start.yaw_rad, seed=seed)
+                           start_yaw_rad=scenario.start.yaw_rad, seed=seed, wind=scenario.wind)
         options = scenario.plant
         esc = EscTelemetry(airframe, TICK_MS, noise=options.sensor_noise, seed=seed) if options.esc_telemetry else None
         self.fc = FlightController(airframe, self.plant, lockstep=lockstep, companion_ids=companion_ids,

@@ -3,8 +3,9 @@
 Inputs are per-rotor thrusts (N) and sagittal hip angle targets (rad, with optional rates);
 the plant adds what the reduced-order model leaves out: three lumps per leg, the frontal
 joints and their stiff hold, the thrusters' motors and propellers (sitl/plant/thrusters.py) on a
-battery (sitl/plant/battery.py), servo rate and acceleration limits, hull drag and ground contact.
-Faults and the scenario's [plant] mismatch are applied here. Frames are
+battery (sitl/plant/battery.py), servo rate and acceleration limits, hull drag and ground contact,
+and with a scenario's [wind] the air (sitl/plant/wind.py) and what it does to the rotors
+(sitl/plant/rotor_aero.py). Faults and the scenario's [plant] mismatch are applied here. Frames are
 converted in `sitl.plant.frames` only; everything public is NED/FRD.
 """
 
@@ -18,15 +19,17 @@ import numpy as np
 from m4.airframe import ROTOR_COUNT, Airframe
 from m4.attitude import euler_from_quat_wxyz, quat_wxyz_from_euler
 from m4.fault_kind import INJECTABLE, FaultKind
-from m4.scenario import PlantOptions
+from m4.scenario import PlantOptions, Wind
 from sitl.plant import frames
 from sitl.plant.battery import Battery
 from sitl.plant.drag import HullDrag
 from sitl.plant.mjcf import PHYSICS_DT_S, compile_model
 from sitl.plant.sensors import SensorNoise
 from sitl.plant.hip_servos import REFERENCE_PERIOD_S, HipReference
+from sitl.plant.rotor_aero import RotorAero
 from sitl.plant.state import PlantState, RotorState
 from sitl.plant.thrusters import Thrusters
+from sitl.plant.wind import WindField
 
 __all__ = ["Plant", "PlantOptions", "PlantState"]
 
@@ -43,8 +46,10 @@ class Plant:
     physics_dt_s = PHYSICS_DT_S
 
     def __init__(self, airframe: Airframe, options: PlantOptions = _NOMINAL_PLANT, *,
-                 start_ned_m=(0.0, 0.0, -2.0), start_yaw_rad: float = 0.0, seed: int = 0):
-        """Starts hovering at rest: nominal hips, every rotor at the hover thrust of this plant."""
+                 start_ned_m=(0.0, 0.0, -2.0), start_yaw_rad: float = 0.0, seed: int = 0,
+                 wind: Wind | None = None):
+        """Starts hovering at rest: nominal hips, every rotor at the hover thrust of this plant.
+        wind None: still air, the calibrated plant alone (no rotor drag, no inflow)."""
         start = _vector("start_ned_m", start_ned_m, 3)
         if not (np.all(np.isfinite(start)) and math.isfinite(start_yaw_rad)):
             raise ValueError(f"start_ned_m and start_yaw_rad must be finite, got {start}, {start_yaw_rad}")
@@ -74,7 +79,11 @@ class Plant:
         qpos0, qvel0 = m.jnt_qposadr[root.id], m.jnt_dofadr[root.id]
         self._pos, self._quat = slice(qpos0, qpos0 + 3), slice(qpos0 + 3, qpos0 + 7)
         self._vel, self._rates = slice(qvel0, qvel0 + 3), slice(qvel0 + 3, qvel0 + 6)
-        self._drag = HullDrag(airframe, d.qvel[qvel0:qvel0 + 6], m.dof_damping[qvel0:qvel0 + 6])
+        self._drag = HullDrag(airframe, d.qvel[qvel0:qvel0 + 6], m.dof_damping[qvel0:qvel0 + 6],
+                              d.xfrc_applied[self._hull, :3])
+        self.wind = None if wind is None else WindField(wind, height_m=-float(start[2]), seed=seed)
+        self._rotor_aero = None if wind is None else RotorAero(airframe, m, d, (self._thrust, self._thrust_sq))
+        self._air_world_m_s: np.ndarray | None = None
         self._noise = SensorNoise(airframe, seed)
 
         self._thrust_max_n = airframe.thrust_max_n if options.thrust_max_n is None else options.thrust_max_n
@@ -174,7 +183,7 @@ class Plant:
             if self._servo_countdown == 0:
                 self._servo_countdown = self._servo_period_steps
                 self._gate_contact()
-                self._drag.update()
+                self._update_air()
                 if not self._hips.settled:
                     self._update_servo_reference()
             k = min(n, self._servo_countdown)
@@ -192,6 +201,13 @@ class Plant:
                     self.battery.draw(current_a, dt_s)
             self._servo_countdown -= k
             n -= k
+
+    def _update_air(self) -> None:
+        """Hull drag, and in wind the air's loads on the hull and the rotors, for the next servo period."""
+        if self.wind is not None:
+            self._air_world_m_s = frames.flip_vector(self.wind.velocity_ned_m_s(float(self.data.time)))
+            self._rotor_aero.update(self._air_world_m_s, self.thrusters.speed_rad_s)
+        self._drag.update(self._air_world_m_s)
 
     def _gate_contact(self) -> None:
         opt = self.model.opt
@@ -223,6 +239,9 @@ class Plant:
         m, d = self.model, self.data
         mujoco.mj_forward(m, d)
         quat = frames.flip_quat_wxyz(d.qpos[self._quat])
+        thrust_n = d.act[self._thrust_act] + d.act[self._thrust_sq_act]
+        if self._rotor_aero is not None:
+            thrust_n = thrust_n * self._rotor_aero.inflow_factor
         return PlantState(
             time_s=float(d.time),
             pos_ned_m=frames.flip_vector(d.qpos[self._pos]),
@@ -233,7 +252,7 @@ class Plant:
             hip_rad=d.qpos[self._hip_qpos],               # indexed by an array: a copy already
             hip_rate_rad_s=d.qvel[self._hip_qvel],
             thrust_cmd_n=np.array(self._esc_cmd_n),
-            thrust_n=d.act[self._thrust_act] + d.act[self._thrust_sq_act],
+            thrust_n=thrust_n,
             thrust_limit_n=self.thrusters.thrust_ceiling_n(self._thrust_max_n),
             thrust_rated_max_n=np.full(ROTOR_COUNT, self._thrust_max_n),
             rotor_speed_rad_s=self.thrusters.speed_rad_s,
@@ -243,6 +262,7 @@ class Plant:
             battery_consumed_mah=self.battery.consumed_mah,
             com_ned_m=frames.flip_vector(d.subtree_com[self._hull]),
             on_ground=bool(d.ncon > 0),
+            wind_ned_m_s=None if self.wind is None else self.wind.velocity_ned_m_s(float(d.time)),
         )
 
     def measured_rates_frd_rad_s(self) -> np.ndarray:

@@ -29,6 +29,8 @@ class PlantState:
     battery_consumed_mah: float
     com_ned_m: np.ndarray          # whole-robot centre of mass (truth, for metrics)
     on_ground: bool                # any contact with the floor
+    wind_ned_m_s: np.ndarray | None = None   # (3,) the air's velocity over the ground at the robot (truth);
+                                             # None: a still-air scenario (no [wind])
 
 
 @dataclass(frozen=True)
