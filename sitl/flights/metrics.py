@@ -174,10 +174,22 @@ def flight_metrics(scenario: Scenario, controller: str, af: Airframe, truth: Tru
         "touchdown_speed_m_s": touchdown_speed_m_s(t, truth.vel_ned_m_s, touchdown),
         "nmpc": nmpc_summary(nmpc),
         "realtime_factor": realtime_factor(t, truth.wall_s),
+        "wind": wind_summary(scenario, truth),
     }
     m["checks"] = survival_checks(m, land_s is not None)
     m["survived"] = all(m["checks"].values())
     return _rounded(m)
+
+
+def wind_summary(scenario: Scenario, truth: Truth) -> dict | None:
+    """The scenario's [wind] and the air the robot met (truth); None in still air."""
+    w = scenario.wind
+    if w is None:
+        return None
+    air = truth.wind_ned_m_s
+    return {"mean_ned_m_s": list(w.mean_ned_m_s), "turbulence": w.turbulence, "gusts": len(w.gusts),
+            "air_std_ned_m_s": air.std(axis=0).tolist(),
+            "air_speed_max_m_s": float(np.max(np.linalg.norm(air, axis=1)))}
 
 
 def survival_checks(m: dict, lands: bool) -> dict[str, bool]:

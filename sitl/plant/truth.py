@@ -41,9 +41,11 @@ class Truth:
     esc_current_a: np.ndarray | None = None       # (n, 4) drawn from the pack
     fault_kind: np.ndarray | None = None          # (n, 4) int: m4.fault_kind.FaultKind, -1 healthy
     battery_voltage_v: np.ndarray | None = None   # (n,)
+    wind_ned_m_s: np.ndarray | None = None        # (n, 3) the air's velocity at the robot; None: still air (no [wind])
 
 
 _FROM_STATE = tuple(f.name for f in fields(Truth) if f.name not in ("time_s", "wall_s"))   # PlantState's names
+_OPTIONAL = frozenset(f.name for f in fields(Truth) if f.default is not MISSING)
 
 
 class TruthRecorder:
@@ -64,14 +66,18 @@ class TruthRecorder:
         rows["time_s"].append(now_ms / 1000.0)
         rows["wall_s"].append(time.monotonic())
         for name in _FROM_STATE:
-            rows[name].append(getattr(s, name))
+            value = getattr(s, name)
+            if value is not None:          # a still-air plant has no wind: that array is left out
+                rows[name].append(value)
 
     def truth(self) -> Truth:
-        return Truth(**{name: np.array(values) for name, values in self._rows.items()})
+        return Truth(**{name: np.array(values) for name, values in self._rows.items()
+                        if values or name not in _OPTIONAL})
 
     def save(self, path: str | Path) -> None:
         t = self.truth()
-        np.savez_compressed(Path(path), **{f.name: getattr(t, f.name) for f in fields(Truth)})
+        np.savez_compressed(Path(path), **{f.name: getattr(t, f.name) for f in fields(Truth)
+                                           if getattr(t, f.name) is not None})
 
 
 def load_truth(path: str | Path) -> Truth:
