@@ -42,3 +42,11 @@ def rotation_rows(cr, sr, cp, sp, cy, sy) -> list:
 def rotation_ned_from_frd(euler_rad) -> np.ndarray:
     """(3, 3) rotation body FRD -> NED of the ZYX Euler angles (roll, pitch, yaw)."""
     return np.array(rotation_rows(*(f(a) for a in np.asarray(euler_rad, dtype=float)[:3] for f in (np.cos, np.sin))))
+
+
+def rotation_ned_from_quat_wxyz(q) -> np.ndarray:
+    """(3, 3) rotation body FRD -> NED of the unit quaternion q (scalar first)."""
+    w, x, y, z = (float(c) for c in q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])

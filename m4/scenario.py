@@ -1,6 +1,6 @@
 """Scenario files (docs/interfaces.md): what is flown, what fails, how the plant differs.
 
-The plant reads `[start]`, `[[fault]]`, `[plant]` and `[wind]`; the companion reads `[mission]`
+The plant reads `[start]`, `[[fault]]`, `[plant]`, `[wind]` and `[sensors]`; the companion reads `[mission]`
 (`m4.mission`, parsed here too so that a scenario is checked whole before it flies). Units
 SI, positions local NED (z negative is up), angles in degrees in the file. Unknown keys and
 out-of-range values raise ConfigError naming the key.
@@ -75,6 +75,17 @@ class Wind:
     gusts: tuple[Gust, ...] = ()
 
 
+SENSOR_PROFILES = ("ideal", "mocap", "gps")
+
+
+@dataclass(frozen=True)
+class Sensors:
+    """What the flight controller's reported state is built from (m4/sensor_profiles.py):
+    "ideal" is the truth (with [plant] sensor_noise's white noise), "mocap" and "gps" the
+    FC's estimator on simulated sensors."""
+    profile: str = "ideal"                # one of SENSOR_PROFILES
+
+
 @dataclass(frozen=True)
 class Scenario:
     name: str
@@ -84,6 +95,7 @@ class Scenario:
     faults: tuple[Fault, ...] = ()
     plant: PlantOptions = field(default_factory=PlantOptions)
     wind: Wind | None = None              # None: no [wind] table, still air (the plant as calibrated)
+    sensors: Sensors = field(default_factory=Sensors)
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -101,11 +113,12 @@ def parse_scenario(data: dict, where: str) -> Scenario:
     faults = tuple(sorted((_parse_fault(t, duration_s) for t in top.tables("fault")), key=lambda f: f.at_s))
     plant = _parse_plant(top.table("plant"))
     wind = _parse_wind(top.table("wind"), duration_s) if top.has("wind") else None
+    sensors = _parse_sensors(top.table("sensors"))
     top.finish()
     if mission.land is not None and mission.land.at_s > duration_s:
         raise ConfigError(f"{where} [mission.land] at_s ({mission.land.at_s:g}) is after duration_s ({duration_s:g})")
     return Scenario(name=name, duration_s=duration_s, start=start, mission=mission, faults=faults, plant=plant,
-                    wind=wind)
+                    wind=wind, sensors=sensors)
 
 
 def _parse_start(t: Table) -> Start:
@@ -158,6 +171,12 @@ def _parse_gust(t: Table, duration_s: float) -> Gust:
              duration_s=t.number("duration_s", lo=0.0, lo_open=True, hi=60.0))
     t.finish()
     return g
+
+
+def _parse_sensors(t: Table) -> Sensors:
+    s = Sensors(profile=t.string("profile", "ideal", choices=SENSOR_PROFILES))
+    t.finish()
+    return s
 
 
 def load_mission(path: str | Path) -> Mission:

@@ -18,7 +18,9 @@ from typing import Protocol
 from m4.airframe import Airframe
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from m4.scenario import Fault, Scenario
+from m4.sensor_profiles import PROFILES
 from sitl.fc.esc_telemetry import EscTelemetry
+from sitl.fc.estimator import Estimator
 from sitl.fc.flight_controller import TICK_MS, FlightController
 from sitl.plant.mujoco_plant import Plant
 from sitl.fc.streams import FRAME
@@ -44,12 +46,15 @@ class Vehicle:
     def __init__(self, scenario: Scenario, airframe: Airframe, seed: int = 0, lockstep: bool = False,
                  companion_ids: tuple[int, int] = (FC_SYSTEM_ID, COMPANION_COMPONENT_ID), require_signed: bool = False):
         self.scenario = scenario
+        sensors = PROFILES.get(scenario.sensors.profile)       # None: "ideal", the measured state as it is
         self.plant = Plant(airframe, scenario.plant, start_ned_m=scenario.start.ned_m,
-                           start_yaw_rad=scenario.start.yaw_rad, seed=seed, wind=scenario.wind)
+                           start_yaw_rad=scenario.start.yaw_rad, seed=seed, wind=scenario.wind, sensors=sensors)
+        estimator = None if sensors is None else Estimator(sensors, airframe.gravity_m_s2, scenario.start.ned_m,
+                                                           scenario.start.yaw_rad)
         options = scenario.plant
         esc = EscTelemetry(airframe, TICK_MS, noise=options.sensor_noise, seed=seed) if options.esc_telemetry else None
         self.fc = FlightController(airframe, self.plant, lockstep=lockstep, companion_ids=companion_ids,
-                                   require_signed=require_signed, log=log, esc=esc)
+                                   require_signed=require_signed, log=log, esc=esc, estimator=estimator)
         self.now_ms = 0
         self._faults = sorted(_fault_events(scenario.faults), key=lambda x: x[0])
         self.observers: list[Callable[[int, Plant], None]] = []     # called at every simulated instant

@@ -4,7 +4,10 @@ It implements the contract of docs/flight-controller.md, where each rule (setpoi
 staleness, authority, arming, failsafe, the fast loops) is stated once. It owns the plant's
 actuator commands: the companion's M4_SETPOINT while setpoints are fresh, its own failsafe
 (sitl/fc/failsafe.py) otherwise. STATUSTEXT announces each mode change. Commands (sitl/fc/commands.py) are
-acknowledged; telemetry streams (sitl/fc/streams.py) are built from the measured plant state.
+acknowledged; telemetry streams (sitl/fc/streams.py) are built from the measured plant state:
+with an `estimator` (sitl/fc/estimator.py: a scenario's [sensors] profile "mocap" or "gps"),
+its attitude, rates, position and velocity come from the estimator's raw sensors, never the
+truth, and so do the rates of the fast loop.
 
 Authority: the FC is paired with one companion (`companion_ids`, system 1 component 191 by
 default). Setpoints, commands (rotor faults, arming, stream rates, requests) and
@@ -45,6 +48,7 @@ from m4.setpoint import RateFeedback, Setpoint, ShortfallCover
 from m4.units import RAD_S_TO_RPM
 from sitl.fc.commands import CommandHandler
 from sitl.fc.esc_telemetry import EscTelemetry
+from sitl.fc.estimator import Estimator
 from sitl.fc.failsafe import Failsafe
 from sitl.fc.modes import FcMode, current_mode
 from sitl.fc.rotor_watch import RotorWatch
@@ -112,7 +116,8 @@ class FcCounters:
 class FlightController:
     def __init__(self, airframe: Airframe, plant, home: Home | None = None, lockstep: bool = False,
                  companion_ids: tuple[int, int] = (FC_SYSTEM_ID, COMPANION_COMPONENT_ID), require_signed: bool = False,
-                 log: Callable[[str], None] = lambda text: None, esc: EscTelemetry | None = None):
+                 log: Callable[[str], None] = lambda text: None, esc: EscTelemetry | None = None,
+                 estimator: Estimator | None = None):
         self.airframe = airframe
         self.companion_ids = companion_ids
         self.require_signed = require_signed
@@ -128,6 +133,7 @@ class FlightController:
         self.lockstep = lockstep
         self.plant = plant
         self.esc = esc                          # None: no ESC telemetry (many FCs have none)
+        self.estimator = estimator              # None: the plant's measured state as it is ("ideal")
         self.telemetry_builder = Telemetry(airframe, home, esc_telemetry=esc is not None)
         self.schedule = StreamSchedule(DEFAULT_INTERVALS_MS if esc is None else ESC_TELEMETRY_INTERVALS_MS)
         self.failsafe = Failsafe(airframe)
@@ -143,8 +149,21 @@ class FlightController:
     # -- the plant as the FC sees it -------------------------------------------------------
     def measured_state(self, now_ms: int) -> PlantState:
         if self._measured is None or self._measured.time_ms != now_ms:
-            self._measured = _Measured(now_ms, self.plant.measured_state())
+            self._measured = _Measured(now_ms, self._sensed(self.plant.measured_state()))
         return self._measured.state
+
+    def _sensed(self, measured: PlantState) -> PlantState:
+        if self.estimator is None:
+            return measured
+        self.estimator.feed(self.plant.take_sensor_samples())
+        return self.estimator.report(measured)
+
+    def _gyro_rates(self) -> np.ndarray:
+        """The body rates the fast loop flies on: the gyro, less the estimator's bias if it has one."""
+        if self.estimator is None:
+            return self.plant.measured_rates_frd_rad_s()
+        self.estimator.feed(self.plant.take_sensor_samples())
+        return self.estimator.rates_frd_rad_s
 
     def _command_plant(self, thrust_n, hip_rad, hip_rate_rad_s=None) -> None:
         self.plant.command(thrust_n, hip_rad, hip_rate_rad_s)
@@ -155,7 +174,7 @@ class FlightController:
         rotors' cover for a rotor our ESCs show falling short (m4.setpoint)."""
         change = np.zeros(ROTOR_COUNT)
         if sp.rate_feedback is not None:
-            rates = self.plant.measured_rates_frd_rad_s()      # the gyro alone: cheap at every tick
+            rates = self._gyro_rates()      # the gyro alone: cheap at every tick
             change += sp.rate_feedback.thrust_change_n(rates, (now_ms - self._applied_at_ms) / 1000.0,
                                                        self.setpoint.period_ms / 1000.0)
         if sp.shortfall_cover is not None and self._shortfall_n is not None:

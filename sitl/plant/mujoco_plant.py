@@ -20,14 +20,16 @@ from m4.airframe import ROTOR_COUNT, Airframe
 from m4.attitude import euler_from_quat_wxyz, quat_wxyz_from_euler
 from m4.fault_kind import INJECTABLE, FaultKind
 from m4.scenario import PlantOptions, Wind
+from m4.sensor_profiles import SensorProfile
 from sitl.plant import frames
 from sitl.plant.battery import Battery
 from sitl.plant.drag import HullDrag
 from sitl.plant.mjcf import PHYSICS_DT_S, compile_model
+from sitl.plant.sensor_suite import SensorSuite
 from sitl.plant.sensors import SensorNoise
 from sitl.plant.hip_servos import REFERENCE_PERIOD_S, HipReference
 from sitl.plant.rotor_aero import RotorAero
-from sitl.plant.state import PlantState, RotorState
+from sitl.plant.state import PlantState, RotorState, SensorSample
 from sitl.plant.thrusters import Thrusters
 from sitl.plant.wind import WindField
 
@@ -47,9 +49,10 @@ class Plant:
 
     def __init__(self, airframe: Airframe, options: PlantOptions = _NOMINAL_PLANT, *,
                  start_ned_m=(0.0, 0.0, -2.0), start_yaw_rad: float = 0.0, seed: int = 0,
-                 wind: Wind | None = None):
+                 wind: Wind | None = None, sensors: SensorProfile | None = None):
         """Starts hovering at rest: nominal hips, every rotor at the hover thrust of this plant.
-        wind None: still air, the calibrated plant alone (no rotor drag, no inflow)."""
+        wind None: still air, the calibrated plant alone (no rotor drag, no inflow). sensors
+        None: no raw sensors (the FC reads measured_state(), the "ideal" profile)."""
         start = _vector("start_ned_m", start_ned_m, 3)
         if not (np.all(np.isfinite(start)) and math.isfinite(start_yaw_rad)):
             raise ValueError(f"start_ned_m and start_yaw_rad must be finite, got {start}, {start_yaw_rad}")
@@ -109,6 +112,9 @@ class Plant:
         d.act[self._hip_act] = self._hips.pos_rad
         d.ctrl[self._hip_ctrl] = d.ctrl[self._rate_ctrl] = 0.0
         mujoco.mj_forward(m, d)
+        self.sensors = None if sensors is None else SensorSuite(
+            sensors, seed=seed, mass_kg=float(m.body_subtreemass[self._hull]), gravity_m_s2=airframe.gravity_m_s2,
+            turn_sense_frd_z=-np.array(airframe.spin_sign), start_vel_ned_m_s=np.zeros(3))
 
     def _apply_mismatch(self) -> None:
         """[plant] mass_scale scales every mass; inertia_scale scales every body's own inertia
@@ -187,6 +193,8 @@ class Plant:
                 if not self._hips.settled:
                     self._update_servo_reference()
             k = min(n, self._servo_countdown)
+            if self.sensors is not None:
+                k = min(k, self._sensor_countdown())
             # The rotor model and the pack advance one physics step at a time, so the same flight
             # gives the same numbers whatever lengths the caller steps by (those depend on when
             # commands arrive); a sagging pack feeds back into the thrusts at every step.
@@ -201,6 +209,25 @@ class Plant:
                     self.battery.draw(current_a, dt_s)
             self._servo_countdown -= k
             n -= k
+            if self.sensors is not None and self._sensor_countdown() == self.sensors.period_ms:
+                self._sense()
+
+    def _now_ms(self) -> int:
+        return round(self.data.time * 1000.0)
+
+    def _sensor_countdown(self) -> int:
+        """Physics steps (1 ms) to the next IMU instant."""
+        return self.sensors.period_ms - self._now_ms() % self.sensors.period_ms
+
+    def _sense(self) -> None:
+        d, rotors = self.data, self.thrusters
+        self.sensors.sample(self._now_ms(), frames.flip_vector(d.qpos[self._pos]), frames.flip_vector(d.qvel[self._vel]),
+                            frames.flip_quat_wxyz(d.qpos[self._quat]), frames.flip_vector(d.qvel[self._rates]),
+                            rotors.speed_rad_s, rotors.kind, rotors.loss)
+
+    def take_sensor_samples(self) -> list[SensorSample]:
+        """The raw sensors' samples heard since the last call, up to now (none without [sensors])."""
+        return [] if self.sensors is None else self.sensors.take(self._now_ms())
 
     def _update_air(self) -> None:
         """Hull drag, and in wind the air's loads on the hull and the rotors, for the next servo period."""

@@ -42,3 +42,36 @@ class RotorState:
     esc_current_a: list[float]      # (4,) drawn from the pack by each ESC
     battery_voltage_v: float
     thrust_cmd_n: list[float]       # (4,) sent to the ESCs
+
+
+@dataclass(frozen=True)
+class ImuSample:
+    """One IMU reading, as the sensor outputs it (noise, bias, vibration, range)."""
+    time_s: float
+    gyro_frd_rad_s: np.ndarray
+    accel_frd_m_s2: np.ndarray     # specific force: (0, 0, -g) at rest, level
+
+
+@dataclass(frozen=True)
+class BaroSample:
+    time_s: float
+    height_m: float                # above the local NED origin (-down), with noise and drift
+
+
+@dataclass(frozen=True)
+class CompassSample:
+    time_s: float
+    field_frd: np.ndarray          # the earth's field in the body, unit length plus noise
+
+
+@dataclass(frozen=True)
+class FixSample:
+    """A GNSS or motion-capture fix heard at `time_s`, measured `delay` earlier (the FC knows
+    its sensor's delay, as a flight controller's GPS_DELAY / EKF2_EV_DELAY)."""
+    time_s: float
+    pos_ned_m: np.ndarray
+    vel_ned_m_s: np.ndarray | None  # GNSS only
+    yaw_rad: float | None           # motion capture only
+
+
+SensorSample = ImuSample | BaroSample | CompassSample | FixSample

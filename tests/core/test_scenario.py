@@ -99,7 +99,9 @@ def test_the_companion_reads_the_mission_alone_or_from_a_whole_scenario(tmp_path
     (GOOD.replace("rotor = 4", "rotor = 5"), r"\[\[fault\]\] #2 rotor must be <= 4"),
     (GOOD.replace("mass_scale = 1.1", "mass_scale = 1.1\nwind_m_s = 3.0"), r"\[plant\]: unknown key\(s\) wind_m_s"),
     (GOOD.replace("yaw_deg = 90.0", "yaw_deg = 900.0"), r"\[start\] yaw_deg must be <= 360"),
-    (GOOD + "[sensors]\ngyro_noise = 0.1\n", r"unknown key\(s\) sensors"),
+    (GOOD + "[sensors]\ngyro_noise = 0.1\n", r"\[sensors\]: unknown key\(s\) gyro_noise"),
+    (GOOD + "[sensors]\nprofile = \"lidar\"\n", r"\[sensors\] profile must be one of ideal, mocap, gps"),
+    (GOOD + "[sensors]\nprofile = 3\n", r"\[sensors\] profile must be"),
     ('[mission]\non_fault = "hold"\n[[fault]]\nat_s = 1.0\nrotor = 2\n', r"unknown key\(s\) fault \(a mission file"),
     ('[mission]\non_fault = "hold"\n[misson.land]\nat_s = 1.0\n', r"unknown key\(s\) misson"),
 ])
