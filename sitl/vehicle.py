@@ -17,11 +17,12 @@ from typing import Protocol
 
 from m4.airframe import Airframe
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
-from m4.scenario import Fault, Scenario
+from m4.scenario import Scenario
 from m4.sensor_profiles import PROFILES
 from sitl.fc.esc_telemetry import EscTelemetry
 from sitl.fc.estimator import Estimator
 from sitl.fc.flight_controller import TICK_MS, FlightController
+from sitl.plant.faults import FaultSchedule, describe
 from sitl.plant.mujoco_plant import Plant
 from sitl.fc.streams import FRAME
 from sitl.plant.truth import DEFAULT_PERIOD_MS as OBSERVED_GRID_MS
@@ -56,7 +57,7 @@ class Vehicle:
         self.fc = FlightController(airframe, self.plant, lockstep=lockstep, companion_ids=companion_ids,
                                    require_signed=require_signed, log=log, esc=esc, estimator=estimator)
         self.now_ms = 0
-        self._faults = sorted(_fault_events(scenario.faults), key=lambda x: x[0])
+        self._faults = FaultSchedule(scenario.faults)
         self.observers: list[Callable[[int, Plant], None]] = []     # called at every simulated instant
         self.inbox: Inbox | None = None
 
@@ -72,8 +73,8 @@ class Vehicle:
         while self.now_ms < t_ms:
             grid = (self.now_ms // OBSERVED_GRID_MS + 1) * OBSERVED_GRID_MS
             nxt = min(self.fc.next_event_ms(self.now_ms), t_ms, grid)
-            if self._faults:
-                nxt = min(nxt, max(self._faults[0][0], self.now_ms + 1))
+            if (fault_ms := self._faults.next_ms()) is not None:
+                nxt = min(nxt, max(fault_ms, self.now_ms + 1))
             if self.inbox is not None and (due := self.inbox.next_delivery_ms()) is not None:
                 nxt = min(nxt, max(due, self.now_ms + 1))
             self.plant.step((nxt - self.now_ms) / 1000.0)
@@ -81,15 +82,9 @@ class Vehicle:
             self._at_instant(send, frame=frame and nxt == t_ms)
 
     def _at_instant(self, send: Send, frame: bool) -> None:
-        while self._faults and self._faults[0][0] <= self.now_ms:
-            _, fault, ends = self._faults.pop(0)
-            if ends:
-                self.fc.set_rotor_loss(fault.rotor, 0.0)
-                log(f"t={self.now_ms / 1000:.3f} s: scenario fault over, rotor {fault.rotor} restored")
-            else:
-                self.fc.set_rotor_loss(fault.rotor, fault.loss, fault.kind)
-                log(f"t={self.now_ms / 1000:.3f} s: scenario fault, rotor {fault.rotor} "
-                    f"{fault.kind.label} loss {fault.loss:g}")
+        for fault, ends in self._faults.due(self.now_ms):
+            self.fc.set_rotor_loss(fault.rotor, 0.0 if ends else fault.loss, fault.kind)
+            log(f"t={self.now_ms / 1000:.3f} s: {describe(fault, ends)}")
         if self.inbox is not None:
             self.inbox.deliver_held()
         if self.now_ms % TICK_MS == 0:
@@ -110,10 +105,3 @@ class Vehicle:
         build = self.fc.telemetry_builder.build
         return [build(i, snap) for i in (mavlink.MAVLINK_MSG_ID_HEARTBEAT, *FRAME)]
 
-
-def _fault_events(faults: Iterable[Fault]) -> list[tuple[int, Fault, bool]]:
-    """(t_ms, fault, whether it ends there) for every start and every until_s; at one instant an
-    end comes before a start, so a fault may take over the rotor another one leaves."""
-    events = [(round(f.at_s * 1000), f, False) for f in faults]
-    events += [(round(f.until_s * 1000), f, True) for f in faults if f.until_s is not None]
-    return sorted(events, key=lambda e: (e[0], not e[2]))

@@ -17,7 +17,7 @@ import mujoco
 import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
-from m4.attitude import euler_from_quat_wxyz, quat_wxyz_from_euler
+from m4.attitude import euler_from_quat_wxyz, quat_wxyz_from_euler, rotation_ned_from_frd
 from m4.fault_kind import INJECTABLE, FaultKind
 from m4.scenario import PlantOptions, Wind
 from m4.sensor_profiles import SensorProfile
@@ -155,6 +155,23 @@ class Plant:
         rates to the servo's rate limit; a non-finite entry keeps that entry's previous value
         (a rate: 0)."""
         self.command_thrust(thrust_n)
+        self.command_hips(hip_rad, hip_rate_rad_s)
+
+    def command_throttle(self, throttle) -> None:
+        """Throttles 0..1 (rotors 1..4, clamped): each ESC drives its motor at throttle x pack
+        voltage (an autopilot's PWM output, which linearises thrust itself), the hips' targets
+        kept. thrust_cmd_n then reports what the nominal rotor settles at on that throttle."""
+        throttle = _vector("throttle", throttle, ROTOR_COUNT)
+        if not np.all(np.isfinite(throttle)):
+            raise ValueError(f"throttle must be finite, got {throttle}")
+        self._state = None
+        self.thrusters.command_duty(throttle.tolist())
+        self._esc_cmd_n = self.thrusters.duty_thrust_n(self.battery.voltage_v)
+        self._update_rotors()
+
+    def command_hips(self, hip_rad, hip_rate_rad_s=None) -> None:
+        """Hip targets (rad) with their rates (rad/s, default 0), the thrusts kept; clamped and
+        kept as in command()."""
         hip = _vector("hip_rad", hip_rad, ROTOR_COUNT)
         rate = np.zeros(ROTOR_COUNT) if hip_rate_rad_s is None else _vector("hip_rate_rad_s", hip_rate_rad_s,
                                                                              ROTOR_COUNT)
@@ -291,6 +308,14 @@ class Plant:
             on_ground=bool(d.ncon > 0),
             wind_ned_m_s=None if self.wind is None else self.wind.velocity_ned_m_s(float(d.time)),
         )
+
+    def specific_force_frd_m_s2(self) -> np.ndarray:
+        """The accelerometer at the hull centre (truth): its acceleration less gravity, in body
+        FRD (m/s^2); at rest (0, 0, -g)."""
+        s = self.state()               # runs mj_forward: qacc is the acceleration at this instant
+        accel_ned = frames.flip_vector(self.data.qacc[self._vel])
+        gravity_ned = frames.flip_vector(self.model.opt.gravity)
+        return rotation_ned_from_frd(s.euler_rad).T @ (accel_ned - gravity_ned)
 
     def measured_rates_frd_rad_s(self) -> np.ndarray:
         """The gyro: measured_state().rates_frd_rad_s, without computing the rest of the state."""

@@ -12,7 +12,9 @@ The ESC command is the FC's thrust turned into the speed the nominal propeller n
 and that speed into the throttle that turns the nominal propeller at it on the present pack
 voltage V (the FC's thrust linearisation with battery-voltage compensation), at most full
 throttle. So a healthy rotor turns at the commanded speed below its ceiling, and a sagging
-pack lowers every rotor's ceiling together.
+pack lowers every rotor's ceiling together. An autopilot that linearises thrust itself
+(ArduPilot's MOT_THST_EXPO) commands the throttle instead (`command_duty`): the ESC drives its
+motor at duty x V.
 
 Failure kinds (m4.fault_kind.FaultKind, the dialect's M4_FAULT_KIND), per rotor:
 - DEGRADED: the motor cannot exceed the speed at which the healthy propeller gives
@@ -60,6 +62,7 @@ class Thrusters:
         self._u_max_v = [math.inf] * ROTOR_COUNT           # what each motor may be driven with
         self._driven = [True] * ROTOR_COUNT                # False: motor or ESC dead, no current
         self._speed_cmd = [float(self.speed_for_thrust(thrust_n))] * ROTOR_COUNT
+        self._duty: list[float] | None = None              # set: the ESCs are driven at duty x V (command_duty)
         self._speed = list(self._speed_cmd)                # rad/s
         self.voltage_v = voltage_v
         self._ceiling: tuple[float, float, np.ndarray] | None = None   # (thrust_max_n, voltage_v, ceiling)
@@ -73,6 +76,17 @@ class Thrusters:
     def command(self, thrust_n) -> None:
         """The ESC commands: thrusts (N, four) through the nominal propeller. Call update() after."""
         self._speed_cmd = [math.sqrt(max(t, 0.0) / self._k_t) for t in thrust_n]
+        self._duty = None
+
+    def command_duty(self, duty) -> None:
+        """The ESC commands as throttles (four, clamped to 0..1): each ESC drives its motor at
+        duty x pack voltage, with no thrust linearisation. Call update() after."""
+        self._duty = [min(max(float(x), 0.0), 1.0) for x in duty]
+
+    def duty_thrust_n(self, voltage_v: float) -> list[float]:
+        """What the nominal rotor settles at on the present duties and pack voltage `voltage_v`
+        (the thrust an autopilot's throttle stands for; command_duty must have been called)."""
+        return [self._k_t * self._settled_speed(d * voltage_v, self._k_q) ** 2 for d in self._duty]
 
     def set_fault(self, index: int, loss: float, kind: FaultKind) -> None:
         """The rotor at `index` (0..3 into the arrays: rotor index + 1) fails; loss 0 restores
@@ -98,16 +112,19 @@ class Thrusters:
         drive = self._k_e * max(u_v - self._r * self._i0, 0.0)
         return 2.0 * drive / (self._k_e_sq + math.sqrt(self._k_e_4 + 4.0 * k_q * self._r * drive))
 
-    def _settle(self, speed_cmd: list[float], voltage_v: float) -> tuple[list[float], list[float]]:
-        """(ESC output voltage, settled speed) for the commanded speeds (four), faults applied."""
-        u = [min(min(self._drive_voltage(w), voltage_v), u_max) for w, u_max in zip(speed_cmd, self._u_max_v)]
+    def _settle(self, drive_v: list[float], voltage_v: float) -> tuple[list[float], list[float]]:
+        """(ESC output voltage, settled speed) for the drive voltages asked for (four), at most the
+        pack's, faults applied."""
+        u = [min(min(r, voltage_v), u_max) for r, u_max in zip(drive_v, self._u_max_v)]
         w = [self._settled_speed(u_v, self._k_q * scale) for u_v, scale in zip(u, self._scale)]
         return u, w
 
     def update(self, voltage_v: float) -> None:
         """Recompute what every rotor heads for, on pack voltage `voltage_v`."""
         self.voltage_v = voltage_v
-        self._u_v, self._settled = self._settle(self._speed_cmd, voltage_v)
+        drive_v = ([d * voltage_v for d in self._duty] if self._duty is not None
+                   else [self._drive_voltage(w) for w in self._speed_cmd])
+        self._u_v, self._settled = self._settle(drive_v, voltage_v)
 
     def advance(self, dt_s: float) -> None:
         decay = math.exp(-dt_s / self._tau_s)
@@ -174,7 +191,8 @@ class Thrusters:
         """What each rotor settles at when commanded `thrust_max_n` now (truth: the fault and the
         pack voltage applied; computed again only when one of them changed)."""
         if self._ceiling is None or self._ceiling[:2] != (thrust_max_n, self.voltage_v):
-            _, w = self._settle([float(self.speed_for_thrust(thrust_max_n))] * ROTOR_COUNT, self.voltage_v)
+            drive_v = self._drive_voltage(float(self.speed_for_thrust(thrust_max_n)))
+            _, w = self._settle([drive_v] * ROTOR_COUNT, self.voltage_v)
             self._ceiling = (thrust_max_n, self.voltage_v, self.thrust_coefficient_n_s2 * np.array(w) ** 2)
         return self._ceiling[2].copy()
 
