@@ -3,6 +3,7 @@
     m4-sitl serve [--scenario SCENARIO] [--mavlink URL]... [--realtime] [--viewer] [--tlog PATH] [--truth-log PATH]
                   [--signing-key FILE] [--signing-state FILE] [--companion SYS:COMP] [--seed N] [--duration S]
                   [--lockstep-timeout S] [--link-delay-ms MS] [--link-loss P]
+    m4-sitl physics --autopilot ardupilot [--scenario SCENARIO] [--port N] [--truth-log PATH] [--seed N] [--duration S]
     m4-sitl list
     m4-sitl fly SCENARIO [--out DIR] [--controller nmpc|fixed-posture] [--seed N] [--port N] [--rate-hz HZ]
                 [--realtime] [--viewer] [--link-delay-ms MS] [--link-loss P]
@@ -99,6 +100,47 @@ def _serve(args) -> int:
     return 0
 
 
+def _add_physics(sub) -> None:
+    p = sub.add_parser("physics", help="the plant as an autopilot's own SITL physics (ArduPilot's JSON interface)")
+    p.add_argument("--autopilot", choices=("ardupilot",), required=True,
+                   help="whose SITL asks for physics: ardupilot (arducopter --model JSON:127.0.0.1)")
+    p.add_argument("--scenario", help="built-in name or scenario file: its start point, faults and [plant] "
+                                      "(default: hover at 2 m, no faults)")
+    p.add_argument("--port", type=_port, default=9002, help="UDP port on 127.0.0.1 SITL sends to (default 9002)")
+    p.add_argument("--truth-log", type=Path, metavar="PATH", help="write the plant's true state at 100 Hz (.npz)")
+    p.add_argument("--seed", type=seed_number, default=0, help="seed of the plant's noise (default 0)")
+    p.add_argument("--duration", type=positive_number, metavar="S",
+                   help="stop after S simulated seconds (default: never)")
+    p.set_defaults(func=_physics)
+
+
+def _port(text: str) -> int:
+    if not (text.isdigit() and 1 <= int(text) <= 65535):
+        raise argparse.ArgumentTypeError(f"expected a UDP port 1..65535, got {text!r}")
+    return int(text)
+
+
+def _physics(args) -> int:
+    scenario = scenarios.resolve(args.scenario) if args.scenario else Scenario(name="hover", duration_s=3600.0)
+    from sitl.ardupilot.physics import PhysicsOptions, PhysicsServer  # MuJoCo only once the input is good
+    from sitl.vehicle import log
+
+    options = PhysicsOptions(scenario=scenario, port=args.port, seed=args.seed, duration_s=args.duration,
+                             truth_log_path=args.truth_log)
+    try:
+        server = PhysicsServer(options, log=log)
+    except OSError as e:
+        raise BadInput(str(e)) from None
+    signal.signal(signal.SIGTERM, lambda *_: server.stop())
+    try:
+        server.run()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.close()
+    return 0
+
+
 def _add_list(sub) -> None:
     p = sub.add_parser("list", help="the built-in scenarios, one a line")
     p.set_defaults(func=_list)
@@ -109,7 +151,7 @@ def _list(args) -> int:
     return 0
 
 
-SUBCOMMANDS = [_add_serve, _add_list, flight_cli.add_fly, flight_cli.add_compare, flight_cli.add_campaign]
+SUBCOMMANDS = [_add_serve, _add_physics, _add_list, flight_cli.add_fly, flight_cli.add_compare, flight_cli.add_campaign]
 
 
 def main(argv: list[str] | None = None) -> int:
