@@ -4,6 +4,7 @@
                   [--signing-key FILE] [--signing-state FILE] [--companion SYS:COMP] [--seed N] [--duration S]
                   [--lockstep-timeout S] [--link-delay-ms MS] [--link-loss P]
     m4-sitl physics --autopilot ardupilot [--scenario SCENARIO] [--port N] [--truth-log PATH] [--seed N] [--duration S]
+    m4-sitl fly-ardupilot SCENARIO [--out DIR] [--speedup N] [--instance I]
     m4-sitl list
     m4-sitl fly SCENARIO [--out DIR] [--controller nmpc|fixed-posture] [--seed N] [--port N] [--rate-hz HZ]
                 [--realtime] [--viewer] [--link-delay-ms MS] [--link-loss P]
@@ -141,6 +142,34 @@ def _physics(args) -> int:
     return 0
 
 
+def _add_fly_ardupilot(sub) -> None:
+    p = sub.add_parser("fly-ardupilot", help="fly a scenario through ArduCopter SITL's own controller "
+                                             "(no companion): the baseline")
+    p.add_argument("scenario", help="built-in name or scenario file")
+    p.add_argument("--out", type=Path, metavar="DIR", help="output folder (default: out/ardupilot/SCENARIO)")
+    p.add_argument("--speedup", type=positive_number, default=10.0,
+                   help="arducopter --speedup: how much faster than real time it may run (default 10)")
+    p.add_argument("--instance", type=int, choices=range(0, 10), default=0, metavar="I",
+                   help="arducopter -I: MAVLink on tcp 5760 + 10 I, physics on udp 9002 + 10 I (default 0)")
+    p.set_defaults(func=_fly_ardupilot)
+
+
+def _fly_ardupilot(args) -> int:
+    scenario = scenarios.resolve(args.scenario)
+    from sitl.ardupilot.flight import ArduFlightOptions, FlightError, fly_ardupilot, summary_line
+    from sitl.vehicle import log
+
+    out = args.out or Path("out") / "ardupilot" / scenario.name
+    try:
+        metrics = fly_ardupilot(ArduFlightOptions(scenario=scenario, out_dir=out, speedup=args.speedup,
+                                                  instance=args.instance), log=log)
+    except (FlightError, OSError) as e:
+        raise BadInput(str(e)) from None
+    print(summary_line(metrics))
+    print(f"wrote {out}/truth.npz, metrics.json, flight.png, statustext.txt")
+    return 0
+
+
 def _add_list(sub) -> None:
     p = sub.add_parser("list", help="the built-in scenarios, one a line")
     p.set_defaults(func=_list)
@@ -151,7 +180,7 @@ def _list(args) -> int:
     return 0
 
 
-SUBCOMMANDS = [_add_serve, _add_physics, _add_list, flight_cli.add_fly, flight_cli.add_compare, flight_cli.add_campaign]
+SUBCOMMANDS = [_add_serve, _add_physics, _add_fly_ardupilot, _add_list, flight_cli.add_fly, flight_cli.add_compare, flight_cli.add_campaign]
 
 
 def main(argv: list[str] | None = None) -> int:

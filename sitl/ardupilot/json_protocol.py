@@ -98,5 +98,6 @@ def sensor_line(time_s: float, gyro_frd_rad_s, accel_frd_m_s2, pos_ned_m, vel_ne
                         "imu": {"gyro": floats(gyro_frd_rad_s), "accel_body": floats(accel_frd_m_s2)},
                         "position": floats(pos_ned_m), "velocity": floats(vel_ned_m_s),
                         "quaternion": floats(quat_wxyz),
-                        "battery": {"voltage": float(battery_v), "current": float(battery_a)}})
+                        "battery": {"voltage": float(battery_v), "current": float(battery_a)}},
+                       separators=(",", ":"))      # SITL's parser wants the value right after the colon
             + "\n").encode()

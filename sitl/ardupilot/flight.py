@@ -1,0 +1,220 @@
+"""A flight through the real ArduCopter SITL flown by ArduCopter's own controller (no companion):
+`m4-sitl fly-ardupilot SCENARIO`.
+
+The physics (sitl/ardupilot/physics.py) runs in this process; `arducopter` runs in a working
+folder under the output folder with ArduPilot's SITL defaults and deploy/ardupilot/m4.parm.
+Over MAVLink (tcp 127.0.0.1:5760 + 10 x instance, as a ground station: a HEARTBEAT first)
+this waits for EKF3 to use GPS, switches to GUIDED, arms, takes off to the scenario's start
+height, and lets the scenario run from when the robot holds its start point (the physics
+starts the scenario's clock then, and its faults with it) to its duration. Then it stops
+both, and writes truth.npz, statustext.txt (what ArduPilot said, on the physics' clock),
+metrics.json and flight.png. The binary: ARDUPILOT_SITL, else ../shared/ardupilot/arducopter
+beside the repository.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from m4.airframe import load_airframe
+from m4.mavlink import mavlink, mavutil
+from m4.scenario import Scenario
+from sitl.ardupilot.physics import DEFAULT_PORT, PhysicsOptions, PhysicsServer
+from sitl.plant.truth import Truth, load_truth
+
+REPO = Path(__file__).resolve().parents[2]
+DEFAULT_BINARY = REPO.parent / "shared" / "ardupilot" / "arducopter"
+PARAMS = REPO / "deploy" / "ardupilot" / "m4.parm"
+GCS_IDS = (255, 190)
+GUIDED = 4                          # ArduCopter's custom mode number
+EKF_READY_TEXT = "EKF3 IMU0 is using GPS"
+CONNECT_TIMEOUT_S = 30.0
+AFTER_DISARM_MS = 2000           # the flight ends this long after ArduPilot disarms (a crash)
+
+
+class FlightError(RuntimeError):
+    """The flight could not be flown (no binary, SITL would not boot, arm or take off)."""
+
+
+def sitl_binary() -> Path:
+    """ArduCopter SITL: ARDUPILOT_SITL, else ../shared/ardupilot/arducopter beside the repository."""
+    return Path(os.environ.get("ARDUPILOT_SITL", DEFAULT_BINARY))
+
+
+@dataclass(frozen=True)
+class ArduFlightOptions:
+    scenario: Scenario
+    out_dir: Path
+    speedup: float = 10.0
+    instance: int = 0               # arducopter -I: MAVLink on 5760 + 10 I, physics on 9002 + 10 I
+    timeout_s: float = 600.0        # wall clock for the whole flight
+
+
+def fly_ardupilot(options: ArduFlightOptions, log=print) -> dict:
+    binary = sitl_binary()
+    if not binary.is_file():
+        raise FlightError(f"no ArduCopter SITL at {binary} (set ARDUPILOT_SITL)")
+    out = options.out_dir
+    work = out / "arducopter"
+    work.mkdir(parents=True, exist_ok=True)
+    server = PhysicsServer(PhysicsOptions(scenario=options.scenario, port=DEFAULT_PORT + 10 * options.instance,
+                                          truth_log_path=out / "truth.npz"), log=log)
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    defaults = f"{binary.parent / 'copter.parm'},{PARAMS}"
+    with open(work / "arducopter.log", "w") as sitl_log:
+        sitl = subprocess.Popen([str(binary), "--model", "JSON:127.0.0.1", "--speedup", f"{options.speedup:g}",
+                                 "--defaults", defaults, f"-I{options.instance}", "-w"],
+                                cwd=work, stdout=sitl_log, stderr=subprocess.STDOUT)
+    texts: list[tuple[float, str]] = []
+    try:
+        _fly(options, server, sitl, texts, log)
+    finally:
+        sitl.kill()
+        sitl.wait()
+        server.stop()
+        thread.join(10.0)
+        server.close()
+        (out / "statustext.txt").write_text("".join(f"{t:9.3f} {text}\n" for t, text in texts))
+    t0_ms = server.physics.scenario_t0_ms
+    metrics = flight_metrics(load_truth(out / "truth.npz"), options.scenario, t0_ms / 1000.0, texts)
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    flight_figure(load_truth(out / "truth.npz"), options.scenario, t0_ms / 1000.0, out / "flight.png")
+    return metrics
+
+
+def _fly(options: ArduFlightOptions, server: PhysicsServer, sitl: subprocess.Popen, texts: list, log) -> None:
+    physics = server.physics
+    deadline = time.monotonic() + options.timeout_s
+    link = _connect(5760 + 10 * options.instance, sitl, options.out_dir / "arducopter" / "arducopter.log")
+    heartbeat_at = 0.0
+    state = {"armed": False, "mode": None, "disarmed_ms": None}
+
+    def pump(until) -> None:
+        nonlocal heartbeat_at
+        while not until():
+            if sitl.poll() is not None:
+                raise FlightError(f"arducopter exited ({sitl.returncode}) at physics t={physics.now_ms / 1000:.1f} s")
+            if time.monotonic() > deadline:
+                raise FlightError(f"timed out after {options.timeout_s:g} s wall at physics t={physics.now_ms / 1000:.1f} s "
+                                  f"(last words: {texts[-3:]})")
+            if time.monotonic() >= heartbeat_at:
+                link.mav.heartbeat_send(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+                heartbeat_at = time.monotonic() + 1.0
+            msg = link.recv_match(blocking=True, timeout=0.2)
+            if msg is not None and msg.get_type() == "STATUSTEXT":
+                texts.append((physics.now_ms / 1000.0, msg.text))
+                log(f"t={physics.now_ms / 1000:.3f} s: ArduCopter: {msg.text}")
+            if msg is not None and msg.get_type() == "HEARTBEAT" and msg.get_srcComponent() == 1:
+                armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+                if state["armed"] and not armed:
+                    state["disarmed_ms"] = physics.now_ms
+                state["armed"], state["mode"] = armed, msg.custom_mode
+
+    try:
+        pump(lambda: any(text == EKF_READY_TEXT for _, text in texts))
+        target = link.target_system
+        while not (state["armed"] and state["mode"] == GUIDED):
+            link.mav.command_long_send(target, 1, mavlink.MAV_CMD_DO_SET_MODE, 0,
+                                       mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, GUIDED, 0, 0, 0, 0, 0)
+            link.mav.command_long_send(target, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+            retry = time.monotonic() + 2.0
+            pump(lambda: (state["armed"] and state["mode"] == GUIDED) or time.monotonic() > retry)
+        height_m = -options.scenario.start.ned_m[2]
+        link.mav.command_long_send(target, 1, mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 0, height_m)
+        log(f"t={physics.now_ms / 1000:.3f} s: armed in GUIDED, taking off to {height_m:g} m")
+        pump(lambda: physics.scenario_t0_ms is not None)
+        end_ms = physics.scenario_t0_ms + round(options.scenario.duration_s * 1000)
+        pump(lambda: physics.now_ms >= end_ms or (state["disarmed_ms"] is not None
+                                                  and physics.now_ms >= state["disarmed_ms"] + AFTER_DISARM_MS))
+    finally:
+        link.close()
+
+
+def _connect(port: int, sitl: subprocess.Popen, sitl_log: Path):
+    """MAVLink to SITL's SERIAL0 once it listens (it prints so; an older SITL may hold the port)."""
+    give_up = time.monotonic() + CONNECT_TIMEOUT_S
+    while "Waiting for connection" not in sitl_log.read_text():
+        last = (sitl_log.read_text().strip().splitlines() or ["nothing"])[-1]
+        if sitl.poll() is not None:
+            raise FlightError(f"arducopter exited ({sitl.returncode}): {last}")
+        if time.monotonic() > give_up:
+            raise FlightError(f"arducopter did not open tcp 127.0.0.1:{port} in {CONNECT_TIMEOUT_S:g} s: {last}")
+        time.sleep(0.2)
+    return mavutil.mavlink_connection(f"tcp:127.0.0.1:{port}", source_system=GCS_IDS[0],
+                                      source_component=GCS_IDS[1], retries=3)
+
+
+def flight_metrics(truth: Truth, scenario: Scenario, t0_s: float, texts: list[tuple[float, str]]) -> dict:
+    """Hover before the first fault (the scenario's clock from t0_s: its start hold, 2 s, included)
+    and what came after it, from the plant's truth."""
+    t = truth.time_s - t0_s
+    first_fault_s = min((f.at_s for f in scenario.faults), default=scenario.duration_s)
+    height_m = -scenario.start.ned_m[2]
+    before = (t >= -1.0) & (t < first_fault_s)
+    after = t >= first_fault_s
+    tilt_deg = np.degrees(np.arccos(np.clip(np.cos(truth.euler_rad[:, 0]) * np.cos(truth.euler_rad[:, 1]), -1, 1)))
+    altitude_m = -truth.pos_ned_m[:, 2]
+    metrics = {
+        "scenario": scenario.name, "scenario_t0_physics_s": t0_s,
+        "hover": {"altitude_error_max_m": float(np.max(np.abs(altitude_m[before] - height_m))),
+                  "altitude_error_mean_m": float(np.mean(altitude_m[before] - height_m)),
+                  "horizontal_drift_max_m": float(np.max(np.linalg.norm(
+                      truth.pos_ned_m[before, :2] - np.array(scenario.start.ned_m[:2]), axis=1))),
+                  "tilt_max_deg": float(np.max(tilt_deg[before]))},
+    }
+    if scenario.faults and np.any(after):
+        touched = after & truth.on_ground
+        metrics["after_fault"] = {
+            "tilt_max_deg": float(np.max(tilt_deg[after])),
+            "yaw_rate_max_rad_s": float(np.max(np.abs(truth.rates_frd_rad_s[after, 2]))),
+            "altitude_min_m": float(np.min(altitude_m[after])),
+            "hit_the_floor_after_s": float(t[touched][0] - first_fault_s) if np.any(touched) else None,
+            "ardupilot_said": [text for ts, text in texts if ts - t0_s >= first_fault_s],
+        }
+    return metrics
+
+
+def flight_figure(truth: Truth, scenario: Scenario, t0_s: float, path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = truth.time_s - t0_s
+    keep = t >= -10.0
+    fig, axes = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
+    axes[0].plot(t[keep], -truth.pos_ned_m[keep, 2], label="altitude (m)")
+    axes[0].axhline(-scenario.start.ned_m[2], color="grey", ls=":", label="target")
+    axes[1].plot(t[keep], np.degrees(truth.euler_rad[keep, 0]), label="roll (deg)")
+    axes[1].plot(t[keep], np.degrees(truth.euler_rad[keep, 1]), label="pitch (deg)")
+    axes[2].plot(t[keep], truth.rates_frd_rad_s[keep, 2], label="yaw rate (rad/s)")
+    for f in scenario.faults:
+        for ax in axes:
+            ax.axvline(f.at_s, color="red", ls="--", lw=0.8)
+    axes[0].set_title(f"ArduCopter 4.6.3's own controller, {scenario.name}: rotor faults at the dashed lines")
+    axes[-1].set_xlabel("scenario time (s); before 0: takeoff and the start hold")
+    for ax in axes:
+        ax.legend(loc="upper left", fontsize=8)
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def summary_line(metrics: dict) -> str:
+    h = metrics["hover"]
+    text = (f"{metrics['scenario']} through ArduCopter: hover altitude error max {h['altitude_error_max_m']:.2f} m, "
+            f"tilt max {h['tilt_max_deg']:.1f} deg")
+    if (a := metrics.get("after_fault")) is not None:
+        floor = a["hit_the_floor_after_s"]
+        text += (f"; after the fault tilt max {a['tilt_max_deg']:.0f} deg, yaw rate max {a['yaw_rate_max_rad_s']:.1f} "
+                 f"rad/s, " + ("held the air" if floor is None else f"hit the floor {floor:.2f} s after it"))
+    return text
