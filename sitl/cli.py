@@ -89,12 +89,18 @@ def _serve(args) -> int:
         server = Server(options)
     except ServeError as e:
         raise BadInput(str(e)) from None
+    return _run_until_stopped(server, ServeError)
+
+
+def _run_until_stopped(server, *errors: type[Exception]) -> int:
+    """Run a server until it ends, SIGTERM or Ctrl-C, then close it; `errors` raised while it
+    runs are bad input (one line)."""
     signal.signal(signal.SIGTERM, lambda *_: server.stop())
     try:
         server.run()
     except KeyboardInterrupt:
         pass
-    except ServeError as e:
+    except errors as e:
         raise BadInput(str(e)) from None
     finally:
         server.close()
@@ -132,14 +138,7 @@ def _physics(args) -> int:
         server = PhysicsServer(options, log=log)
     except OSError as e:
         raise BadInput(str(e)) from None
-    signal.signal(signal.SIGTERM, lambda *_: server.stop())
-    try:
-        server.run()
-    except KeyboardInterrupt:
-        pass
-    finally:
-        server.close()
-    return 0
+    return _run_until_stopped(server)
 
 
 def _add_fly_ardupilot(sub) -> None:
@@ -149,7 +148,7 @@ def _add_fly_ardupilot(sub) -> None:
     p.add_argument("--out", type=Path, metavar="DIR", help="output folder (default: out/ardupilot/SCENARIO)")
     p.add_argument("--speedup", type=positive_number, default=10.0,
                    help="arducopter --speedup: how much faster than real time it may run (default 10)")
-    p.add_argument("--instance", type=int, choices=range(0, 10), default=0, metavar="I",
+    p.add_argument("--instance", type=int, choices=range(10), default=0, metavar="I",
                    help="arducopter -I: MAVLink on tcp 5760 + 10 I, physics on udp 9002 + 10 I (default 0)")
     p.set_defaults(func=_fly_ardupilot)
 

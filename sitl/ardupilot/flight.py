@@ -24,7 +24,6 @@ from pathlib import Path
 
 import numpy as np
 
-from m4.airframe import load_airframe
 from m4.mavlink import mavlink, mavutil
 from m4.scenario import Scenario
 from sitl.ardupilot.physics import DEFAULT_PORT, PhysicsOptions, PhysicsServer
@@ -127,7 +126,7 @@ def _fly(options: ArduFlightOptions, server: PhysicsServer, sitl: subprocess.Pop
                                        mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, GUIDED, 0, 0, 0, 0, 0)
             link.mav.command_long_send(target, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
             retry = time.monotonic() + 2.0
-            pump(lambda: (state["armed"] and state["mode"] == GUIDED) or time.monotonic() > retry)
+            pump(lambda retry=retry: (state["armed"] and state["mode"] == GUIDED) or time.monotonic() > retry)
         height_m = -options.scenario.start.ned_m[2]
         link.mav.command_long_send(target, 1, mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 0, height_m)
         log(f"t={physics.now_ms / 1000:.3f} s: armed in GUIDED, taking off to {height_m:g} m")

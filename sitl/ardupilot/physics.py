@@ -29,8 +29,14 @@ import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe, load_airframe
 from m4.scenario import Scenario
-from sitl.ardupilot.json_protocol import BadPacket, ServoPacket, hip_goals_rad, motor_throttles, parse_servo_packet, \
-    sensor_line
+from sitl.ardupilot.json_protocol import (
+    BadPacket,
+    ServoPacket,
+    hip_goals_rad,
+    motor_throttles,
+    parse_servo_packet,
+    sensor_line,
+)
 from sitl.plant.faults import FaultSchedule, describe
 from sitl.plant.mujoco_plant import Plant
 from sitl.plant.truth import TruthRecorder

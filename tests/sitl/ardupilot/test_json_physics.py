@@ -13,8 +13,13 @@ import pytest
 
 from m4.airframe import load_airframe
 from m4.scenario import Scenario
-from sitl.ardupilot.json_protocol import (MAGIC_16, BadPacket, hip_goals_rad, parse_servo_packet,
-                                          servo_packet)
+from sitl.ardupilot.json_protocol import (
+    MAGIC_16,
+    BadPacket,
+    hip_goals_rad,
+    parse_servo_packet,
+    servo_packet,
+)
 from sitl.ardupilot.physics import PhysicsOptions, PhysicsServer
 from sitl.cli import main as sitl_main
 from sitl.plant.thrusters import Thrusters
