@@ -13,6 +13,13 @@ giving position and velocity (local NED, centre of mass) as a function of time.
   the brake ends. "continue" changes nothing. A fault during the landing changes nothing.
 - From land.at_s the plan brakes (when it is moving) and descends at descent_speed_m_s to the
   ground, where the centre of mass sits ground_com_height_m above z = 0.
+- `land_from`: the flight controller's failsafe is landing when the companion takes over (a
+  restart, a return after a loss): from then the plan descends from where the robot is, at
+  the mission's descent speed (the FC's own 0.5 m/s without a [mission.land]).
+
+`progress` is what a restarted companion needs to make the same plan again: where and when it
+started and the last change (fault hold or landing). The companion sends it with its fault
+status, the flight controller keeps it (M4_FAULT_STATUS), and `restore` applies it.
 
 The companion's NMPC reference (`companion.core.reference`) and the simulator's metrics both
 read this plan.
@@ -21,7 +28,9 @@ read this plan.
 from __future__ import annotations
 
 import bisect
+import enum
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -29,6 +38,32 @@ from m4.airframe import Airframe
 from m4.mission import Mission
 
 DEFAULT_ACCEL_MAX_M_S2 = 2.0    # the reference's acceleration limit unless the companion's config says otherwise
+FC_LAND_SPEED_M_S = 0.5         # the flight controller's failsafe descent (mavlink_defs/README.md, Failsafe)
+
+
+class PlanState(enum.IntEnum):
+    """How the plan stands (the wire's M4_MISSION_STATE: same numbers)."""
+    NONE = 0              # no plan: the flight has not started
+    AS_PLANNED = 1        # the mission as planned from its start
+    FAULT_HOLD = 2        # a fault turned the rest into a brake and a hold from the change
+    LANDING = 3           # landing from the change, with the flight controller's failsafe
+
+
+@dataclass(frozen=True)
+class PlanProgress:
+    """What makes a plan again: its start and its last change (times on the mission's clock)."""
+    state: PlanState
+    start_time_s: float
+    start_ned_m: tuple[float, float, float]
+    change_time_s: float = 0.0                              # FAULT_HOLD, LANDING
+    change_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class MissionProgress:
+    """A plan and the mission's clock at one instant: where a restarted companion resumes."""
+    time_s: float
+    plan: PlanProgress
 
 
 def ground_com_height_m(af: Airframe) -> float:
@@ -122,6 +157,8 @@ class MissionPlan:
         self._base = _Plan(self._mission_pieces(np.asarray(start_ned_m, dtype=float), t0_s))
         self._plan = self._with_landing(self._base)
         self.fault_hold_s: float | None = None      # when a fault turned the plan into a hold
+        self.landing_from_s: float | None = None    # when the plan joined the FC's landing
+        self.progress = PlanProgress(PlanState.AS_PLANNED, t0_s, _ned(start_ned_m))
 
     def _mission_pieces(self, start: np.ndarray, t_s: float) -> list:
         pieces: list = []
@@ -161,6 +198,38 @@ class MissionPlan:
         _, v_ned_m_s = self._base.state(t_s)
         self._base = self._base.replaced_from(t_s, self._stop(t_s, np.asarray(position_ned_m, dtype=float), v_ned_m_s))
         self._plan = self._with_landing(self._base)
+        self._changed(PlanState.FAULT_HOLD, t_s, position_ned_m)
+
+    def land_from(self, t_s: float, position_ned_m) -> None:
+        """From t_s the plan descends from position_ned_m to the ground (the flight controller's
+        failsafe was landing); nothing changes once the landing has started."""
+        if self.landing_started(t_s):
+            return
+        land = self._mission.land
+        above = np.asarray(position_ned_m, dtype=float)
+        ground = np.array([above[0], above[1], max(above[2], self.ground_com_z_ned_m)])
+        descent = _Move(t_s, above, ground, FC_LAND_SPEED_M_S if land is None else land.descent_speed_m_s, self._a)
+        self._plan = self._plan.replaced_from(t_s, [descent, _Hold(descent.end_s, ground)])
+        self.landing_from_s = t_s
+        self._changed(PlanState.LANDING, t_s, position_ned_m)
+
+    def restore(self, progress: PlanProgress) -> None:
+        """The change a plan made from the same start had (a restarted companion's)."""
+        if progress.state is PlanState.FAULT_HOLD:
+            self.fault_detected(progress.change_time_s, progress.change_ned_m)
+        elif progress.state is PlanState.LANDING:
+            self.land_from(progress.change_time_s, progress.change_ned_m)
+
+    def _changed(self, state: PlanState, t_s: float, position_ned_m) -> None:
+        self.progress = PlanProgress(state, self.progress.start_time_s, self.progress.start_ned_m, t_s,
+                                     _ned(position_ned_m))
 
     def landing_started(self, t_s: float) -> bool:
+        if self.landing_from_s is not None and t_s >= self.landing_from_s:
+            return True
         return self._mission.land is not None and t_s >= self._mission.land.at_s
+
+
+def _ned(values) -> tuple[float, float, float]:
+    x, y, z = (float(v) for v in np.asarray(values, dtype=float).reshape(3))
+    return x, y, z

@@ -8,7 +8,7 @@ from companion.core import rom
 from companion.core.reference import MissionReference, ReferenceConfig
 from companion.core.touchdown import TouchdownConfig, TouchdownDetector
 from m4.mission import Landing, Mission, Waypoint
-from m4.mission_plan import ground_com_height_m
+from m4.mission_plan import FC_LAND_SPEED_M_S, PlanProgress, PlanState, ground_com_height_m
 
 AF = load_airframe()
 START = (0.0, 0.0, -2.0)
@@ -163,3 +163,32 @@ def test_touchdown_needs_ground_height_and_stillness_for_the_dwell_time():
 def test_hovering_above_the_tolerance_is_not_a_touchdown():
     det = TouchdownDetector(-0.075)
     assert not any(det.update(0.1 * k, -0.075 - 0.1, 0.0) for k in range(20))
+
+
+def test_joining_the_fcs_landing_descends_from_where_the_robot_is_at_the_fcs_speed():
+    ref = MissionReference(mission(((12.0, 0.0, -2.0), 3.0, 0.0)), START, AF)
+    ref.land_from(2.0, (4.0, 0.5, -1.4))
+    assert not ref.landing_started(1.99) and ref.landing_started(2.0)
+    p, v = ref.state(2.0)
+    assert np.allclose(p, [4.0, 0.5, -1.4]) and np.allclose(v, 0.0)
+    speeds = [ref.state(t)[1][2] for t in np.arange(2.0, 5.0, 0.01)]
+    assert max(speeds) == pytest.approx(FC_LAND_SPEED_M_S)
+    p_end, _ = ref.state(10.0)
+    assert np.allclose(p_end, [4.0, 0.5, -ground_com_height_m(AF)])
+    ref.fault_detected(3.0, (4.0, 0.5, -1.0))                       # during the landing: nothing changes
+    assert ref.progress == PlanProgress(PlanState.LANDING, 0.0, START, 2.0, (4.0, 0.5, -1.4))
+
+
+@pytest.mark.parametrize("change", [
+    lambda ref: ref.fault_detected(2.0, (4.0, 0.3, -1.8)),
+    lambda ref: ref.land_from(2.5, (4.5, 0.0, -1.6)),
+])
+def test_a_plan_restored_from_its_progress_is_the_same_plan(change):
+    """What a restarted companion makes of the progress the FC kept."""
+    ways = mission(((12.0, 0.0, -2.0), 3.0, 0.0), land=Landing(at_s=8.0, descent_speed_m_s=0.5))
+    ref = MissionReference(ways, START, AF, t0_s=0.5)
+    change(ref)
+    again = MissionReference(ways, ref.progress.start_ned_m, AF, t0_s=ref.progress.start_time_s)
+    again.restore(ref.progress)
+    assert again.progress == ref.progress
+    assert np.array_equal(again.reference(2.5, 100, 0.1), ref.reference(2.5, 100, 0.1))
