@@ -32,6 +32,15 @@ The FC's per-rotor limits count only as a common cap (the largest of them): a li
 on one rotor is exactly what the detector must find itself, so it is not handed to it. The
 NMPC's bounds are the detector's (thrust_bound_n); a fault is announced at each confirmation
 (after a recovery, a second fault is announced too).
+
+Takeover: at the flight's first step and after a gap in which our setpoints went stale at the
+FC (its failsafe flew; FC_STALE_PERIODS, FC_STALE_MIN_S: the FC contract), the thrusts ramp
+from what the FC reports commanding (companion.core.takeover), and, when the FC says its
+failsafe is landing, the plan lands from there instead of flying the mission on. The
+mission's clock stops while the FC flies: it is the FC's clock less the time paused, so after
+a gap the mission goes on where it was left. A restarted companion starts from the progress
+the FC kept (m4.mission_plan.MissionProgress) instead of anchoring the mission where it finds
+the robot.
 """
 
 from __future__ import annotations
@@ -54,16 +63,20 @@ from companion.core.nmpc_config import NmpcConfig
 from companion.core.prediction import CommandHistory, Predictor, SentCommand
 from companion.core.rate_feedback import RateFeedbackDesign
 from companion.core.reference import MissionReference, ReferenceConfig
+from companion.core.takeover import TakeoverRamp
 from companion.core.touchdown import TouchdownConfig, TouchdownDetector
 from companion.core.upset import UpsetConfig, UpsetDetector
 from m4.airframe import ROTOR_COUNT, Airframe
 from m4.mission import Mission
+from m4.mission_plan import MissionProgress
 from m4.setpoint import Setpoint
 
 if TYPE_CHECKING:
     from companion.config import CompanionConfig
 
 HIP_RESYNC_RAD = 0.2             # hip goal this far from the measured joint: restart it there
+FC_STALE_PERIODS = 3             # the FC flies its failsafe once our last setpoint is this many
+FC_STALE_MIN_S = 0.3             # periods old, and at least this (mavlink_defs/README.md, Failsafe)
 
 DetectorFactory = Callable[[], FaultDetector]
 ReferenceFactory = Callable[[float, np.ndarray], MissionReference]    # (t0_s, start com NED) -> the mission's
@@ -109,6 +122,7 @@ class ControlStep:
     nmpc: NmpcResult | None = None        # None when no solve ran (thrust cut, not started, implausible state)
     crash: str | None = None      # why the flight is over ("upside down", "on the ground"): thrust cut for good
     crash_now: bool = False       # the step at which the crash was recognised (announce it)
+    took_over: bool = False       # the step that took control from the FC's own controller
 
 
 @dataclass(frozen=True)
@@ -127,6 +141,10 @@ class Flight:
     touchdown: TouchdownDetector
     upset: UpsetDetector
     fault_announced: bool = False
+    paused_s: float = 0.0         # the FC's clock less the mission's: time the FC's failsafe flew
+
+    def mission_time_s(self, time_s: float) -> float:
+        return time_s - self.paused_s
 
 
 class Controller:
@@ -155,23 +173,38 @@ class Controller:
         self.flight: Flight | None = None
         self.sent = CommandHistory()
         self.applied = AppliedThrust(self.period_s)
+        self.ramp = TakeoverRamp(self.period_s)
         self._hip_goal: HipGoal | None = None
+        self._last_step_s: float | None = None
+        self._takeover = True             # the next step takes control from the FC's own controller
 
     @property
     def started(self) -> bool:
         return self.flight is not None
 
-    def start(self, time_s: float, x_measured) -> bool:
-        """The flight begins at time_s: the mission is anchored at this measured state. False
+    def start(self, time_s: float, x_measured, kept: MissionProgress | None = None) -> bool:
+        """The flight begins at time_s: the mission is anchored at this measured state, or, with
+        `kept` (what an earlier run of the companion flew), goes on where that left it. False
         (nothing changes) when the state is not plausible."""
         x = np.asarray(x_measured, dtype=float).reshape(rom.NX)
         if not plausible_state(self.af, x):
             return False
-        reference = self._new_reference(time_s, x[rom.P])
+        if kept is None:
+            reference = self._new_reference(time_s, x[rom.P])
+        else:
+            reference = self._new_reference(kept.plan.start_time_s, kept.plan.start_ned_m)
+            reference.restore(kept.plan)
         ground_z = reference.ground_com_z_ned_m
         self.flight = Flight(reference, TouchdownDetector(ground_z, self.settings.touchdown),
-                             UpsetDetector(ground_z, self.settings.upset))
+                             UpsetDetector(ground_z, self.settings.upset),
+                             paused_s=0.0 if kept is None else time_s - kept.time_s)
         return True
+
+    def mission_progress(self, time_s: float) -> MissionProgress | None:
+        """The mission at time_s, for the FC to keep (None before the flight started)."""
+        if self.flight is None:
+            return None
+        return MissionProgress(self.flight.mission_time_s(time_s), self.flight.reference.progress)
 
     def resume(self) -> None:
         """After a gap in the telemetry (link loss): the previous plan, state and hip goal are
@@ -188,6 +221,8 @@ class Controller:
         self.disturbance.reset()
         self.detector = self._new_detector()
         self.flight = None
+        self._last_step_s = None
+        self._takeover = True
 
     def restore_fault(self, rotor: int, thrust_max_estimate_n: float, detected_at_s: float) -> None:
         """A fault confirmed by an earlier run of the companion (the FC kept it): the detector
@@ -195,11 +230,12 @@ class Controller:
         self.detector.restore(rotor, thrust_max_estimate_n, detected_at_s)
 
     def step(self, time_s: float, x_measured, esc: EscSample | None = None, thrust_limit_n=None,
-             lead_s: float = 0.0, thrust_cmd_n=None) -> ControlStep:
+             lead_s: float = 0.0, thrust_cmd_n=None, fc_landing: bool = False) -> ControlStep:
         """The setpoint answering the telemetry instant time_s for the measured ROM state, to act
         lead_s later; thrust_cmd_n is what the FC reports it commands at time_s (None: it does
-        not say)."""
+        not say); fc_landing: the FC says its failsafe is landing (its mode)."""
         af = self.af
+        self._note_gap(time_s)
         lead_s = max(float(lead_s), 0.0) if np.isfinite(lead_s) else 0.0
         x = np.asarray(x_measured, dtype=float).reshape(rom.NX)
         thrust_limit_n = self._thrust_telemetry(thrust_limit_n)
@@ -211,30 +247,51 @@ class Controller:
         fault, confirmed_now = self._detect(time_s, x, usable, in_force, esc, thrust_limit_n)
         if confirmed_now:
             self.disturbance.reset()      # it held the lost rotor's effect, which the bound now models
-            self.flight.reference.fault_detected(time_s, x[rom.P])
+            self.flight.reference.fault_detected(self.flight.mission_time_s(time_s), x[rom.P])
         d = self._estimate_disturbance(time_s, x, usable, in_force, fault.thrust_bound_n, lead_s)
         if self.flight is None or not usable:
             return self._fallback(time_s, x, fault, confirmed_now, d)
+        took_over = self._takeover
+        if took_over:
+            self._take_over(time_s, x, thrust_cmd_n, fc_landing)
         upset, crashed_before = self.flight.upset, self.flight.upset.crash is not None
-        landing = self.flight.reference.landing_started(time_s)
+        landing = self.flight.reference.landing_started(self.flight.mission_time_s(time_s))
         if upset.update(time_s, x, landing) is not None:
             return self._cut(time_s, x, fault, confirmed_now, d, upset.crash, crash_now=not crashed_before)
         if self._touched_down(time_s, x):
             return self._cut(time_s, x, fault, confirmed_now, d)
         c = self.nmpc.config
         x_plan = self.predictor.predict(x, time_s, lead_s, self.sent, d, fault.thrust_bound_n)
-        x_ref = self.flight.reference.reference(time_s + lead_s, c.horizon, c.dt_s)
+        x_ref = self.flight.reference.reference(self.flight.mission_time_s(time_s) + lead_s, c.horizon, c.dt_s)
         res = self.nmpc.solve(x_plan, x_ref, fault.thrust_bound_n, d)
         sp = self._setpoint(x_plan, res, fault.thrust_bound_n)
+        sp = replace(sp, thrust_n=self.ramp.limit(sp.thrust_n, fault.thrust_bound_n))
         x_next = res.x_pred[1] if res.ok else x_plan          # a failed solve plans no change of the rates
         sp = replace(sp, rate_feedback=self.rate_feedback.feedback(x_plan, x_next, c.dt_s, fault.thrust_bound_n),
                      shortfall_cover=self.rate_feedback.cover(x_plan[rom.HIP], fault.state is FaultState.CONFIRMED))
         self.sent.add(SentCommand(time_s, x, np.concatenate([sp.thrust_n, res.u[rom.HIP_ACCEL]]), sp.rate_feedback,
                                   sp.shortfall_cover))
         return ControlStep(time_s=time_s, setpoint=sp, state=x_plan, fault=fault, fault_confirmed_now=confirmed_now,
-                           disturbance=d, lead_s=lead_s, reference=x_ref, nmpc=res)
+                           disturbance=d, lead_s=lead_s, reference=x_ref, nmpc=res, took_over=took_over)
 
     # ------------------------------------------------------------------------------------------
+    def _note_gap(self, time_s: float) -> None:
+        """A gap since the last step long enough for our setpoints to go stale at the FC: its
+        failsafe flew meanwhile, so the mission's clock stood still and this step takes over."""
+        last, period = self._last_step_s, self.period_s
+        self._last_step_s = time_s
+        if last is not None and time_s - last > max(FC_STALE_PERIODS * period, FC_STALE_MIN_S):
+            self._takeover = True
+            if self.flight is not None:
+                self.flight.paused_s += time_s - last - period
+
+    def _take_over(self, time_s: float, x: np.ndarray, thrust_cmd_n, fc_landing: bool) -> None:
+        """Thrusts ramp from the FC's own; a landing FC is joined, not cancelled."""
+        self._takeover = False
+        self.ramp.begin(self._thrust_telemetry(thrust_cmd_n))
+        if fc_landing:
+            self.flight.reference.land_from(self.flight.mission_time_s(time_s), x[rom.P])
+
     def _thrust_telemetry(self, thrust_n) -> np.ndarray | None:
         """Per-rotor thrusts from the FC with what cannot be a thrust (non-finite, negative,
         beyond twice the airframe's maximum) as NaN: unknown."""
@@ -292,7 +349,7 @@ class Controller:
         return self.disturbance.update(self.sent.newest.state, u, x, gain_scale=self.period_s / (self.period_s + lead_s))
 
     def _touched_down(self, time_s: float, x: np.ndarray) -> bool:
-        if not self.flight.reference.landing_started(time_s):
+        if not self.flight.reference.landing_started(self.flight.mission_time_s(time_s)):
             return False
         return self.flight.touchdown.update(time_s, float(x[rom.P][2]), float(x[rom.V][2]))
 
@@ -324,6 +381,7 @@ class Controller:
         """Thrust cut (after a touchdown, or for good after a crash), the hips held."""
         sp = safe_setpoint(self.af, np.zeros(ROTOR_COUNT), x[rom.HIP], np.zeros(ROTOR_COUNT),
                            fault.thrust_bound_n, x[rom.HIP], thrust_cut=True)
+        self.ramp.end()
         self.sent.clear()
         self._hip_goal = None
         return ControlStep(time_s=time_s, setpoint=sp, state=x, fault=fault, fault_confirmed_now=confirmed_now,
