@@ -7,6 +7,14 @@ lockstep the FC's frames fall on our grid (multiples of period_ms), so every fra
 answered and the FC waits for it; in real time the freshest frame is answered at about our
 rate. The setpoint carries that frame's time_boot_ms.
 
+Joining the flight: once the FC is found, nothing goes out but our HEARTBEAT and the requests
+until the FC has answered what it kept of an earlier run of the companion (M4_FAULT_STATUS:
+a confirmed fault, the mission's progress) and its mode (CURRENT_MODE): a restarted
+companion never overwrites the kept fault with a "healthy" of its own, resumes the mission
+where it was instead of anchoring it where it finds the robot, and joins the FC's failsafe
+landing instead of cancelling it (companion.controller). The newest frame is answered as
+soon as the answers are in.
+
 Telemetry loss: no telemetry for `telemetry_timeout_s` (wall clock) marks the link lost:
 no setpoint goes out (none can: no frame), it is logged, sent as STATUSTEXT (warning) and
 published. When telemetry returns, control resumes; if the FC's clock moved on by more
@@ -39,7 +47,7 @@ from companion.controller import ControllerSettings, ControlStep, Controller
 from companion.core import rom
 from companion.core.control_types import FaultState
 from companion.core.esc_evidence import PropellerModel
-from companion.fc_link import FcLink, LinkEvent
+from companion.fc_link import FcLink, LinkEvent, mission_progress
 from companion.feed_publisher import Feed, open_feed
 from companion.loop_timing import LoopTiming
 from companion.flight_log import FlightLog, open_flight_log
@@ -49,6 +57,7 @@ from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from m4.mavlink.connect import listens_for_peer, open_link
 from m4.mavlink.link import wait_readable
 from m4.mavlink.signing import StreamTimestamps, load_key
+from m4.mission_plan import MissionProgress
 
 log = logging.getLogger("m4-companion")
 
@@ -99,6 +108,9 @@ class CompanionApp:
         self._delay_warned = False
         self._announced: _Announcement | None = None         # the last fault announcement
         self.timing = LoopTiming(config.control_period_s)
+        self._frame_ms: int | None = None        # the newest frame (its M4_THRUSTER_STATUS) not yet answered
+        self._kept_mission: MissionProgress | None = None     # what the FC kept of an earlier run's mission
+        self._fc_landing = False                 # the FC's mode, as it last said: its failsafe lands
 
     # -- the loop ----------------------------------------------------------------------------------
     def stop(self) -> None:
@@ -118,23 +130,28 @@ class CompanionApp:
         self._received += len(received.messages)
         for event in received.events:
             self._on_event(event, now)
-        newest = None
         for msg in received.messages:
-            if self.telemetry.add(msg, now) and msg.get_msgId() == THRUSTER_STATUS:
-                newest = msg.time_boot_ms
-            elif msg.get_msgId() == mavlink.MAVLINK_MSG_ID_M4_FAULT_STATUS:
-                self._on_kept_fault(msg)
-        if newest is not None and self._due(newest):
-            self._answer(newest, now)
+            msg_id = msg.get_msgId()
+            if self.telemetry.add(msg, now) and msg_id == THRUSTER_STATUS:
+                self._frame_ms = msg.time_boot_ms
+            elif msg_id == mavlink.MAVLINK_MSG_ID_M4_FAULT_STATUS:
+                self._on_kept_status(msg)
+            elif msg_id == mavlink.MAVLINK_MSG_ID_CURRENT_MODE:
+                self._fc_landing = msg.standard_mode == mavlink.MAV_STANDARD_MODE_LAND
+        if self._frame_ms is not None and self._due(self._frame_ms) and not self.fc.kept_state_pending():
+            self._answer(self._frame_ms, now)
         while self.flight_log.notices:             # a gap in the flight log (it has no link of its own)
             self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, self.flight_log.notices.popleft())
         self.fc.tick(now)
         if self.signing_state is not None:
             self.signing_state.save()
 
-    def _on_kept_fault(self, msg) -> None:
+    def _on_kept_status(self, msg) -> None:
         """The FC's copy of the last M4_FAULT_STATUS it had from us (from before this process
-        started, when we asked at lock-on): a confirmed fault becomes the detector's."""
+        started, when we asked at lock-on): a confirmed fault becomes the detector's, the
+        mission's progress where the flight starts from."""
+        if not self.controller.started:
+            self._kept_mission = mission_progress(msg)
         rotor = msg.rotor
         if msg.state != FaultState.CONFIRMED or not 1 <= rotor <= ROTOR_COUNT or \
                 self.controller.detector.status.state is FaultState.CONFIRMED:
@@ -152,7 +169,7 @@ class CompanionApp:
             else:
                 log.warning("flight controller found again at %s (it was at %s); asking for telemetry every %d ms",
                             self.fc.fc_address, self.fc.previous_address, self.period_ms)
-            self.fc.request_fault_status()             # first: what it kept of a fault matters most
+            self.fc.request_kept_state()               # first: nothing of ours goes out before it is answered
             self.fc.request_intervals(self.config.control_period_s)
             if not self.config.link.signing:
                 self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, "companion: MAVLink signing OFF")
@@ -160,7 +177,7 @@ class CompanionApp:
             log.warning("the flight controller's clock went back after a silence: it rebooted; the mission "
                         "starts over")
             self.telemetry.clear()
-            self._last_answered_ms = None
+            self._last_answered_ms = self._frame_ms = self._kept_mission = None
             self.controller.restart()
         elif event is LinkEvent.TELEMETRY:
             self._on_telemetry_back()
@@ -174,23 +191,25 @@ class CompanionApp:
 
     def _answer(self, t_ms: int, read_s: float) -> None:
         """Answer the frame at FC instant t_ms, read at read_s (our clock)."""
+        self._frame_ms = None
         snap = self.telemetry.snapshot()
         if snap is None:
             self.counters.skipped_incomplete += 1
             return
         t_s, x = t_ms / 1000.0, rom_state(snap, self.config.airframe)
         try:
-            if not self.controller.started and self.controller.start(t_s, x):
-                log.info("t=%.3f s: mission anchored at the centre of mass (%.2f, %.2f, %.2f) m NED", t_s, *x[rom.P])
-            step = self.controller.step(t_s, x, snap.esc, snap.thrust_limit_n,
-                                        lead_s=self.fc.delay.lead_s or 0.0, thrust_cmd_n=self._frame_thrust_cmd(snap, t_ms))
+            if not self.controller.started and self.controller.start(t_s, x, self._kept_mission):
+                self._say_started(t_s, x)
+            step = self.controller.step(t_s, x, snap.esc, snap.thrust_limit_n, lead_s=self.fc.delay.lead_s or 0.0,
+                                        thrust_cmd_n=self._frame_thrust_cmd(snap, t_ms), fc_landing=self._fc_landing)
         except Exception:           # a defect, not bad input: say it, send nothing, let the FC's failsafe fly
             self.counters.control_errors += 1
             log.exception("control step at t=%.3f s failed; no setpoint for this instant", t_ms / 1000.0)
             self.controller.resume()
             return
         sent_s = self.clock()
-        self.fc.send_setpoint(t_ms, self.period_ms, step.setpoint, sent_s, step.fault)
+        self.fc.send_setpoint(t_ms, self.period_ms, step.setpoint, sent_s, step.fault,
+                              self.controller.mission_progress(t_s))
         self.timing.answered(read_s, sent_s)
         if (report := self.timing.report(sent_s)) is not None:
             log.warning("t=%.3f s: %s", t_s, report.text)
@@ -202,11 +221,24 @@ class CompanionApp:
             self.counters.solve_ms_max = max(self.counters.solve_ms_max, step.nmpc.solve_ms)
         if step.fault_confirmed_now or self._kind_resettled(step):
             self._announce_fault(step)
+        if step.took_over:
+            log.info("t=%.3f s: control taken from the flight controller's own%s", t_s,
+                     ": it was landing, the companion lands" if self._fc_landing else "")
         if step.crash_now:
             log.error("t=%.3f s: crash recognised (%s): thrust cut for good; no re-arm will be sent", t_s, step.crash)
             self.fc.statustext(mavlink.MAV_SEVERITY_EMERGENCY, f"companion: crash ({step.crash}), thrust cut")
         self._watch_delay(t_s)
         self._publish(step, snap, x)
+
+    def _say_started(self, t_s: float, x: np.ndarray) -> None:
+        kept = self._kept_mission
+        if kept is None:
+            log.info("t=%.3f s: mission anchored at the centre of mass (%.2f, %.2f, %.2f) m NED", t_s, *x[rom.P])
+            return
+        plan = kept.plan
+        log.warning("t=%.3f s: mission resumed as the flight controller kept it: at %.3f s of its clock (%s), "
+                    "started at (%.2f, %.2f, %.2f) m NED; the robot is at (%.2f, %.2f, %.2f)", t_s, kept.time_s,
+                    plan.state.name.lower(), *plan.start_ned_m, *x[rom.P])
 
     @staticmethod
     def _frame_thrust_cmd(snap: VehicleSnapshot, t_ms: int) -> np.ndarray | None:

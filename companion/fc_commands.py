@@ -1,9 +1,10 @@
 """Commands to the flight controller, one at a time, each resent until it is acknowledged.
 
-A COMMAND_LONG goes out, and again every COMMAND_RETRY_S (its confirmation field counting
-the attempts) until a COMMAND_ACK for that command comes back, whatever its result (DENIED
-and FAILED are answers too); after COMMAND_ATTEMPTS unanswered sends it is given up and the
-next one goes. Pure logic: the caller sends what `next_message(now_s)` gives.
+A COMMAND_LONG goes out, and again every COMMAND_RETRY_S (or the command's own retry_s; its
+confirmation field counting the attempts) until a COMMAND_ACK for that command comes back,
+whatever its result (DENIED and FAILED are answers too); after COMMAND_ATTEMPTS unanswered
+sends it is given up and the next one goes. `waiting(command, param1)` says whether one is
+still to be answered. Pure logic: the caller sends what `next_message(now_s)` gives.
 """
 
 from __future__ import annotations
@@ -20,6 +21,12 @@ COMMAND_ATTEMPTS = 5
 class Command:
     command: int                          # MAV_CMD_*
     params: tuple[float, ...]             # param1.. (the rest 0)
+    retry_s: float = COMMAND_RETRY_S
+
+    @property
+    def key(self) -> tuple[int, float]:
+        """Commands with the same key ask the same thing (e.g. one message's interval)."""
+        return self.command, self.params[0]
 
 
 class CommandQueue:
@@ -35,11 +42,17 @@ class CommandQueue:
     def pending(self) -> int:
         return len(self._pending)
 
-    def replace(self, command: int, commands: list[Command]) -> None:
-        """Drop every pending `command` (the head too: it is sent afresh) and queue `commands`."""
-        if self._pending and self._pending[0].command == command:
+    def replace(self, commands: list[Command]) -> None:
+        """Drop every pending command that asks what one of `commands` asks (the head too: it
+        is sent afresh) and queue `commands`."""
+        keys = {c.key for c in commands}
+        if self._pending and self._pending[0].key in keys:
             self._restart_head()
-        self._pending = [c for c in self._pending if c.command != command] + commands
+        self._pending = [c for c in self._pending if c.key not in keys] + commands
+
+    def waiting(self, command: int, param1: float) -> bool:
+        """Is a command asking this still pending (not yet answered nor given up)?"""
+        return any(c.key == (command, param1) for c in self._pending)
 
     def on_ack(self, msg) -> None:
         if self._pending and self._sent_at_s is not None and msg.command == self._pending[0].command:
@@ -50,7 +63,7 @@ class CommandQueue:
     def next_due_s(self, now_s: float) -> float:
         if not self._pending:
             return float("inf")
-        return now_s if self._sent_at_s is None else self._sent_at_s + COMMAND_RETRY_S
+        return now_s if self._sent_at_s is None else self._sent_at_s + self._pending[0].retry_s
 
     def next_message(self, now_s: float) -> mavlink.MAVLink_command_long_message | None:
         """The COMMAND_LONG to send now (None: nothing due)."""

@@ -1,16 +1,19 @@
 """The companion's side of the MAVLink link to its flight controller (system 1, component 191).
 
 - Lock-on: only the flight controller's system and component are heard (others are dropped
-  and counted as foreign); the first address that sends the FC's HEARTBEAT (signed, when a
-  signing key is set) is the FC, and from then on a udpin link hears and answers only that
-  address (a stray sender, even with the FC's ids, can neither feed us nor redirect our
-  replies; not even a message read in the same batch as the lock-on). Nothing is sent before,
+  and counted as foreign); the first address that sends a message with the FC's ids (signed,
+  when a signing key is set: the FC signs everything) is the FC, and from then on a udpin
+  link hears and answers only that address (a stray sender, even with the FC's ids, can
+  neither feed us nor redirect our replies; not even a message read in the same batch as the
+  lock-on). Its telemetry is as good a proof as its HEARTBEAT (unsigned, either can be forged;
+  signed, neither), and it comes every few ms instead of once a second: a restarted companion
+  takes control within a control period or two of hearing the FC. Nothing is sent before,
   except on a link with a fixed peer (udpout, tcp, serial: `heartbeat_before_lock`), where our
   heartbeat is how the FC learns of us.
 - Re-acquisition: once the telemetry is LOST, the link hears other addresses again (still
-  answering only the FC's) and the next address to prove itself the FC (its HEARTBEAT, signed
-  when signing is on) is locked on to: a restarted FC on a new source port is found within
-  its heartbeat period (LOCKED again, `previous_address` the old one).
+  answering only the FC's) and the next address to prove itself the FC (as above) is locked
+  on to: a restarted FC on a new source port is found with its first message (LOCKED again,
+  `previous_address` the old one).
 - Liveness: telemetry (the frame's streams) that stops for `telemetry_timeout_s` is LOST;
   the first telemetry after that (or ever) is TELEMETRY. When the FC's clock (time_boot_ms)
   goes back after such a silence, the FC REBOOTED: its clock, and the mission's, start over.
@@ -22,9 +25,11 @@
   how late our setpoints act at the FC); the FC's TIMESYNC requests are answered with our clock.
 - Heartbeat at 1 Hz as MAV_TYPE_ONBOARD_CONTROLLER.
 - Commands (companion.fc_commands: one at a time, each resent until acknowledged): the
-  telemetry frame's streams at the control period (MAV_CMD_SET_MESSAGE_INTERVAL); the FC's
-  stored M4_FAULT_STATUS (MAV_CMD_REQUEST_MESSAGE), which arrives as a message.
-- Out: M4_SETPOINT, M4_FAULT_STATUS, STATUSTEXT.
+  telemetry frame's streams at the control period (MAV_CMD_SET_MESSAGE_INTERVAL); what the FC
+  kept and its mode (MAV_CMD_REQUEST_MESSAGE: M4_FAULT_STATUS, CURRENT_MODE), which arrive as
+  messages; `kept_state_pending()` until both are answered.
+- Out: M4_SETPOINT, M4_FAULT_STATUS (the detector's status and the mission's progress, which
+  the FC keeps for a restarted companion: `mission_progress()` reads it back), STATUSTEXT.
 - Health counters: bad CRC (garbled packets), bad signature (unsigned or badly signed,
   dropped by signing), foreign (other systems, components or addresses), second sender.
 - A second sender claiming the FC's ids (m4/mavlink/second_sender.py) is counted and reported
@@ -49,11 +54,17 @@ from companion.telemetry import REQUESTED, STREAMS
 from m4.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from m4.mavlink.second_sender import OTHER_ADDRESS, SecondSender, address_text
 from m4.mavlink.signing import SigningCounters, refusal
+from m4.mission_plan import MissionProgress, PlanProgress, PlanState
 from m4.setpoint import Setpoint
 
 HEARTBEAT_PERIOD_S = 1.0
 STATUSTEXT_MAX = 50
 DEFAULT_TELEMETRY_TIMEOUT_S = 0.3
+# Before its first setpoint a companion asks what the FC kept; the control waits for the
+# answer, so a lost request is asked again sooner than other commands (a round trip on a
+# 50 ms link is 0.1 s).
+KEPT_STATE_RETRY_S = 0.2
+KEPT_STATE = (mavlink.MAVLINK_MSG_ID_M4_FAULT_STATUS, mavlink.MAVLINK_MSG_ID_CURRENT_MODE)
 
 
 class FcTransport(Protocol):
@@ -117,12 +128,32 @@ def _floats(values) -> list[float]:
     return np.asarray(values, dtype=float).ravel().tolist()
 
 
-def _fault_status_message(time_ms: int, status: FaultStatus) -> mavlink.MAVLink_m4_fault_status_message:
-    detected_ms = 0 if status.detected_at_s is None else round(status.detected_at_s * 1000)
+def _ms(time_s: float) -> int:
+    return round(time_s * 1000)
+
+
+def _fault_status_message(time_ms: int, status: FaultStatus,
+                          mission: MissionProgress | None) -> mavlink.MAVLink_m4_fault_status_message:
+    detected_ms = 0 if status.detected_at_s is None else _ms(status.detected_at_s)
     estimate = np.asarray(status.thrust_max_estimate_n, dtype=float)
     estimate = np.where(np.isfinite(estimate), estimate, 0.0)
+    plan = PlanProgress(PlanState.NONE, 0.0, (0.0, 0.0, 0.0)) if mission is None else mission.plan
     return mavlink.MAVLink_m4_fault_status_message(
-        int(time_ms), status.rotor or 0, _floats(estimate), detected_ms, int(status.state), int(status.kind))
+        int(time_ms), status.rotor or 0, _floats(estimate), detected_ms, int(status.state), int(status.kind),
+        int(plan.state), 0 if mission is None else _ms(mission.time_s), _ms(plan.start_time_s),
+        list(plan.start_ned_m), _ms(plan.change_time_s), list(plan.change_ned_m))
+
+
+def mission_progress(msg: mavlink.MAVLink_m4_fault_status_message) -> MissionProgress | None:
+    """The mission progress an M4_FAULT_STATUS carries (None: no plan in it, or not a sane one)."""
+    if msg.mission_state not in set(PlanState) or msg.mission_state == PlanState.NONE:
+        return None
+    start, change = _floats(msg.mission_start_ned_m), _floats(msg.mission_change_ned_m)
+    if not np.isfinite(start + change).all():
+        return None
+    plan = PlanProgress(PlanState(msg.mission_state), msg.mission_start_time_ms / 1000.0, tuple(start),
+                        msg.mission_change_time_ms / 1000.0, tuple(change))
+    return MissionProgress(msg.mission_time_ms / 1000.0, plan)
 
 
 class FcLink:
@@ -196,7 +227,7 @@ class FcLink:
             self.second_sender(address_text(sender), why, detail)
 
     def _proves_fc(self, msg) -> bool:
-        return msg.get_msgId() == mavlink.MAVLINK_MSG_ID_HEARTBEAT and (msg.get_signed() or not self._signing)
+        return msg.get_signed() or not self._signing
 
     def _may_lock(self) -> bool:
         """Not locked yet, or locked to an FC whose telemetry was lost."""
@@ -238,14 +269,19 @@ class FcLink:
     def request_intervals(self, period_s: float) -> None:
         """Ask for the telemetry frame's streams and the ESC telemetry every period_s (again from the start)."""
         interval_us = float(round(period_s * 1e6))
-        self.commands.replace(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL,
-                              [Command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(i), interval_us)) for i in REQUESTED])
+        self.commands.replace([Command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(i), interval_us))
+                               for i in REQUESTED])
 
-    def request_fault_status(self) -> None:
+    def request_kept_state(self) -> None:
         """Ask for the M4_FAULT_STATUS the FC keeps of its companion (a restarted companion's
-        memory of a confirmed fault); it comes as a message, or an ack saying there is none."""
+        memory of a confirmed fault and of its mission; an ack says when there is none), then
+        for the FC's CURRENT_MODE (landing or not); both come as messages."""
         request = mavlink.MAV_CMD_REQUEST_MESSAGE
-        self.commands.replace(request, [Command(request, (float(mavlink.MAVLINK_MSG_ID_M4_FAULT_STATUS),))])
+        self.commands.replace([Command(request, (float(i),), KEPT_STATE_RETRY_S) for i in KEPT_STATE])
+
+    def kept_state_pending(self) -> bool:
+        """Is a request of request_kept_state() still unanswered (and not given up)?"""
+        return any(self.commands.waiting(mavlink.MAV_CMD_REQUEST_MESSAGE, float(i)) for i in KEPT_STATE)
 
     def tick(self, now_s: float) -> None:
         """Heartbeat when due; the pending command sent or resent."""
@@ -269,9 +305,10 @@ class FcLink:
 
     # -- out ---------------------------------------------------------------------------------------
     def send_setpoint(self, time_ms: int, period_ms: int, sp: Setpoint, now_s: float,
-                      fault: FaultStatus | None = None) -> None:
-        """The setpoint answering FC instant time_ms, with the fault status (when given) and a
-        TIMESYNC request (when one is due), in one datagram: one send per control step."""
+                      fault: FaultStatus | None = None, mission: MissionProgress | None = None) -> None:
+        """The setpoint answering FC instant time_ms, with the fault status and the mission's
+        progress (when a fault status is given) and a TIMESYNC request (when one is due), in
+        one datagram: one send per control step."""
         flags = mavlink.M4_SETPOINT_FLAG_THRUST_CUT if sp.thrust_cut else 0
         fb, cover = sp.rate_feedback, sp.shortfall_cover
         extensions = {} if fb is None else dict(rates_ref_frd_rad_s=_floats(fb.rates_ref_frd_rad_s),
@@ -283,7 +320,7 @@ class FcLink:
             *self.fc_ids, int(time_ms), int(period_ms), _floats(sp.thrust_n), _floats(sp.hip_rad),
             _floats(sp.hip_rate_rad_s), flags, **extensions)]
         if fault is not None:
-            msgs.append(_fault_status_message(time_ms, fault))
+            msgs.append(_fault_status_message(time_ms, fault, mission))
         if self.delay.request_due(time_ms):
             msgs.append(mavlink.MAVLink_timesync_message(0, self.delay.requested(time_ms, now_s)))
         self.link.send_all(msgs)

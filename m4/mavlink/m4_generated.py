@@ -394,6 +394,20 @@ enums["M4_FAULT_KIND"][4] = EnumEntry("M4_FAULT_KIND_DEGRADED", """The motor can
 M4_FAULT_KIND_ENUM_END = 5
 enums["M4_FAULT_KIND"][5] = EnumEntry("M4_FAULT_KIND_ENUM_END", """""")
 
+# M4_MISSION_STATE
+enums["M4_MISSION_STATE"] = Enum()
+enums["M4_MISSION_STATE"].bitmask = False
+M4_MISSION_STATE_NONE = 0
+enums["M4_MISSION_STATE"][0] = EnumEntry("M4_MISSION_STATE_NONE", """No plan yet (the flight has not started); the other mission fields mean nothing.""")
+M4_MISSION_STATE_AS_PLANNED = 1
+enums["M4_MISSION_STATE"][1] = EnumEntry("M4_MISSION_STATE_AS_PLANNED", """The mission as planned from mission_start_ned_m at mission_start_time_ms.""")
+M4_MISSION_STATE_FAULT_HOLD = 2
+enums["M4_MISSION_STATE"][2] = EnumEntry("M4_MISSION_STATE_FAULT_HOLD", """A confirmed fault turned the rest of the mission into a brake and a hold from mission_change_ned_m at mission_change_time_ms.""")
+M4_MISSION_STATE_LANDING = 3
+enums["M4_MISSION_STATE"][3] = EnumEntry("M4_MISSION_STATE_LANDING", """Landing from mission_change_ned_m since mission_change_time_ms (the companion took over while the flight controller's failsafe was landing).""")
+M4_MISSION_STATE_ENUM_END = 4
+enums["M4_MISSION_STATE"][4] = EnumEntry("M4_MISSION_STATE_ENUM_END", """""")
+
 # MAV_CMD
 enums["MAV_CMD"] = Enum()
 enums["MAV_CMD"].bitmask = False
@@ -8605,27 +8619,31 @@ setattr(MAVLink_m4_joint_state_message, "name", mavlink_msg_deprecated_name_prop
 
 class MAVLink_m4_fault_status_message(MAVLink_message):
     """
-    Rotor fault detector status from the companion.
+    Rotor fault detector status and mission progress from the
+    companion, with every setpoint. The flight controller keeps the
+    last one and sends it back on MAV_CMD_REQUEST_MESSAGE: a restarted
+    companion recovers from it the confirmed fault and where its
+    mission was.
     """
 
     id = MAVLINK_MSG_ID_M4_FAULT_STATUS
     msgname = "M4_FAULT_STATUS"
-    fieldnames = ["time_boot_ms", "rotor", "thrust_max_estimate_n", "detected_time_boot_ms", "state", "kind"]
-    ordered_fieldnames = ["time_boot_ms", "thrust_max_estimate_n", "detected_time_boot_ms", "rotor", "state", "kind"]
-    fieldtypes = ["uint32_t", "uint8_t", "float", "uint32_t", "uint8_t", "uint8_t"]
+    fieldnames = ["time_boot_ms", "rotor", "thrust_max_estimate_n", "detected_time_boot_ms", "state", "kind", "mission_state", "mission_time_ms", "mission_start_time_ms", "mission_start_ned_m", "mission_change_time_ms", "mission_change_ned_m"]
+    ordered_fieldnames = ["time_boot_ms", "thrust_max_estimate_n", "detected_time_boot_ms", "rotor", "state", "kind", "mission_state", "mission_time_ms", "mission_start_time_ms", "mission_start_ned_m", "mission_change_time_ms", "mission_change_ned_m"]
+    fieldtypes = ["uint32_t", "uint8_t", "float", "uint32_t", "uint8_t", "uint8_t", "uint8_t", "uint32_t", "uint32_t", "float", "uint32_t", "float"]
     fielddisplays_by_name: Dict[str, str] = {}
-    fieldenums_by_name: Dict[str, str] = {"state": "M4_FAULT_STATE", "kind": "M4_FAULT_KIND"}
-    fieldunits_by_name: Dict[str, str] = {"time_boot_ms": "ms", "thrust_max_estimate_n": "N", "detected_time_boot_ms": "ms"}
-    native_format = bytearray(b"<IfIBBB")
-    orders = [0, 3, 1, 2, 4, 5]
-    lengths = [1, 4, 1, 1, 1, 1]
-    array_lengths = [0, 4, 0, 0, 0, 0]
+    fieldenums_by_name: Dict[str, str] = {"state": "M4_FAULT_STATE", "kind": "M4_FAULT_KIND", "mission_state": "M4_MISSION_STATE"}
+    fieldunits_by_name: Dict[str, str] = {"time_boot_ms": "ms", "thrust_max_estimate_n": "N", "detected_time_boot_ms": "ms", "mission_time_ms": "ms", "mission_start_time_ms": "ms", "mission_start_ned_m": "m", "mission_change_time_ms": "ms", "mission_change_ned_m": "m"}
+    native_format = bytearray(b"<IfIBBBBIIfIf")
+    orders = [0, 3, 1, 2, 4, 5, 6, 7, 8, 9, 10, 11]
+    lengths = [1, 4, 1, 1, 1, 1, 1, 1, 1, 3, 1, 3]
+    array_lengths = [0, 4, 0, 0, 0, 0, 0, 0, 0, 3, 0, 3]
     crc_extra = 111
-    unpacker = struct.Struct("<I4fIBBB")
+    unpacker = struct.Struct("<I4fIBBBBII3fI3f")
     instance_field = None
     instance_offset = -1
 
-    def __init__(self, time_boot_ms: int, rotor: int, thrust_max_estimate_n: Sequence[float], detected_time_boot_ms: int, state: int, kind: int = 0):
+    def __init__(self, time_boot_ms: int, rotor: int, thrust_max_estimate_n: Sequence[float], detected_time_boot_ms: int, state: int, kind: int = 0, mission_state: int = 0, mission_time_ms: int = 0, mission_start_time_ms: int = 0, mission_start_ned_m: Sequence[float] = (0, 0, 0), mission_change_time_ms: int = 0, mission_change_ned_m: Sequence[float] = (0, 0, 0)):
         MAVLink_message.__init__(self, MAVLink_m4_fault_status_message.id, MAVLink_m4_fault_status_message.msgname)
         self._fieldnames = MAVLink_m4_fault_status_message.fieldnames
         self._instance_field = MAVLink_m4_fault_status_message.instance_field
@@ -8636,9 +8654,15 @@ class MAVLink_m4_fault_status_message(MAVLink_message):
         self.detected_time_boot_ms = detected_time_boot_ms
         self.state = state
         self.kind = kind
+        self.mission_state = mission_state
+        self.mission_time_ms = mission_time_ms
+        self.mission_start_time_ms = mission_start_time_ms
+        self.mission_start_ned_m = mission_start_ned_m
+        self.mission_change_time_ms = mission_change_time_ms
+        self.mission_change_ned_m = mission_change_ned_m
 
     def pack(self, mav: "MAVLink", force_mavlink1: bool = False) -> bytes:
-        return self._pack(mav, self.crc_extra, self.unpacker.pack(self.time_boot_ms, self.thrust_max_estimate_n[0], self.thrust_max_estimate_n[1], self.thrust_max_estimate_n[2], self.thrust_max_estimate_n[3], self.detected_time_boot_ms, self.rotor, self.state, self.kind), force_mavlink1=force_mavlink1)
+        return self._pack(mav, self.crc_extra, self.unpacker.pack(self.time_boot_ms, self.thrust_max_estimate_n[0], self.thrust_max_estimate_n[1], self.thrust_max_estimate_n[2], self.thrust_max_estimate_n[3], self.detected_time_boot_ms, self.rotor, self.state, self.kind, self.mission_state, self.mission_time_ms, self.mission_start_time_ms, self.mission_start_ned_m[0], self.mission_start_ned_m[1], self.mission_start_ned_m[2], self.mission_change_time_ms, self.mission_change_ned_m[0], self.mission_change_ned_m[1], self.mission_change_ned_m[2]), force_mavlink1=force_mavlink1)
 
 
 # Define name on the class for backwards compatibility (it is now msgname).
@@ -23864,9 +23888,13 @@ class MAVLink(object):
         """
         self.send(self.m4_joint_state_encode(time_boot_ms, hip_angle_rad, hip_rate_rad_s), force_mavlink1=force_mavlink1)
 
-    def m4_fault_status_encode(self, time_boot_ms: int, rotor: int, thrust_max_estimate_n: Sequence[float], detected_time_boot_ms: int, state: int, kind: int = 0) -> MAVLink_m4_fault_status_message:
+    def m4_fault_status_encode(self, time_boot_ms: int, rotor: int, thrust_max_estimate_n: Sequence[float], detected_time_boot_ms: int, state: int, kind: int = 0, mission_state: int = 0, mission_time_ms: int = 0, mission_start_time_ms: int = 0, mission_start_ned_m: Sequence[float] = (0, 0, 0), mission_change_time_ms: int = 0, mission_change_ned_m: Sequence[float] = (0, 0, 0)) -> MAVLink_m4_fault_status_message:
         """
-        Rotor fault detector status from the companion.
+        Rotor fault detector status and mission progress from the companion,
+        with every setpoint. The flight controller keeps the last one
+        and sends it back on MAV_CMD_REQUEST_MESSAGE: a restarted
+        companion recovers from it the confirmed fault and where its
+        mission was.
 
         time_boot_ms              : Timestamp (the flight controller's clock). [ms] (type:uint32_t)
         rotor                     : Faulty rotor 1..4, 0 for none. (type:uint8_t)
@@ -23874,13 +23902,23 @@ class MAVLink(object):
         detected_time_boot_ms        : When the fault was detected (0 if none). [ms] (type:uint32_t)
         state                     : Detector state. (type:uint8_t, values:M4_FAULT_STATE)
         kind                      : What failed, as far as the evidence tells (UNKNOWN without ESC telemetry). (type:uint8_t, values:M4_FAULT_KIND)
+        mission_state             : How the mission plan stands. (type:uint8_t, values:M4_MISSION_STATE)
+        mission_time_ms           : The mission's clock at time_boot_ms: the flight controller's clock less the time its failsafe flew. [ms] (type:uint32_t)
+        mission_start_time_ms        : When the plan started (mission clock). [ms] (type:uint32_t)
+        mission_start_ned_m        : Where the plan started: the centre of mass, local NED. [m] (type:float)
+        mission_change_time_ms        : When the plan changed (FAULT_HOLD, LANDING; mission clock). [ms] (type:uint32_t)
+        mission_change_ned_m        : Where the centre of mass was when the plan changed, local NED. [m] (type:float)
 
         """
-        return MAVLink_m4_fault_status_message(time_boot_ms, rotor, thrust_max_estimate_n, detected_time_boot_ms, state, kind)
+        return MAVLink_m4_fault_status_message(time_boot_ms, rotor, thrust_max_estimate_n, detected_time_boot_ms, state, kind, mission_state, mission_time_ms, mission_start_time_ms, mission_start_ned_m, mission_change_time_ms, mission_change_ned_m)
 
-    def m4_fault_status_send(self, time_boot_ms: int, rotor: int, thrust_max_estimate_n: Sequence[float], detected_time_boot_ms: int, state: int, kind: int = 0, force_mavlink1: bool = False) -> None:
+    def m4_fault_status_send(self, time_boot_ms: int, rotor: int, thrust_max_estimate_n: Sequence[float], detected_time_boot_ms: int, state: int, kind: int = 0, mission_state: int = 0, mission_time_ms: int = 0, mission_start_time_ms: int = 0, mission_start_ned_m: Sequence[float] = (0, 0, 0), mission_change_time_ms: int = 0, mission_change_ned_m: Sequence[float] = (0, 0, 0), force_mavlink1: bool = False) -> None:
         """
-        Rotor fault detector status from the companion.
+        Rotor fault detector status and mission progress from the companion,
+        with every setpoint. The flight controller keeps the last one
+        and sends it back on MAV_CMD_REQUEST_MESSAGE: a restarted
+        companion recovers from it the confirmed fault and where its
+        mission was.
 
         time_boot_ms              : Timestamp (the flight controller's clock). [ms] (type:uint32_t)
         rotor                     : Faulty rotor 1..4, 0 for none. (type:uint8_t)
@@ -23888,9 +23926,15 @@ class MAVLink(object):
         detected_time_boot_ms        : When the fault was detected (0 if none). [ms] (type:uint32_t)
         state                     : Detector state. (type:uint8_t, values:M4_FAULT_STATE)
         kind                      : What failed, as far as the evidence tells (UNKNOWN without ESC telemetry). (type:uint8_t, values:M4_FAULT_KIND)
+        mission_state             : How the mission plan stands. (type:uint8_t, values:M4_MISSION_STATE)
+        mission_time_ms           : The mission's clock at time_boot_ms: the flight controller's clock less the time its failsafe flew. [ms] (type:uint32_t)
+        mission_start_time_ms        : When the plan started (mission clock). [ms] (type:uint32_t)
+        mission_start_ned_m        : Where the plan started: the centre of mass, local NED. [m] (type:float)
+        mission_change_time_ms        : When the plan changed (FAULT_HOLD, LANDING; mission clock). [ms] (type:uint32_t)
+        mission_change_ned_m        : Where the centre of mass was when the plan changed, local NED. [m] (type:float)
 
         """
-        self.send(self.m4_fault_status_encode(time_boot_ms, rotor, thrust_max_estimate_n, detected_time_boot_ms, state, kind), force_mavlink1=force_mavlink1)
+        self.send(self.m4_fault_status_encode(time_boot_ms, rotor, thrust_max_estimate_n, detected_time_boot_ms, state, kind, mission_state, mission_time_ms, mission_start_time_ms, mission_start_ned_m, mission_change_time_ms, mission_change_ned_m), force_mavlink1=force_mavlink1)
 
     def sys_status_encode(self, onboard_control_sensors_present: int, onboard_control_sensors_enabled: int, onboard_control_sensors_health: int, load: int, voltage_battery: int, current_battery: int, battery_remaining: int, drop_rate_comm: int, errors_comm: int, errors_count1: int, errors_count2: int, errors_count3: int, errors_count4: int, onboard_control_sensors_present_extended: int = 0, onboard_control_sensors_enabled_extended: int = 0, onboard_control_sensors_health_extended: int = 0) -> MAVLink_sys_status_message:
         """

@@ -8,7 +8,8 @@ COMMAND_LONG and COMMAND_INT alike (their first four params are the same floats)
   (UNKNOWN, 0, the default: DEGRADED, loss relative to hover thrust; m4.fault_kind.rotor_loss_kind).
 - MAV_CMD_SET_MESSAGE_INTERVAL: message id, interval in us (-1 stop, 0 default).
 - MAV_CMD_REQUEST_MESSAGE: message id; the message follows the ACCEPTED ack. For
-  M4_FAULT_STATUS, the last one the companion sent (MAV_RESULT_FAILED if none came yet); for
+  M4_FAULT_STATUS, the last one the companion sent, every field as it came (its fault and its
+  mission's progress; MAV_RESULT_FAILED if none came yet); for
   AVAILABLE_MODES param2 picks the mode (its index from 1; 0: every mode, one message each).
 - MAV_CMD_COMPONENT_ARM_DISARM: 1 arms; 0 disarms on the ground (in the air only with
   param2 = 21196, the force code ArduPilot and PX4 use).
@@ -104,8 +105,7 @@ class CommandHandler:
             f = self.fc.fault_status
             if f is None:
                 return m.MAV_RESULT_FAILED, []
-            return m.MAV_RESULT_ACCEPTED, [m.MAVLink_m4_fault_status_message(
-                f.time_boot_ms, f.rotor, list(f.thrust_max_estimate_n), f.detected_time_boot_ms, f.state)]
+            return m.MAV_RESULT_ACCEPTED, [m.MAVLink_m4_fault_status_message(*(getattr(f, name) for name in f.fieldnames))]
         if params[0] == m.MAVLINK_MSG_ID_AVAILABLE_MODES:
             index = params[1]
             found = available_modes(int(index)) if math.isfinite(index) and index == int(index) else None

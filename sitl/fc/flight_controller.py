@@ -22,8 +22,9 @@ Arming: the FC starts armed (the scenarios start in the air). Once it has landed
 a thrust cut it is disarmed: setpoints are refused (counted) and the motors stay off until
 the paired companion re-arms it with MAV_CMD_COMPONENT_ARM_DISARM(1).
 
-It keeps the last M4_FAULT_STATUS of its companion (a restarted companion asks for it with
-MAV_CMD_REQUEST_MESSAGE) and answers TIMESYNC requests (tc1 = 0) with its clock in ns.
+It keeps the last M4_FAULT_STATUS of its companion until it is armed again (a restarted
+companion asks for it with MAV_CMD_REQUEST_MESSAGE: the fault and the mission's progress) and
+answers TIMESYNC requests (tc1 = 0) with its clock in ns.
 
 The caller (sitl/serve.py) steps the plant and calls, at each instant on the 1 ms clock:
 `handle()` for each message received, `tick()` every TICK_MS, `telemetry()` when streams
@@ -204,6 +205,8 @@ class FlightController:
             self.armed = armed
             self.announce(mavlink.MAV_SEVERITY_NOTICE, "FC armed" if armed else "FC disarmed")
             self.setpoint = None
+            if armed:
+                self.fault_status = None        # a new flight: the last one's fault and mission stay behind
 
     def _watch_rotors(self, now_ms: int, thrust_cmd_n, rpm) -> None:
         """The FC's own lost-rotor check on the speeds its ESCs report (sitl/fc/rotor_watch.py)

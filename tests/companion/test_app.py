@@ -25,6 +25,7 @@ from companion.feed_publisher import Feed
 from companion.flight_log import FlightLog
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
 from support.fake_transport import FakeTransport
+from support.fc_answers import answers
 from support.full_disk import FullDisk
 
 AF = load_airframe()
@@ -47,6 +48,9 @@ class FakeFc:
     def __init__(self, link: FakeTransport):
         self.link = link
         self.mav = new_mav(None, FC_SYSTEM_ID, FC_COMPONENT_ID)
+        self.kept: mavlink.MAVLink_m4_fault_status_message | None = None
+        self.standard_mode = mavlink.MAV_STANDARD_MODE_POSITION_HOLD
+        self._read = 0                       # packets of link.sent answered so far
 
     def send(self, *msgs) -> None:
         for msg in msgs:
@@ -54,6 +58,23 @@ class FakeFc:
 
     def heartbeat(self) -> None:
         self.send(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, 0, 0, 0, 4, 3))
+
+    def answer(self) -> None:
+        """The replies to the commands the companion sent since the last call (support.fc_answers:
+        `kept`, the M4_FAULT_STATUS this FC kept; `standard_mode`, its mode)."""
+        self._read = min(self._read, len(self.link.sent))          # a test may clear what was sent
+        parser = new_mav(None, 255, 0)
+        msgs = [msg for packet in self.link.sent[self._read:] for msg in parser.parse_buffer(packet) or ()]
+        self._read = len(self.link.sent)
+        self.send(*(reply for msg in msgs for reply in answers(msg, self.kept, self.standard_mode)))
+
+    def join(self, app) -> None:
+        """HEARTBEAT, then the answers to what the companion asks the FC it finds (as the SITL's
+        FC answers: within a millisecond, before its next frame)."""
+        self.heartbeat()
+        for _ in range(4):
+            app.poll()
+            self.answer()
 
     def frame(self, t_ms: int) -> None:
         hover = [AF.hover_thrust_per_rotor_n] * 4
@@ -95,12 +116,13 @@ def fly(app, fc, clock, t0_ms: int, frames: int, period_ms: int = 20) -> None:
     for k in range(frames):
         fc.frame(t0_ms + k * period_ms)
         app.poll()
+        fc.answer()
         clock.now += period_ms / 1000.0
 
 
 def test_each_frame_is_answered_with_its_instant_and_the_control_period(rig):
     app, fc, link, clock = rig
-    fc.heartbeat()
+    fc.join(app)
     fly(app, fc, clock, 0, 10)
     assert setpoint_times(link) == list(range(0, 200, 20))
     assert {m.period_ms for m in link.sent_messages() if m.get_type() == "M4_SETPOINT"} == {20}
@@ -110,7 +132,7 @@ def test_frames_between_our_instants_are_not_answered(rig):
     """Telemetry faster than the control rate (a real FC's own stream rate): every 20 ms
     instant is answered, the 10 ms ones between are not."""
     app, fc, link, clock = rig
-    fc.heartbeat()
+    fc.join(app)
     fly(app, fc, clock, 0, 10, period_ms=10)
     assert setpoint_times(link) == list(range(0, 100, 20))
 
@@ -120,7 +142,7 @@ def test_telemetry_loss_is_noticed_within_0_3_s_setpoints_stop_and_control_resum
     resumes = []
     monkeypatch.setattr(app.controller, "resume", lambda: resumes.append(clock.now))
     app.feed, published = recording_feed()
-    fc.heartbeat()
+    fc.join(app)
     fly(app, fc, clock, 0, 10)
     last_frame_s = clock.now - 0.02
     answered = len(setpoint_times(link))
@@ -150,7 +172,7 @@ def test_a_short_wall_clock_gap_in_lockstep_does_not_reset_the_controller(rig, m
     app, fc, link, clock = rig
     resumes = []
     monkeypatch.setattr(app.controller, "resume", lambda: resumes.append(clock.now))
-    fc.heartbeat()
+    fc.join(app)
     fly(app, fc, clock, 0, 5)
     clock.now += 0.5
     app.poll()
@@ -162,7 +184,7 @@ def test_a_short_wall_clock_gap_in_lockstep_does_not_reset_the_controller(rig, m
 
 def test_a_control_step_that_raises_sends_nothing_and_the_loop_goes_on(rig, monkeypatch):
     app, fc, link, clock = rig
-    fc.heartbeat()
+    fc.join(app)
     fly(app, fc, clock, 0, 2)
     real_step = app.controller.step
     monkeypatch.setattr(app.controller, "step", lambda *a: 1 / 0)
@@ -175,7 +197,7 @@ def test_a_control_step_that_raises_sends_nothing_and_the_loop_goes_on(rig, monk
 
 def test_after_a_reboot_of_the_fc_the_mission_starts_over_on_its_new_clock(rig):
     app, fc, link, clock = rig
-    fc.heartbeat()
+    fc.join(app)
     fly(app, fc, clock, 5000, 3)
     first_reference = app.controller.flight.reference
     clock.now += 0.5
@@ -220,7 +242,7 @@ def test_a_re_settled_fault_kind_is_announced_once_more_and_not_at_every_step(ri
         flipping = 0.3 <= t_s < 0.5 and round(t_s / 0.02) % 2 == 0
         return FaultKind.DAMAGE if t_s < 0.3 or flipping else FaultKind.PROPELLER
     app.controller.detector = ScriptedDetector(kind_at)
-    fc.heartbeat()
+    fc.join(app)
     critical = []
     for k in range(150):
         fly(app, fc, clock, 20 * k, 1)
@@ -308,7 +330,7 @@ class Fuzzer:
 
 def test_a_fuzzed_byte_stream_never_raises_and_never_lets_a_bad_setpoint_out(rig):
     app, fc, link, clock = rig
-    fc.heartbeat()
+    fc.join(app)
     fuzz = Fuzzer(seed=4)
     senders = [FC_ADDRESS, FC_ADDRESS, FC_ADDRESS, ("127.0.0.1", 10)]
     for k in range(FUZZ_FRAMES):
@@ -340,7 +362,7 @@ def test_a_long_setpoint_lead_is_warned_once_published_and_planned_through(rig):
     it answers, then 40 ms: one warning, one notice, never CRITICAL; the feed shows the lead."""
     app, fc, link, clock = rig
     app.feed, published = recording_feed()
-    fc.heartbeat()
+    fc.join(app)
     answered = set()
     for k in range(140):
         lead_ms = 150 if k < 40 else 40
@@ -364,7 +386,7 @@ def test_a_gap_in_the_flight_log_is_sent_as_a_statustext_warning_and_published(r
     monkeypatch.setattr(flight_log, "RETRY_S", 0.05)
     app.flight_log = FlightLog(LogSettings(dir=tmp_path)).start()
     app.feed, published = recording_feed()
-    fc.heartbeat()
+    fc.join(app)
     frames = iter(range(0, 10**6, 20))
 
     def fly_until(done) -> bool:
@@ -399,7 +421,7 @@ def test_overruns_are_sent_as_statustext_warnings_at_most_every_5_s_with_their_c
 
     monkeypatch.setattr(app.controller, "step", slow_step)
     app.feed, published = recording_feed()
-    fc.heartbeat()
+    fc.join(app)
     fly(app, fc, clock, 0, 250)                             # a step every 50 ms of the clock: 12.5 s
     said = statustexts(link)
     assert {severity for severity, _ in said} == {mavlink.MAV_SEVERITY_WARNING}

@@ -25,7 +25,7 @@ def test_upside_down_cuts_the_thrust_for_good_and_never_re_arms():
     app = CompanionApp(config, FcLink(link), Controller(ControllerSettings.of(config)))
     sent = []
     try:
-        fc.heartbeat()
+        fc.join(app)
         for k in range(80):                 # 0.4 s level, 0.8 s upside down, then level again
             fc.frame(20 * k, roll_rad=math.pi if 20 <= k < 60 else 0.0)
             time.sleep(0.003)

@@ -10,10 +10,12 @@ import pytest
 
 from companion.core.control_types import FaultState, FaultStatus
 from m4.fault_kind import FaultKind
-from companion.fc_link import FcLink, LinkEvent
+from companion.fc_link import FcLink, LinkEvent, mission_progress
 from companion.telemetry import REQUESTED
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
 from m4.mavlink.link import UdpLink
+from m4.mavlink.signing import setup_signing
+from m4.mission_plan import MissionProgress, PlanProgress, PlanState
 from m4.setpoint import Setpoint
 from support.fake_transport import FakeTransport
 
@@ -56,15 +58,15 @@ def links(request):
         link.close()
 
 
-def test_nothing_is_heard_or_sent_before_the_fc_heartbeat(links):
+def test_nothing_is_sent_before_the_fc_is_heard_and_its_first_message_locks_on(links):
+    """Its telemetry as well as its HEARTBEAT: a restarted companion need not wait up to a
+    second for the next HEARTBEAT to take control."""
     companion, fc, _ = links
-    fc.send(position(10))
-    time.sleep(0.05)
-    assert companion.receive(time.monotonic()).messages == [] and not companion.locked
     companion.tick(0.0)
-    fc.send(heartbeat())
-    assert [m.get_type() for m in drain(received(companion))] == ["HEARTBEAT"]
-    assert companion.locked
+    assert not companion.locked and companion.link.peer is None
+    fc.send(position(10))
+    assert [m.get_type() for m in drain(received(companion))] == ["LOCAL_POSITION_NED"]
+    assert companion.locked and companion.fc_address[1] == fc.local_port
 
 
 def test_waiting_for_the_fc_does_not_spin(links):
@@ -213,6 +215,26 @@ def test_message_intervals_are_requested_one_at_a_time_until_acked(links):
     assert companion.health().commands_acked == len(REQUESTED)
 
 
+def test_the_fault_status_carries_the_missions_progress_and_it_reads_back():
+    plan = PlanProgress(PlanState.FAULT_HOLD, 0.02, (0.0, 0.0, -2.0), 1.06, (0.5, 0.0, -1.9))
+    progress = MissionProgress(2.98, plan)
+    transport = FakeTransport(FC_SYSTEM_ID, COMPANION_COMPONENT_ID)
+    healthy = FaultStatus(state=FaultState.HEALTHY, rotor=None, kind=FaultKind.UNKNOWN, thrust_max_estimate_n=np.full(4, 30.0),
+                          thrust_bound_n=np.full(4, 30.0), detected_at_s=None, message="", deficit_n=np.zeros(4))
+    FcLink(transport).send_setpoint(3000, 20, SETPOINT, 0.0, healthy, progress)
+    status = next(m for m in transport.sent_messages() if m.get_type() == "M4_FAULT_STATUS")
+    back = mission_progress(status)
+    assert back.time_s == pytest.approx(2.98) and back.plan.state is PlanState.FAULT_HOLD
+    assert back.plan.start_time_s == pytest.approx(0.02) and back.plan.change_time_s == pytest.approx(1.06)
+    assert back.plan.start_ned_m == pytest.approx((0.0, 0.0, -2.0))
+    assert back.plan.change_ned_m == pytest.approx((0.5, 0.0, -1.9))
+    FcLink(transport).send_setpoint(3000, 20, SETPOINT, 0.0, healthy)        # before the flight starts
+    assert mission_progress([m for m in transport.sent_messages() if m.get_type() == "M4_FAULT_STATUS"][-1]) is None
+    assert {s.name: int(s) for s in PlanState} == {
+        name.removeprefix("M4_MISSION_STATE_"): value for name, value in vars(mavlink).items()
+        if name.startswith("M4_MISSION_STATE_") and name != "M4_MISSION_STATE_ENUM_END"}
+
+
 # -- events, on a socket-free transport ----------------------------------------------------------------
 FC = ("10.0.0.1", 14555)
 FC_MAV = new_mav(None, FC_SYSTEM_ID, FC_COMPONENT_ID)
@@ -295,18 +317,31 @@ def test_with_a_key_a_forger_first_in_the_same_read_is_not_locked_on_to(links):
     assert stray.receive() == [] and [m.get_type() for m in fc.receive()] == ["HEARTBEAT"]
 
 
-def test_after_the_telemetry_is_lost_only_a_proven_fc_elsewhere_takes_over(fake):
+def test_after_the_telemetry_is_lost_an_fc_elsewhere_takes_over_with_its_first_message(fake):
     fc_link, transport = fake
     other = ("10.0.0.2", 14555)
     transport.deliver(FC, heartbeat(), position(100), mav=FC_MAV)
     fc_link.receive(10.0)
-    transport.deliver(other, heartbeat(), mav=FC_MAV)                 # while ours is alive: no
+    transport.deliver(other, heartbeat(), position(120, x=9.0), mav=FC_MAV)     # while ours is alive: no
     assert fc_link.receive(10.1).events == () and fc_link.fc_address == FC
     assert fc_link.receive(10.4).events == (LinkEvent.LOST,) and transport.hear_others
-    transport.deliver(other, position(5, x=3.0), mav=FC_MAV)            # telemetry is no proof
-    assert fc_link.receive(10.5).messages == [] and fc_link.fc_address == FC
-    transport.deliver(other, heartbeat(), position(20, x=4.0), mav=FC_MAV)
-    got = fc_link.receive(10.6)
+    transport.deliver(other, position(20, x=4.0), mav=FC_MAV)
+    got = fc_link.receive(10.5)
     assert got.events == (LinkEvent.LOCKED, LinkEvent.REBOOTED, LinkEvent.TELEMETRY)
-    assert fc_link.fc_address == other and fc_link.previous_address == FC and [m.x for m in got.messages[1:]] == [4.0]
+    assert fc_link.fc_address == other and fc_link.previous_address == FC and [m.x for m in got.messages] == [4.0]
     assert transport.locked_peer == other and not transport.hear_others
+
+
+def test_with_a_key_after_the_telemetry_is_lost_only_a_signed_fc_elsewhere_takes_over():
+    transport = FakeTransport(FC_SYSTEM_ID, COMPANION_COMPONENT_ID, key=KEY)
+    fc_link, signed = FcLink(transport, telemetry_timeout_s=0.3), new_mav(None, FC_SYSTEM_ID, FC_COMPONENT_ID)
+    setup_signing(signed, KEY)
+    other = ("10.0.0.2", 14555)
+    transport.deliver(FC, heartbeat(), position(100), mav=signed)
+    fc_link.receive(10.0)
+    assert fc_link.receive(10.4).events == (LinkEvent.LOST,)
+    transport.deliver(other, heartbeat(), position(5, x=3.0), mav=FC_MAV)         # unsigned: no proof
+    assert fc_link.receive(10.5).messages == [] and fc_link.fc_address == FC
+    transport.deliver(other, position(20, x=4.0), mav=signed)
+    assert fc_link.receive(10.6).events == (LinkEvent.LOCKED, LinkEvent.REBOOTED, LinkEvent.TELEMETRY)
+    assert fc_link.fc_address == other

@@ -60,7 +60,7 @@ def test_a_slow_control_step_over_real_sockets_is_counted_logged_once_and_publis
     fc = LoopbackFc(link.local_port, AF)
     app = CompanionApp(config, FcLink(link), controller)
     try:
-        fc.heartbeat()
+        fc.join(app)
         with caplog.at_level(logging.WARNING, logger="m4-companion"):
             for k in range(10):
                 fc.frame(20 * k)
