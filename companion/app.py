@@ -15,6 +15,10 @@ where it was instead of anchoring it where it finds the robot, and joins the FC'
 landing instead of cancelling it (companion.controller). The newest frame is answered as
 soon as the answers are in.
 
+Stale streams (companion.stream_watch): while a stream the controller needs is stale no
+setpoint goes out; it is asked for again and reported (log, STATUSTEXT warning, the feed's
+link topic); when it comes back, control resumes.
+
 Telemetry loss: no telemetry for `telemetry_timeout_s` (wall clock) marks the link lost:
 no setpoint goes out (none can: no frame), it is logged, sent as STATUSTEXT (warning) and
 published. When telemetry returns, control resumes; if the FC's clock moved on by more
@@ -51,7 +55,8 @@ from companion.fc_link import FcLink, LinkEvent, mission_progress
 from companion.feed_publisher import Feed, open_feed
 from companion.loop_timing import LoopTiming
 from companion.flight_log import FlightLog, open_flight_log
-from companion.telemetry import THRUSTER_STATUS, TelemetryAssembler, VehicleSnapshot, rom_state
+from companion.stream_watch import Report, StreamWatch, blocking, labels
+from companion.telemetry import ESC_TELEMETRY, THRUSTER_STATUS, TelemetryAssembler, VehicleSnapshot, rom_state
 from m4.airframe import ROTOR_COUNT
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from m4.mavlink.connect import listens_for_peer, open_link
@@ -70,6 +75,7 @@ class LoopCounters:
     answered: int = 0             # setpoints sent
     skipped_incomplete: int = 0   # frames without the full picture yet (e.g. no joint state)
     link_losses: int = 0
+    skipped_stale: int = 0        # frames not answered: a stream the controller needs is stale
     control_errors: int = 0       # control steps that raised (a defect; the FC's failsafe covers)
     solve_ms_max: float = 0.0
 
@@ -111,6 +117,7 @@ class CompanionApp:
         self._frame_ms: int | None = None        # the newest frame (its M4_THRUSTER_STATUS) not yet answered
         self._kept_mission: MissionProgress | None = None     # what the FC kept of an earlier run's mission
         self._fc_landing = False                 # the FC's mode, as it last said: its failsafe lands
+        self.streams = StreamWatch(config.control_period_s)
 
     # -- the loop ----------------------------------------------------------------------------------
     def stop(self) -> None:
@@ -138,6 +145,7 @@ class CompanionApp:
                 self._on_kept_status(msg)
             elif msg_id == mavlink.MAVLINK_MSG_ID_CURRENT_MODE:
                 self._fc_landing = msg.standard_mode == mavlink.MAV_STANDARD_MODE_LAND
+        self._watch_streams(now)
         if self._frame_ms is not None and self._due(self._frame_ms) and not self.fc.kept_state_pending():
             self._answer(self._frame_ms, now)
         while self.flight_log.notices:             # a gap in the flight log (it has no link of its own)
@@ -196,11 +204,15 @@ class CompanionApp:
         if snap is None:
             self.counters.skipped_incomplete += 1
             return
+        if blocking(self.streams.stale):
+            self.counters.skipped_stale += 1
+            return
         t_s, x = t_ms / 1000.0, rom_state(snap, self.config.airframe)
+        esc = None if ESC_TELEMETRY in self.streams.stale else snap.esc
         try:
             if not self.controller.started and self.controller.start(t_s, x, self._kept_mission):
                 self._say_started(t_s, x)
-            step = self.controller.step(t_s, x, snap.esc, snap.thrust_limit_n, lead_s=self.fc.delay.lead_s or 0.0,
+            step = self.controller.step(t_s, x, esc, snap.thrust_limit_n, lead_s=self.fc.delay.lead_s or 0.0,
                                         thrust_cmd_n=self._frame_thrust_cmd(snap, t_ms), fc_landing=self._fc_landing)
         except Exception:           # a defect, not bad input: say it, send nothing, let the FC's failsafe fly
             self.counters.control_errors += 1
@@ -312,7 +324,32 @@ class CompanionApp:
                        dropped_foreign=h.foreign, setpoint_lead_s=self.fc.delay.lead_s,
                        round_trip_s=self.fc.delay.round_trip_s, control_rate_hz=self.timing.rate_hz(now),
                        overruns=self.timing.overruns, flight_log_paused=self.flight_log.paused,
-                       flight_log_gaps=self.flight_log.gaps)
+                       flight_log_gaps=self.flight_log.gaps, stale_streams=labels(self.streams.stale))
+
+    # -- stale streams -----------------------------------------------------------------------------
+    def _watch_streams(self, now: float) -> None:
+        news = self.streams.update(self.telemetry.stale(self.streams.limit_s), now, self.fc.fc_time_ms)
+        if news.ask:
+            self.fc.request_intervals(self.config.control_period_s, news.ask)
+        if news.resumed:
+            self._resume_after_gap()
+        if news.report is not None:
+            self._report_streams(news.report)
+
+    def _report_streams(self, report: Report) -> None:
+        t_s, names = report.since_ms / 1000.0, "+".join(labels(report.now))
+        if not report.now:
+            log.info("t=%.3f s: %s fresh again", t_s, "+".join(labels(report.was)))
+            self.fc.statustext(mavlink.MAV_SEVERITY_NOTICE, "companion: telemetry fresh again")
+        elif not blocking(report.now):
+            log.warning("t=%.3f s: ESC telemetry stale: asked for again; the detector goes on without it", t_s)
+            self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, "companion: stale ESC, flying without it")
+        else:
+            log.warning("t=%.3f s: %s stale (nothing for %.0f ms while the other streams came): asked for again; "
+                        "no setpoints until it is back (the flight controller flies)", t_s, names,
+                        1000.0 * self.streams.limit_s)
+            self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, f"companion: stale {names}: no setpoints")
+        self._publish_link(self.fc.fc_time_ms / 1000.0)
 
     # -- link loss ---------------------------------------------------------------------------------
     def _on_telemetry_back(self) -> None:
@@ -320,13 +357,17 @@ class CompanionApp:
         if self._last_answered_ms is None:
             log.info("telemetry flowing (t=%.3f s)", t_ms / 1000.0)
             return
-        gap_ms = t_ms - self._last_answered_ms
-        log.warning("telemetry back after the FC's clock moved %d ms; control resumes", gap_ms)
+        log.warning("telemetry back after the FC's clock moved %d ms; control resumes", t_ms - self._last_answered_ms)
+        self._resume_after_gap()
         self.fc.statustext(mavlink.MAV_SEVERITY_NOTICE, "companion: telemetry back, control resumes")
-        if gap_ms > RESUME_GAP_PERIODS * self.period_ms:
-            self.controller.resume()
         self.fc.request_intervals(self.config.control_period_s)
         self._publish_link(t_ms / 1000.0)
+
+    def _resume_after_gap(self) -> None:
+        """Control resumes; after more than RESUME_GAP_PERIODS the controller drops its warm start."""
+        if self._last_answered_ms is not None and \
+                self.fc.fc_time_ms - self._last_answered_ms > RESUME_GAP_PERIODS * self.period_ms:
+            self.controller.resume()
 
     def _on_lost(self) -> None:
         self.counters.link_losses += 1

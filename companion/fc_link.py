@@ -25,9 +25,9 @@
   how late our setpoints act at the FC); the FC's TIMESYNC requests are answered with our clock.
 - Heartbeat at 1 Hz as MAV_TYPE_ONBOARD_CONTROLLER.
 - Commands (companion.fc_commands: one at a time, each resent until acknowledged): the
-  telemetry frame's streams at the control period (MAV_CMD_SET_MESSAGE_INTERVAL); what the FC
-  kept and its mode (MAV_CMD_REQUEST_MESSAGE: M4_FAULT_STATUS, CURRENT_MODE), which arrive as
-  messages; `kept_state_pending()` until both are answered.
+  telemetry frame's streams at the control period (MAV_CMD_SET_MESSAGE_INTERVAL; again for a
+  stream gone stale); what the FC kept and its mode (MAV_CMD_REQUEST_MESSAGE: M4_FAULT_STATUS,
+  CURRENT_MODE), which arrive as messages; `kept_state_pending()` until both are answered.
 - Out: M4_SETPOINT, M4_FAULT_STATUS (the detector's status and the mission's progress, which
   the FC keeps for a restarted companion: `mission_progress()` reads it back), STATUSTEXT.
 - Health counters: bad CRC (garbled packets), bad signature (unsigned or badly signed,
@@ -266,11 +266,11 @@ class FcLink:
             self.delay.answered(msg.tc1, msg.ts1, now_s)
 
     # -- periodic ----------------------------------------------------------------------------------
-    def request_intervals(self, period_s: float) -> None:
-        """Ask for the telemetry frame's streams and the ESC telemetry every period_s (again from the start)."""
+    def request_intervals(self, period_s: float, ids=REQUESTED) -> None:
+        """Ask for the streams `ids` (default: the telemetry frame's and the ESC telemetry) every
+        period_s (again from the start for these)."""
         interval_us = float(round(period_s * 1e6))
-        self.commands.replace([Command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(i), interval_us))
-                               for i in REQUESTED])
+        self.commands.replace([Command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(i), interval_us)) for i in ids])
 
     def request_kept_state(self) -> None:
         """Ask for the M4_FAULT_STATUS the FC keeps of its companion (a restarted companion's

@@ -10,6 +10,16 @@ companion.fc_link) `clear()` starts every stream over. A message with a
 non-finite field (or a quaternion that is not a unit one) is rejected and counted; in
 M4_THRUSTER_STATUS a NaN means "the FC cannot tell" (contract) and is kept as NaN.
 
+Freshness: `stale(limit_s)` names the streams the controller needs that have brought nothing
+for limit_s while the others came: the attitude (stale when neither ATTITUDE nor
+ATTITUDE_QUATERNION is fresh), position, joints, thrusters, and the ESC telemetry once some
+has come. Both clocks must say so: the FC's (its newest instant on any stream, less the
+stream's newest) and ours (the newest arrival on any, less the stream's last). A link gap
+that stops everything ages nothing on either (the link's own timeout covers that), nor does a
+delay; in lockstep the FC's clock waits for our answer, so a wait ages nothing on its clock;
+one sample stamped far ahead ages nothing on ours. A stream that stops alone ages on both,
+whether a MAV_CMD_SET_MESSAGE_INTERVAL stopped it or a flood starved it.
+
 ESC telemetry (ArduPilot's ESC_TELEMETRY_1_TO_4: rpm, current in cA, voltage in cV per ESC)
 carries no timestamp: it is stamped with the FC's clock as the other streams last showed it
 (the newest time_boot_ms received so far), and a frame is taken only when that clock has
@@ -43,6 +53,10 @@ THRUSTER_STATUS = mavlink.MAVLINK_MSG_ID_M4_THRUSTER_STATUS
 STREAMS = (ATTITUDE, ATTITUDE_QUATERNION, LOCAL_POSITION, JOINT_STATE, THRUSTER_STATUS)
 ESC_TELEMETRY = mavlink.MAVLINK_MSG_ID_ESC_TELEMETRY_1_TO_4
 REQUESTED = STREAMS + (ESC_TELEMETRY,)       # what the companion asks the FC to stream
+# What the controller needs, each with the messages that carry it (the first names it).
+NEEDED = ((ATTITUDE, ATTITUDE_QUATERNION), (LOCAL_POSITION,), (JOINT_STATE,), (THRUSTER_STATUS,))
+LABELS = {ATTITUDE: "attitude", LOCAL_POSITION: "position", JOINT_STATE: "joints", THRUSTER_STATUS: "thrusters",
+          ESC_TELEMETRY: "ESC"}
 _QUAT_NORM_TOLERANCE = 0.05
 
 
@@ -112,12 +126,14 @@ class TelemetryAssembler:
         self.counters = TelemetryCounters()
         self._samples: dict[int, Sample] = {}
         self._esc: EscSample | None = None
+        self._esc_received_s: float | None = None
+        self._first: tuple[float, float] | None = None     # the first sample's (FC instant, arrival), s
 
     def add(self, msg, now_s: float) -> bool:
         """Take one message; True when it is a telemetry sample and was accepted."""
         msg_id = msg.get_msgId()
         if msg_id == ESC_TELEMETRY:
-            return self._add_esc(msg)
+            return self._add_esc(msg, now_s)
         if msg_id not in STREAMS:
             return False
         values = _decode(msg)
@@ -130,10 +146,12 @@ class TelemetryAssembler:
             self.counters.stale += 1
             return False
         self._samples[msg_id] = Sample(t_ms, now_s, values)
+        if self._first is None:
+            self._first = (t_ms / 1000.0, now_s)
         self.counters.accepted += 1
         return True
 
-    def _add_esc(self, msg) -> bool:
+    def _add_esc(self, msg, now_s: float) -> bool:
         fc_ms = max((sample.time_ms for sample in self._samples.values()), default=None)
         if fc_ms is None or self._esc is not None and fc_ms <= round(self._esc.time_s * 1000.0):
             self.counters.stale += 1          # no FC instant to stamp it with, or none newer than the last
@@ -142,13 +160,33 @@ class TelemetryAssembler:
         self._esc = EscSample(time_s=fc_ms / 1000.0, rpm=np.array(msg.rpm, dtype=float),
                               current_a=np.array(msg.current, dtype=float) / 100.0,
                               voltage_v=np.where(voltage_v > 0.0, voltage_v, np.nan))
+        self._esc_received_s = now_s
         self.counters.accepted += 1
         return True
 
     def clear(self) -> None:
         """Forget every stream (the FC rebooted: its clock started over)."""
         self._samples.clear()
-        self._esc = None
+        self._esc = self._esc_received_s = self._first = None
+
+    def stale(self, limit_s: float) -> tuple[int, ...]:
+        """The needed streams (named by the first message of NEEDED, and ESC_TELEMETRY) that are
+        more than limit_s behind the newest of any on the FC's clock and on ours; one never
+        received counts from the first sample of any."""
+        if self._first is None:
+            return ()
+        samples = self._samples.values()
+        newest_fc_s, newest_s = max(x.time_ms for x in samples) / 1000.0, max(x.received_s for x in samples)
+        out = []
+        for ids in NEEDED:
+            got = [self._samples[i] for i in ids if i in self._samples]
+            fc_s, ours_s = (max(x.time_ms for x in got) / 1000.0, max(x.received_s for x in got)) if got else self._first
+            if newest_fc_s - fc_s > limit_s and newest_s - ours_s > limit_s:
+                out.append(ids[0])
+        if self._esc is not None and newest_fc_s - self._esc.time_s > limit_s and \
+                newest_s - self._esc_received_s > limit_s:
+            out.append(ESC_TELEMETRY)
+        return tuple(out)
 
     def last_received_s(self) -> float | None:
         return max((s.received_s for s in self._samples.values()), default=None)

@@ -132,7 +132,8 @@ def link_payload(t_s: float | None, wall_time_unix_s: float, *, connected: bool,
                  last_msg_age_s: float | None, msgs_per_s: float, bad_crc: int, bad_signature: int,
                  dropped_foreign: int, feed_errors: int, setpoint_lead_s: float | None = None,
                  round_trip_s: float | None = None, control_rate_hz: float | None = None,
-                 overruns: int = 0, flight_log_paused: bool = False, flight_log_gaps: int = 0) -> dict[str, Any]:
+                 overruns: int = 0, flight_log_paused: bool = False, flight_log_gaps: int = 0,
+                 stale_streams: tuple[str, ...] = ()) -> dict[str, Any]:
     """Health of the MAVLink link to the flight controller, of this feed itself and of the flight log.
 
     last_msg_age_s: wall-clock seconds since the last message from the flight controller
@@ -143,7 +144,9 @@ def link_payload(t_s: float | None, wall_time_unix_s: float, *, connected: bool,
     companion's clock (null until measured); control_rate_hz: setpoints sent in the last
     second; overruns: control steps so far that took longer than the control period;
     flight_log_paused: the flight log cannot write (a full disk) and drops what comes until a
-    new file can be written; flight_log_gaps: times it paused so far.
+    new file can be written; flight_log_gaps: times it paused so far; stale_streams: the
+    telemetry streams the controller needs that have stopped coming ("attitude", "position",
+    "joints", "thrusters", "ESC"; while one of the first four is stale no setpoint goes out).
     """
     return {
         **_stamp(t_s, wall_time_unix_s),
@@ -160,7 +163,14 @@ def link_payload(t_s: float | None, wall_time_unix_s: float, *, connected: bool,
         "overruns": _count("overruns", overruns),
         "flight_log_paused": _flag("flight_log_paused", flight_log_paused),
         "flight_log_gaps": _count("flight_log_gaps", flight_log_gaps),
+        "stale_streams": _names("stale_streams", stale_streams),
     }
+
+
+def _names(name: str, values) -> list[str]:
+    if isinstance(values, str) or not all(isinstance(v, str) for v in values):
+        raise ValueError(f"{name} must be a list of names, got {values!r}")
+    return list(values)
 
 
 def _optional_ms(name: str, seconds) -> float | None:

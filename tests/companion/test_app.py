@@ -76,12 +76,13 @@ class FakeFc:
             app.poll()
             self.answer()
 
-    def frame(self, t_ms: int) -> None:
+    def frame(self, t_ms: int, without: tuple[str, ...] = ()) -> None:
         hover = [AF.hover_thrust_per_rotor_n] * 4
-        self.send(mavlink.MAVLink_attitude_message(t_ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
-                  mavlink.MAVLink_local_position_ned_message(t_ms, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0),
-                  mavlink.MAVLink_m4_joint_state_message(t_ms, [AF.nominal_hip_rad] * 4, [0.0] * 4),
-                  mavlink.MAVLink_m4_thruster_status_message(t_ms, hover, [AF.thrust_max_n] * 4))
+        msgs = (mavlink.MAVLink_attitude_message(t_ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+                mavlink.MAVLink_local_position_ned_message(t_ms, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0),
+                mavlink.MAVLink_m4_joint_state_message(t_ms, [AF.nominal_hip_rad] * 4, [0.0] * 4),
+                mavlink.MAVLink_m4_thruster_status_message(t_ms, hover, [AF.thrust_max_n] * 4))
+        self.send(*(msg for msg in msgs if msg.get_type() not in without))
 
 
 @pytest.fixture(scope="module")
@@ -112,9 +113,9 @@ def setpoint_times(link: FakeTransport) -> list[int]:
     return [m.time_boot_ms for m in link.sent_messages() if m.get_type() == "M4_SETPOINT"]
 
 
-def fly(app, fc, clock, t0_ms: int, frames: int, period_ms: int = 20) -> None:
+def fly(app, fc, clock, t0_ms: int, frames: int, period_ms: int = 20, without: tuple[str, ...] = ()) -> None:
     for k in range(frames):
-        fc.frame(t0_ms + k * period_ms)
+        fc.frame(t0_ms + k * period_ms, without)
         app.poll()
         fc.answer()
         clock.now += period_ms / 1000.0
@@ -206,6 +207,51 @@ def test_after_a_reboot_of_the_fc_the_mission_starts_over_on_its_new_clock(rig):
     fly(app, fc, clock, 0, 3)
     assert setpoint_times(link) == [5000, 5020, 5040, 0, 20, 40]
     assert app.controller.flight.reference is not first_reference
+
+
+def test_a_stale_attitude_stops_the_setpoints_is_asked_for_again_reported_and_control_resumes(rig):
+    """ATTITUDE stops while the other streams go on (a third party stopped it): within five
+    periods no setpoint goes out, ATTITUDE and ATTITUDE_QUATERNION are asked for again, the
+    warning goes out (STATUSTEXT, the feed's link topic, the log); when it comes back, so do
+    the setpoints, and the all-clear is said once a second has passed since the warning."""
+    app, fc, link, clock = rig
+    published = []
+    app.feed = Feed(SimpleNamespace(put=lambda topic, payload: published.append((topic, payload)), close=list))
+    fc.join(app)
+    fly(app, fc, clock, 0, 10)
+    link.sent.clear()
+    fly(app, fc, clock, 200, 10, without=("ATTITUDE",))
+    sent = link.sent_messages()
+    assert setpoint_times(link) == [200, 220, 240, 260, 280]
+    asked = [(int(m.param1), m.param2) for m in sent if m.get_type() == "COMMAND_LONG"]
+    assert asked == [(mavlink.MAVLINK_MSG_ID_ATTITUDE, 20000.0), (mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION, 20000.0)]
+    fly(app, fc, clock, 400, 50)
+    texts = [(m.severity, m.text) for m in link.sent_messages() if m.get_type() == "STATUSTEXT"]
+    assert texts == [(mavlink.MAV_SEVERITY_WARNING, "companion: stale attitude: no setpoints"),
+                     (mavlink.MAV_SEVERITY_NOTICE, "companion: telemetry fresh again")]
+    assert setpoint_times(link)[5:] == list(range(400, 1400, 20))
+    stale_topic = [p["stale_streams"] for topic, p in published if topic == "link"]
+    assert ["attitude"] in stale_topic and stale_topic[-1] == []
+    assert app.counters.skipped_stale == 5
+
+
+def test_stale_esc_telemetry_is_asked_for_again_and_the_controller_flies_without_it(rig, monkeypatch):
+    app, fc, link, clock = rig
+    given = []
+    real_step = app.controller.step
+    monkeypatch.setattr(app.controller, "step",
+                        lambda t, x, esc, *a, **k: (given.append(esc), real_step(t, x, esc, *a, **k))[1])
+    esc = mavlink.MAVLink_esc_telemetry_1_to_4_message([30] * 4, [1480] * 4, [2250] * 4, [0] * 4, [5522] * 4, [1] * 4)
+    fc.join(app)
+    for k in range(20):
+        if k < 10:
+            fc.send(esc)
+        fly(app, fc, clock, 20 * k, 1)
+    assert given[1] is not None and given[-1] is None and len(given) == 20
+    asked = [int(m.param1) for m in link.sent_messages() if m.get_type() == "COMMAND_LONG"]
+    assert asked.count(mavlink.MAVLINK_MSG_ID_ESC_TELEMETRY_1_TO_4) == 2      # at lock-on, and when it went stale
+    texts = [m.text for m in link.sent_messages() if m.get_type() == "STATUSTEXT"]
+    assert texts == ["companion: stale ESC, flying without it"]
 
 
 class ScriptedDetector:

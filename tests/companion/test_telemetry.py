@@ -11,7 +11,7 @@ from m4.airframe import load_airframe
 from m4.attitude import euler_from_quat_wxyz
 from companion.core import rom
 from m4.mavlink import mavlink
-from companion.telemetry import ATTITUDE, LOCAL_POSITION, TelemetryAssembler, rom_state
+from companion.telemetry import ATTITUDE, ESC_TELEMETRY, JOINT_STATE, LOCAL_POSITION, TelemetryAssembler, rom_state
 
 AF = load_airframe()
 NAN4 = [math.nan] * 4
@@ -175,3 +175,82 @@ def test_a_second_esc_frame_before_the_fcs_clock_moves_is_dropped_as_stale():
     assert asm.counters.stale == 1
     asm.clear()
     assert asm.snapshot() is None and asm.add(esc(), 0.0) is False
+
+
+# -- freshness --------------------------------------------------------------------------------------
+LIMIT_S = 0.1
+
+
+def fly_frames(asm, t0_ms, frames, without=(), now0_s=None):
+    """Frames every 20 ms (FC clock and ours alike), leaving out the messages of types `without`."""
+    for k in range(frames):
+        t_ms = t0_ms + 20 * k
+        feed(asm, [m for m in frame(t_ms) if not isinstance(m, without)],
+             (t_ms if now0_s is None else 1000 * now0_s + 20 * k) / 1000.0)
+
+
+def test_a_stream_that_stops_while_the_others_come_is_stale_until_it_comes_again():
+    asm = TelemetryAssembler()
+    fly_frames(asm, 0, 10)
+    assert asm.stale(LIMIT_S) == ()
+    fly_frames(asm, 200, 4, without=mavlink.MAVLink_local_position_ned_message)
+    assert asm.stale(LIMIT_S) == ()                   # 80 ms without: not yet
+    fly_frames(asm, 280, 2, without=mavlink.MAVLink_local_position_ned_message)
+    assert asm.stale(LIMIT_S) == (LOCAL_POSITION,)    # 120 ms
+    fly_frames(asm, 320, 1)
+    assert asm.stale(LIMIT_S) == ()
+
+
+def test_a_gap_in_every_stream_ages_none_of_them():
+    """The link's silence is the link's timeout's business, not a stale stream."""
+    asm = TelemetryAssembler()
+    fly_frames(asm, 0, 10)
+    fly_frames(asm, 2000, 1)
+    assert asm.stale(LIMIT_S) == ()
+
+
+def test_the_attitude_is_stale_only_when_neither_attitude_message_comes():
+    asm = TelemetryAssembler()
+    quat = mavlink.MAVLink_attitude_quaternion_message
+    for k in range(10):
+        feed(asm, frame(20 * k)[1:] + [quat(20 * k, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, [0.0] * 4)], 0.02 * k)
+    assert asm.stale(LIMIT_S) == ()                   # ATTITUDE stopped at once, ATTITUDE_QUATERNION came
+    fly_frames(asm, 200, 10, without=mavlink.MAVLink_attitude_message)
+    assert asm.stale(LIMIT_S) == (ATTITUDE,)
+
+
+def test_a_stream_that_never_came_is_stale_from_the_first_arrival_of_any():
+    asm = TelemetryAssembler()
+    fly_frames(asm, 0, 5, without=mavlink.MAVLink_m4_joint_state_message)
+    assert asm.stale(LIMIT_S) == ()
+    fly_frames(asm, 100, 2, without=mavlink.MAVLink_m4_joint_state_message)        # 120 ms since the first
+    assert asm.stale(LIMIT_S) == (JOINT_STATE,)
+    asm.clear()
+    assert asm.stale(LIMIT_S) == ()
+
+
+def test_esc_telemetry_is_needed_once_it_came_and_stale_when_it_stops():
+    asm = TelemetryAssembler()
+    fly_frames(asm, 0, 10)
+    assert asm.stale(LIMIT_S) == ()                   # an FC without ESC telemetry
+    feed(asm, [esc()], 0.18)
+    fly_frames(asm, 200, 4)
+    assert asm.stale(LIMIT_S) == ()
+    fly_frames(asm, 280, 2)
+    assert asm.stale(LIMIT_S) == (ESC_TELEMETRY,)
+
+
+def test_a_wait_of_the_fc_in_lockstep_ages_nothing_on_its_clock():
+    """The FC waited 0.5 s (our clock) for our answer to frame 180, then sent ATTITUDE at 190."""
+    asm = TelemetryAssembler()
+    fly_frames(asm, 0, 10)
+    feed(asm, [attitude(190)], 0.68)
+    assert asm.stale(LIMIT_S) == ()
+
+
+def test_a_sample_stamped_far_ahead_makes_no_other_stream_stale():
+    asm = TelemetryAssembler()
+    fly_frames(asm, 0, 10)
+    feed(asm, [position(4_000_000)], 0.19)
+    fly_frames(asm, 200, 10, without=mavlink.MAVLink_local_position_ned_message)
+    assert asm.stale(LIMIT_S) == ()
