@@ -1,0 +1,42 @@
+"""The companion's fail-safe probes of issue 20 (benchmarks/reliability.py), in real time on
+hover-rotor-loss, judged from the plant's truth: a stream stopped by a third party mid-flight,
+and a companion killed and started again after the rotor loss."""
+
+from __future__ import annotations
+
+import pytest
+
+from benchmarks import reliability
+from m4.mavlink import mavlink
+from sitl import scenarios
+
+pytestmark = pytest.mark.flight
+
+
+def test_attitude_stopped_by_a_third_party_is_noticed_asked_for_again_and_not_flown_on(tmp_path):
+    """Before: 7.4 m of drift, the robot upside down, ground contact 1.2 s later, not a word."""
+    figures = reliability.stale("hover-rotor-loss", at_s=3.0, seconds=6.0, out=tmp_path)
+    print(f"\n{figures}")
+    assert figures.motion.contact_s is None
+    assert figures.motion.drift_m < 0.3 and figures.motion.drop_m < 0.2 and figures.motion.tilt_deg < 15.0
+    assert figures.statustext[:1] == ["companion: stale attitude: no setpoints"]
+    assert figures.statustext[-1] == "companion: telemetry fresh again" and figures.log_lines >= 1
+
+
+def test_a_companion_restarted_after_the_rotor_loss_keeps_the_fault_takes_over_at_once_and_lands(tmp_path):
+    """Before: "healthy" first, the loss found again 100-240 ms later with the dead rotor driven
+    at 18-21 N, thrust steps of 15 N, and the FC's landing cancelled to hover lower each time.
+    From 5 m, so that the FC's landing is still under way whatever a busy machine makes of the
+    new companion's start (a few seconds)."""
+    scenario = tmp_path / "high-hover-rotor-loss.toml"
+    scenario.write_text(scenarios.scenario_path("hover-rotor-loss").read_text()
+                        .replace("ned_m = [0.0, 0.0, -2.0]", "ned_m = [0.0, 0.0, -5.0]")
+                        .replace('name = "hover-rotor-loss"', 'name = "high-hover-rotor-loss"'))
+    figures = reliability.restart(str(scenario), kill_at_s=[3.0], seconds=16.0, out=tmp_path)
+    print(f"\n{figures}")
+    takeover = figures.takeovers[0]
+    assert takeover.first_fault_state == mavlink.M4_FAULT_STATE_CONFIRMED
+    assert takeover.ready_to_control_s < 0.3
+    assert takeover.dead_rotor_max_n < 3.0 and takeover.thrust_step_n < 3.5
+    assert takeover.altitude_m > 1.0 and takeover.altitude_1s_m < takeover.altitude_m - 0.3   # the FC was landing: so does it
+    assert figures.standing
