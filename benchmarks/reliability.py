@@ -43,7 +43,10 @@ from analysis.measures import tilt_deg
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink, mavutil
 from m4.mavlink.link import UdpLink, wait_readable
 from sitl import scenarios
-from sitl.flights.flight_run import FlightOptions, _await_ready, _start, companion_config_text, free_port
+from m4.arguments import positive_number
+from m4.toml_fields import ConfigError
+from sitl.flights.flight_run import (FlightError, FlightOptions, _await_ready, _start, companion_config_text, free_port,
+                                     make_output_dir)
 from sitl.plant.truth import Truth, load_truth
 
 m = mavlink
@@ -266,23 +269,32 @@ def restart(scenario: str, kill_at_s: list[float], seconds: float, out: Path) ->
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m benchmarks.reliability", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m benchmarks.reliability", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="probe", required=True)
-    for name in ("stale", "restart"):
+    for name, seconds in (("stale", 8.0), ("restart", 10.0)):
         s = sub.add_parser(name)
-        s.add_argument("--scenario", default="hover-rotor-loss")
-        s.add_argument("--seconds", type=float, default=8.0 if name == "stale" else 10.0)
+        s.add_argument("--scenario", default="hover-rotor-loss", help="built-in name or file (default hover-rotor-loss)")
+        s.add_argument("--seconds", type=positive_number, default=seconds, help=f"the flight (default {seconds:g})")
         s.add_argument("--out", type=Path, help="keep the flight's files here (default: a temporary folder)")
-    sub.choices["stale"].add_argument("--at-s", type=float, default=3.0)
-    sub.choices["restart"].add_argument("--kill-at-s", type=float, action="append")
+    sub.choices["stale"].add_argument("--at-s", type=positive_number, default=3.0,
+                                      help="when the streams are stopped (default 3)")
+    sub.choices["restart"].add_argument("--kill-at-s", type=positive_number, action="append",
+                                        help="when the companion is killed; repeat (default 3 and 6)")
     args = p.parse_args(argv)
-    with contextlib.ExitStack() as stack:
-        out = args.out or Path(stack.enter_context(tempfile.TemporaryDirectory()))
-        out.mkdir(parents=True, exist_ok=True)
-        if args.probe == "stale":
-            print(stale(args.scenario, args.at_s, args.seconds, out))
-        else:
-            print(restart(args.scenario, args.kill_at_s or [3.0, 6.0], args.seconds, out))
+    times = [args.at_s] if args.probe == "stale" else args.kill_at_s or [3.0, 6.0]
+    try:
+        scenarios.resolve(args.scenario)
+        if max(times) >= args.seconds or times != sorted(times):
+            raise ConfigError(f"the times ({', '.join(f'{t:g}' for t in times)} s) must rise and end before "
+                              f"--seconds {args.seconds:g}")
+        with contextlib.ExitStack() as stack:
+            out = args.out or Path(stack.enter_context(tempfile.TemporaryDirectory()))
+            make_output_dir(out)
+            probe = stale if args.probe == "stale" else restart
+            print(probe(args.scenario, times[0] if args.probe == "stale" else times, args.seconds, out))
+    except (FlightError, ConfigError) as e:
+        print(f"python -m benchmarks.reliability: error: {e}", file=sys.stderr)
+        return 2
     return 0
 
 
