@@ -216,13 +216,16 @@ class Takeover:
                 f"{self.altitude_m:.2f} m, 1 s later {self.altitude_1s_m:.2f} m")
 
 
-def _takeovers(truth: Truth, msgs: list, ready_unix_s: list[float], dead_rotor: int) -> list[Takeover]:
-    """One per restart: the first setpoint after each ready line."""
+def _takeovers(truth: Truth, msgs: list, ready_unix_s: list[float], dead_rotor: int) -> list[Takeover | None]:
+    """One per restart: the first setpoint after each ready line (None: it never took control)."""
     ours = _ours(msgs)
     out = []
     for ready in ready_unix_s[1:]:
         after = [msg for msg in ours if msg._timestamp >= ready]
-        setpoint = next(msg for msg in after if msg.get_type() == "M4_SETPOINT")
+        setpoint = next((msg for msg in after if msg.get_type() == "M4_SETPOINT"), None)
+        if setpoint is None:
+            out.append(None)
+            continue
         statuses = [msg for msg in after if msg.get_type() == "M4_FAULT_STATUS"]
         confirmed = next((msg for msg in statuses if msg.state == m.M4_FAULT_STATE_CONFIRMED), None)
         t_s = setpoint.time_boot_ms / 1000.0
@@ -240,14 +243,14 @@ def _takeovers(truth: Truth, msgs: list, ready_unix_s: list[float], dead_rotor: 
 @dataclass(frozen=True)
 class RestartFigures:
     kill_at_s: list[float]
-    takeovers: list[Takeover]   # one per restart
+    takeovers: list[Takeover | None]   # one per restart (None: it never took control)
     end_s: float
     end_altitude_m: float
     standing: bool              # on the ground with the motors off at the end
 
     def __str__(self) -> str:
-        lines = [f"restart {i + 1} (killed at {t:g} s): {tk}" for i, (t, tk) in enumerate(zip(self.kill_at_s,
-                                                                                              self.takeovers))]
+        lines = [f"restart {i + 1} (killed at {t:g} s): {tk or 'no control before the end of the flight'}"
+                 for i, (t, tk) in enumerate(zip(self.kill_at_s, self.takeovers))]
         lines.append(f"at the end ({self.end_s:.1f} s): altitude {self.end_altitude_m:.2f} m, "
                      f"{'on the ground, motors off' if self.standing else 'in the air or motors on'}")
         return "\n".join(lines)
