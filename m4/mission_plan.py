@@ -15,7 +15,8 @@ giving position and velocity (local NED, centre of mass) as a function of time.
   ground, where the centre of mass sits ground_com_height_m above z = 0.
 - `land_from`: the flight controller's failsafe is landing when the companion takes over (a
   restart, a return after a loss): from then the plan descends from where the robot is, at
-  the mission's descent speed (the FC's own 0.5 m/s without a [mission.land]).
+  the mission's descent speed (the FC's own 0.5 m/s without a [mission.land]), whatever it
+  planned before, its own landing included.
 
 `progress` is what a restarted companion needs to make the same plan again: where and when it
 started and the last change (fault hold or landing). The companion sends it with its fault
@@ -201,10 +202,9 @@ class MissionPlan:
         self._changed(PlanState.FAULT_HOLD, t_s, position_ned_m)
 
     def land_from(self, t_s: float, position_ned_m) -> None:
-        """From t_s the plan descends from position_ned_m to the ground (the flight controller's
-        failsafe was landing); nothing changes once the landing has started."""
-        if self.landing_started(t_s):
-            return
+        """From t_s the plan descends from position_ned_m to the ground: the flight controller's
+        failsafe was landing, the robot is where its landing brought it (lower than our own
+        landing's plan, if we were landing before)."""
         land = self._mission.land
         above = np.asarray(position_ned_m, dtype=float)
         ground = np.array([above[0], above[1], max(above[2], self.ground_com_z_ned_m)])

@@ -118,3 +118,13 @@ def test_taking_over_from_a_landing_fc_lands_from_where_the_robot_is():
     assert later.reference[0, rom.P][2] == pytest.approx(-1.2, abs=0.01)
     assert later.reference[-1, rom.P][2] > -1.2                        # on the way down, not back up to 2 m
     assert c.mission_progress(4.02).plan.state is PlanState.LANDING
+
+
+def test_a_restart_during_a_landing_goes_on_down_from_where_the_fcs_landing_brought_the_robot():
+    """Not back up to where the last run's landing had got to when it was killed."""
+    c = controller()
+    kept = MissionProgress(9.0, PlanProgress(PlanState.LANDING, 0.0, (0.0, 0.0, -5.0), 4.0, (0.0, 0.0, -3.7)))
+    c.start(12.6, at(-1.5), kept)
+    out = c.step(12.6, at(-1.5), fc_landing=True)
+    assert out.reference[0, rom.P][2] == pytest.approx(-1.5, abs=0.01)
+    assert np.all(np.diff(out.reference[:, rom.P][:, 2]) >= -1e-9)           # down only

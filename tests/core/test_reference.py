@@ -177,6 +177,8 @@ def test_joining_the_fcs_landing_descends_from_where_the_robot_is_at_the_fcs_spe
     assert np.allclose(p_end, [4.0, 0.5, -ground_com_height_m(AF)])
     ref.fault_detected(3.0, (4.0, 0.5, -1.0))                       # during the landing: nothing changes
     assert ref.progress == PlanProgress(PlanState.LANDING, 0.0, START, 2.0, (4.0, 0.5, -1.4))
+    ref.land_from(4.0, (4.0, 0.5, -0.6))                              # the FC landed it further meanwhile
+    assert np.allclose(ref.state(4.0)[0], [4.0, 0.5, -0.6]) and ref.progress.change_time_s == 4.0
 
 
 @pytest.mark.parametrize("change", [
