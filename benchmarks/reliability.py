@@ -1,11 +1,14 @@
 """The companion's fail-safe probes (issue 20), in real time, judged from the plant's truth.
 
-    python -m benchmarks.reliability stale [--scenario NAME] [--at-s T] [--seconds S] [--out DIR]
-    python -m benchmarks.reliability restart [--scenario NAME] [--kill-at-s T]... [--seconds S] [--out DIR]
+    python -m benchmarks.reliability stale [--scenario NAME] [--altitude-m A] [--at-s T] [--seconds S] [--out DIR]
+    python -m benchmarks.reliability restart [--scenario NAME] [--altitude-m A] [--kill-at-s T]... [--seconds S]
+                                             [--out DIR]
 
 Each flies the scenario (default hover-rotor-loss: rotor 4 stops at 1 s) paced by the wall
 clock: the companion (`m4-companion run`) and the SITL (`m4-sitl serve --realtime`, with a
-second link on which a ground station may speak) as two processes on loopback.
+second link on which a ground station may speak) as two processes on loopback; with
+--altitude-m, from that height instead of the scenario's start (a restarted companion takes a
+few seconds to start on a busy machine, while the FC's failsafe lands at 0.5 m/s).
 
 - stale: at T (default 3 s) a third party on the ground station's link, claiming the
   companion's ids (anyone can without signing), stops ATTITUDE and ATTITUDE_QUATERNION with
@@ -28,6 +31,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -55,12 +59,26 @@ STEP_WINDOW_S = 0.15            # thrust steps are looked for from the instant t
 DEAD_ROTOR_WINDOW_S = 0.3
 
 
+def at_altitude(scenario: str, altitude_m: float | None, out: Path) -> Path:
+    """The scenario's file, or a copy in `out` that starts altitude_m above the ground."""
+    path = scenarios.scenario_path(scenario)
+    if altitude_m is None:
+        return path
+    start = re.compile(r"(\[start\][^\[]*?ned_m\s*=\s*\[[^,\]]*,[^,\]]*,)[^\]]*(\])")
+    text, found = start.subn(rf"\g<1> {-altitude_m!r}\2", path.read_text(), count=1)
+    if not found:
+        raise ConfigError(f"{path.name}: no [start] ned_m to move to {altitude_m:g} m")
+    copy = out / "scenario.toml"
+    copy.write_text(text)
+    return copy
+
+
 class Rig:
     """The companion and the SITL of one probe flight, started in `out`."""
 
-    def __init__(self, scenario: str, seconds: float, out: Path, stack: contextlib.ExitStack):
+    def __init__(self, scenario: Path, seconds: float, out: Path, stack: contextlib.ExitStack):
         self.out, self.stack = out, stack
-        self.scenario = scenarios.scenario_path(scenario)
+        self.scenario = scenario
         self.port, self.gcs_port = free_port(), free_port()
         self.config = out / "companion.toml"
         self.config.write_text(companion_config_text(FlightOptions(realtime=True), self.port, None))
@@ -186,9 +204,9 @@ class StaleFigures:
                 f"{self.log_lines} lines on stale streams; its STATUSTEXT: {self.statustext}")
 
 
-def stale(scenario: str, at_s: float, seconds: float, out: Path) -> StaleFigures:
+def stale(scenario: str, at_s: float, seconds: float, out: Path, altitude_m: float | None = None) -> StaleFigures:
     with contextlib.ExitStack() as stack:
-        rig = Rig(scenario, seconds, out, stack)
+        rig = Rig(at_altitude(scenario, altitude_m, out), seconds, out, stack)
         rig.wait_until(at_s)
         third_party_stops_attitude(rig.gcs)
         rig.wait_for_end()
@@ -256,9 +274,10 @@ class RestartFigures:
         return "\n".join(lines)
 
 
-def restart(scenario: str, kill_at_s: list[float], seconds: float, out: Path) -> RestartFigures:
+def restart(scenario: str, kill_at_s: list[float], seconds: float, out: Path,
+            altitude_m: float | None = None) -> RestartFigures:
     with contextlib.ExitStack() as stack:
-        rig = Rig(scenario, seconds, out, stack)
+        rig = Rig(at_altitude(scenario, altitude_m, out), seconds, out, stack)
         for t_s in kill_at_s:
             rig.wait_until(t_s)
             rig.kill_companion()
@@ -278,6 +297,7 @@ def main(argv: list[str] | None = None) -> int:
         s = sub.add_parser(name)
         s.add_argument("--scenario", default="hover-rotor-loss", help="built-in name or file (default hover-rotor-loss)")
         s.add_argument("--seconds", type=positive_number, default=seconds, help=f"the flight (default {seconds:g})")
+        s.add_argument("--altitude-m", type=positive_number, help="start this high (default: the scenario's start)")
         s.add_argument("--out", type=Path, help="keep the flight's files here (default: a temporary folder)")
     sub.choices["stale"].add_argument("--at-s", type=positive_number, default=3.0,
                                       help="when the streams are stopped (default 3)")
@@ -294,7 +314,7 @@ def main(argv: list[str] | None = None) -> int:
             out = args.out or Path(stack.enter_context(tempfile.TemporaryDirectory()))
             make_output_dir(out)
             probe = stale if args.probe == "stale" else restart
-            print(probe(args.scenario, times[0] if args.probe == "stale" else times, args.seconds, out))
+            print(probe(args.scenario, times[0] if args.probe == "stale" else times, args.seconds, out, args.altitude_m))
     except (FlightError, ConfigError) as e:
         print(f"python -m benchmarks.reliability: error: {e}", file=sys.stderr)
         return 2
