@@ -10,9 +10,9 @@ second link on which a ground station may speak) as two processes on loopback; w
 --altitude-m, from that height instead of the scenario's start (a restarted companion takes a
 few seconds to start on a busy machine, while the FC's failsafe lands at 0.5 m/s).
 
-- stale: at T (default 3 s) a third party on the ground station's link, claiming the
-  companion's ids (anyone can without signing), stops ATTITUDE and ATTITUDE_QUATERNION with
-  two MAV_CMD_SET_MESSAGE_INTERVAL (interval -1). Figures from T on: the largest horizontal
+- stale: at T (default 3 s) a ground station on its own link, with the flight's signing key
+  and the companion's ids (all it takes; unsigned, anyone could), stops ATTITUDE and
+  ATTITUDE_QUATERNION with two MAV_CMD_SET_MESSAGE_INTERVAL (interval -1). Figures from T on: the largest horizontal
   drift and drop of the centre of mass, the largest tilt, the first ground contact; what the
   companion said about it (its log lines and STATUSTEXT with "stale").
 - restart: at each T (default 3 and 6 s) the companion is killed (SIGKILL) and started again
@@ -22,8 +22,9 @@ few seconds to start on a busy machine, while the FC's failsafe lands at 0.5 m/s
   between two 10 ms truth samples around the takeover, the altitude at the takeover and 1 s
   later; at the end whether the robot stands on the ground (the FC's landing, not cancelled).
 
-Every figure comes from truth.npz (the plant) and the SITL's tlog (what crossed the links),
-both kept in --out (default: a temporary folder), with the two processes' logs.
+Both ends sign with a key new for the flight, as `m4-sitl fly` does. Every figure comes from
+truth.npz (the plant) and the SITL's tlog (what crossed the links), both kept in --out
+(default: a temporary folder), with the two processes' logs.
 """
 
 from __future__ import annotations
@@ -48,9 +49,10 @@ from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink, mavutil
 from m4.mavlink.link import UdpLink, wait_readable
 from sitl import scenarios
 from m4.arguments import positive_number
+from m4.mavlink.signing import load_key, write_new_key
 from m4.toml_fields import ConfigError
-from sitl.flights.flight_run import (FlightError, FlightOptions, _await_ready, _start, companion_config_text, free_port,
-                                     make_output_dir)
+from sitl.flights.flight_run import (SIGNING_KEY, FlightError, FlightOptions, _await_ready, _start,
+                                     companion_config_text, free_port, make_output_dir)
 from sitl.plant.truth import Truth, load_truth
 
 m = mavlink
@@ -80,6 +82,9 @@ class Rig:
         self.out, self.stack = out, stack
         self.scenario = scenario
         self.port, self.gcs_port = free_port(), free_port()
+        key = out / SIGNING_KEY
+        key.unlink(missing_ok=True)
+        write_new_key(key)
         self.config = out / "companion.toml"
         self.config.write_text(companion_config_text(FlightOptions(realtime=True), self.port, None))
         self.companion: subprocess.Popen | None = None
@@ -88,11 +93,13 @@ class Rig:
         self.start_companion()
         self.sitl = _start(stack, [sys.executable, "-m", "sitl.cli", "serve", "--realtime", "--scenario",
                                    str(self.scenario), "--duration", f"{seconds:g}", "--tlog", str(out / "flight.tlog"),
-                                   "--truth-log", str(out / "truth.npz"),
+                                   "--truth-log", str(out / "truth.npz"), "--signing-key", str(key),
                                    "--mavlink", f"udpout:127.0.0.1:{self.port}",
                                    "--mavlink", f"udpin:127.0.0.1:{self.gcs_port}"], out / "sitl.log")
-        # the ground station's link, as the paired companion's ids (the FC answers only those there)
-        self.gcs = UdpLink(f"udpout:127.0.0.1:{self.gcs_port}", FC_SYSTEM_ID, COMPANION_COMPONENT_ID)
+        # the ground station's link, as the paired companion's ids (the FC answers only those
+        # there), signed with the key on a signing link of its own
+        self.gcs = UdpLink(f"udpout:127.0.0.1:{self.gcs_port}", FC_SYSTEM_ID, COMPANION_COMPONENT_ID,
+                           key=load_key(key), link_id=1)
         stack.callback(self.gcs.close)
         self.sim_s = 0.0
 
