@@ -212,7 +212,7 @@ class CompanionApp:
         try:
             if not self.controller.started and self.controller.start(t_s, x, self._kept_mission):
                 self._say_started(t_s, x)
-            step = self.controller.step(t_s, x, esc, snap.thrust_limit_n, lead_s=self.fc.delay.lead_s or 0.0,
+            step = self.controller.step(t_s, x, esc, snap.thrust_limit_n, lead_s=self.fc.delay.lead_s,
                                         thrust_cmd_n=self._frame_thrust_cmd(snap, t_ms), fc_landing=self._fc_landing)
         except Exception:           # a defect, not bad input: say it, send nothing, let the FC's failsafe fly
             self.counters.control_errors += 1

@@ -230,13 +230,16 @@ class Controller:
         self.detector.restore(rotor, thrust_max_estimate_n, detected_at_s)
 
     def step(self, time_s: float, x_measured, esc: EscSample | None = None, thrust_limit_n=None,
-             lead_s: float = 0.0, thrust_cmd_n=None, fc_landing: bool = False) -> ControlStep:
+             lead_s: float | None = 0.0, thrust_cmd_n=None, fc_landing: bool = False) -> ControlStep:
         """The setpoint answering the telemetry instant time_s for the measured ROM state, to act
         lead_s later; thrust_cmd_n is what the FC reports it commands at time_s (None: it does
-        not say); fc_landing: the FC says its failsafe is landing (its mode)."""
+        not say); fc_landing: the FC says its failsafe is landing (its mode). A lead not measured
+        yet (None, or not finite) is planned as 0, and the disturbance estimate waits for it
+        (_estimate_disturbance)."""
         af = self.af
         self._note_gap(time_s)
-        lead_s = max(float(lead_s), 0.0) if np.isfinite(lead_s) else 0.0
+        lead_known = lead_s is not None and bool(np.isfinite(lead_s))
+        lead_s = max(float(lead_s), 0.0) if lead_known else 0.0
         x = np.asarray(x_measured, dtype=float).reshape(rom.NX)
         thrust_limit_n = self._thrust_telemetry(thrust_limit_n)
         self.applied.report(time_s, self._thrust_telemetry(thrust_cmd_n))
@@ -248,7 +251,7 @@ class Controller:
         if confirmed_now:
             self.disturbance.reset()      # it held the lost rotor's effect, which the bound now models
             self.flight.reference.fault_detected(self.flight.mission_time_s(time_s), x[rom.P])
-        d = self._estimate_disturbance(time_s, x, usable, in_force, fault.thrust_bound_n, lead_s)
+        d = self._estimate_disturbance(time_s, x, usable and lead_known, in_force, fault.thrust_bound_n, lead_s)
         if self.flight is None or not usable:
             return self._fallback(time_s, x, fault, confirmed_now, d)
         took_over = self._takeover
@@ -341,7 +344,11 @@ class Controller:
         loss 0.14 m against 0.43 m when the update used the FC's delivered thrust, which hides
         the loss); at confirmation the estimate restarts, the bound taking over. Its gain is
         scaled by period / (period + lead_s): behind a link delay the estimate moves slower
-        (companion.core.disturbance)."""
+        (companion.core.disturbance). Until the link has measured the lead the estimate does not
+        move (the caller passes usable False): it would move at the full gain of a link without
+        delay, and one update on a noisy state then puts newtons of phantom force into the plan
+        (measured on propeller-loss at 50 ms each way: 12 N at the first consecutive frame, a
+        wobble of 6 deg and 0.13 m that the fault at 1 s met half-settled)."""
         if not (usable and in_force is not None and self._consecutive(time_s)):
             return self.disturbance.estimate.copy()
         u = in_force.input.copy()

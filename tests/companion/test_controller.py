@@ -301,3 +301,17 @@ def test_the_disturbance_estimate_compares_the_robot_with_what_the_fc_reports_it
         s = step(c, k * PERIOD, x, None, None, 0.0, reported)
     torque = np.abs(s.disturbance[3:5]).max()
     assert (torque > 0.05) == torque_expected, s.disturbance
+
+
+@pytest.mark.parametrize("lead_s, moves", [(0.0, True), (None, False), (math.nan, False)])
+def test_the_disturbance_estimate_waits_until_the_link_has_measured_the_lead(lead_s, moves):
+    """A robot that stays level under a reported rotor 4 at 0 N needs a torque the model does
+    not know; while the lead is unknown the estimate cannot tell which command the motion
+    answers nor how slowly to move behind the delay, so it stays where it is."""
+    c = controller()
+    x = rom.hover_state(AF)
+    reported = np.r_[np.full(3, HOVER_N), 0.0]
+    for k in range(4):
+        s = step(c, k * PERIOD, x, None, None, lead_s, reported)
+    assert np.any(s.disturbance != 0.0) == moves, s.disturbance
+    assert s.lead_s == 0.0
