@@ -2,9 +2,8 @@
 ESCs' speed (bidirectional DShot, every output frame).
 
 The FC knows what it commanded and the rotors' thrust coefficient and time constant, so it
-knows the speed a healthy rotor has now: the command's speed w_e = sqrt(T / k_t) approached
-with the motor's first-order lag. A rotor turning slower (its drive capped or dead) gives
-k_t w^2 instead of k_t w_e^2. One turning faster carries less load than the nominal
+knows the speed w_e a healthy rotor has now (sitl/fc/motor_model.py). A rotor turning slower
+(its drive capped or dead) gives k_t w^2 instead of k_t w_e^2. One turning faster carries less load than the nominal
 propeller on the voltage the ESC gives it: the motor's torque balance (sitl/plant/thrusters.py,
 k_e ((u - k_e w) / R - i0) = drag) with u the voltage that settles the nominal propeller at
 w_e says its propeller gives k_t w_e^2 - (k_t k_e^2 / (k_q R)) (w - w_e), nothing once it
@@ -24,6 +23,7 @@ import math
 
 from m4.airframe import Airframe
 from m4.units import RAD_S_TO_RPM
+from sitl.fc.motor_model import MotorModel
 
 DEADBAND_N = 1.5
 
@@ -34,7 +34,7 @@ class ShortfallMeter:
         # thrust a faster turning rotor gives less, per rad/s (the motor's torque balance)
         self._unload_n_s = (af.thrust_coefficient_n_s2 * af.motor_back_emf_v_s_rad ** 2
                             / (af.drag_torque_coefficient_n_m_s2 * af.motor_resistance_ohm))
-        self._decay = math.exp(-tick_s / af.motor_time_constant_s)
+        self._motors = MotorModel(af, tick_s)
         # the expected speeds of the last ticks, the newest now, the oldest when the speeds now
         # reported were measured
         self._history: collections.deque[list[float]] = collections.deque(
@@ -43,10 +43,7 @@ class ShortfallMeter:
     def update(self, thrust_cmd_n, rpm) -> list[float]:
         """The rotors' shortfall (N, rotors 1..4) one tick after they were commanded
         thrust_cmd_n (4,), their ESCs reporting rpm (4,)."""
-        target = [math.sqrt(max(float(t), 0.0) / self._k_n_s2) for t in thrust_cmd_n]
-        if self._history:
-            target = [w + (e - w) * self._decay for w, e in zip(target, self._history[-1])]
-        self._history.append(target)
+        self._history.append(self._motors.update(thrust_cmd_n))
         shortfall = []
         for expected, measured_rpm in zip(self._history[0], rpm):
             measured = float(measured_rpm) / RAD_S_TO_RPM

@@ -1,0 +1,38 @@
+"""The speed and thrust each rotor has now, as the flight controller expects them from what it
+commanded.
+
+The FC knows the rotors' thrust coefficient k_t and their motors' time constant tau (it is
+tuned with them): a healthy rotor commanded thrust T heads for the speed sqrt(T / k_t), and
+one tick of dt later it has covered 1 - exp(-dt / tau) of the way there. The thrust it then
+gives is k_t w^2. Both of the FC's shortfall meters start from this: the ESCs' speed
+(sitl/fc/shortfall.py) and the gyro (sitl/fc/gyro_shortfall.py).
+
+FC logic, without sockets.
+"""
+
+from __future__ import annotations
+
+import math
+
+from m4.airframe import Airframe
+
+
+class MotorModel:
+    def __init__(self, af: Airframe, tick_s: float):
+        self._k_n_s2 = af.thrust_coefficient_n_s2
+        self._decay = math.exp(-tick_s / af.motor_time_constant_s)
+        self.speed_rad_s: list[float] | None = None        # None: nothing commanded yet
+
+    def update(self, thrust_cmd_n) -> list[float]:
+        """The rotors' expected speeds (rad/s, rotors 1..4) one tick after they were commanded
+        thrust_cmd_n (4,); the first call takes them as settled there."""
+        target = [math.sqrt(max(float(t), 0.0) / self._k_n_s2) for t in thrust_cmd_n]
+        if self.speed_rad_s is not None:
+            target = [w + (e - w) * self._decay for w, e in zip(target, self.speed_rad_s)]
+        self.speed_rad_s = target
+        return target
+
+    @property
+    def thrust_n(self) -> list[float]:
+        """The thrusts (N) the expected speeds give."""
+        return [self._k_n_s2 * w * w for w in self.speed_rad_s]
