@@ -195,7 +195,7 @@ class CompanionConfig:
     rate_hz: float = DEFAULT_RATE_HZ
     realtime_priority: int = 0              # SCHED_FIFO priority of the control loop, 1..99; 0: normal (companion/realtime.py)
     rate_feedback_bandwidth_rad_s: float = DEFAULT_RATE_FEEDBACK_BANDWIDTH_RAD_S   # 0: the FC flies thrust_n alone
-    shortfall_cover: bool = True            # the FC covers a rotor its ESCs show falling short (M4_SETPOINT)
+    shortfall_cover: bool = True            # the FC covers a rotor its ESCs or gyro show falling short (M4_SETPOINT)
     nmpc: NmpcConfig = field(default_factory=lambda: NmpcConfig(control_period_s=1.0 / DEFAULT_RATE_HZ,
                                                                 time_budget_share=COMPANION_TIME_BUDGET_SHARE))
     disturbance_gain: float = DEFAULT_DISTURBANCE_GAIN

@@ -316,6 +316,8 @@ class FcLink:
                                                 rate_gain=_floats(fb.gain_n_per_rad_s.ravel()))
         if cover is not None:
             extensions["shortfall_gain"] = _floats(cover.gain.ravel())
+            if cover.effectiveness_frd_rad_s2_per_n is not None:
+                extensions["effectiveness_frd_rad_s2_per_n"] = _floats(cover.effectiveness_frd_rad_s2_per_n.T.ravel())
         msgs = [mavlink.MAVLink_m4_setpoint_message(
             *self.fc_ids, int(time_ms), int(period_ms), _floats(sp.thrust_n), _floats(sp.hip_rad),
             _floats(sp.hip_rate_rad_s), flags, **extensions)]

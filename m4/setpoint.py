@@ -8,11 +8,14 @@ the plan expects while it is in force and a gain, and the FC closes that fast lo
 own gyro at its own rate: thrust_n + gain x (planned rates - measured rates). When the robot
 moves as planned the feedback adds nothing; the plan stays the companion's.
 
-Shortfall cover (also an extension field): the FC sees a rotor fall short of its command
+Shortfall cover (also extension fields): the FC sees a rotor fall short of its command
 in its ESC's speed within a few milliseconds, long before the companion's answer can come
 back over the link. The setpoint carries how the other rotors cover each rotor's shortfall
 (thrust change per newton short: keep the sum and the roll and pitch torque), and the FC adds
-gain x shortfall at its own rate. With every rotor delivering, it adds nothing.
+gain x shortfall at its own rate. With every rotor delivering, it adds nothing. With the
+rotors' effectiveness (roll and pitch acceleration per newton at the planned posture) the FC
+also measures the shortfall on its gyro, as the angular acceleration the robot lacks: the
+only measure a FC without ESC telemetry has (sitl/fc/gyro_shortfall.py).
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ import numpy as np
 
 RATE_GAIN_MAX_N_PER_RAD_S = 50.0     # the FC refuses larger entries: no sane posture needs them
 SHORTFALL_GAIN_MAX = 4.0             # likewise for the cover: N per N short
+EFFECTIVENESS_MAX_RAD_S2_PER_N = 100.0   # and for the effectiveness (the M4's is about 3)
 
 
 @dataclass(frozen=True)
@@ -58,16 +62,22 @@ class RateFeedback:
 @dataclass(frozen=True)
 class ShortfallCover:
     gain: np.ndarray                         # (4, 4) thrust change of rotor i per newton rotor j falls short
+    effectiveness_frd_rad_s2_per_n: np.ndarray | None = None   # (2, 4) roll, pitch acceleration per newton
+                                                               # of each rotor; None: no measure on the gyro
 
     @classmethod
-    def from_fields(cls, gain_flat) -> ShortfallCover | None:
-        """From M4_SETPOINT's shortfall_gain; None when it asks for no cover (all zero, the
-        default of a sender that does not know the field) or cannot be used (not finite, an
-        entry beyond SHORTFALL_GAIN_MAX)."""
+    def from_fields(cls, gain_flat, effectiveness_flat=(0.0,) * 8) -> ShortfallCover | None:
+        """From M4_SETPOINT's shortfall_gain and effectiveness_frd_rad_s2_per_n; None when it
+        asks for no cover (all zero, the default of a sender that does not know the field) or
+        cannot be used (not finite, an entry beyond SHORTFALL_GAIN_MAX). An effectiveness that
+        is all zero, not finite or beyond EFFECTIVENESS_MAX_RAD_S2_PER_N is left out alone."""
         gain = np.asarray(gain_flat, dtype=float).reshape(4, 4)
         if not np.isfinite(gain).all() or not gain.any() or np.abs(gain).max() > SHORTFALL_GAIN_MAX:
             return None
-        return cls(gain)
+        effectiveness = np.asarray(effectiveness_flat, dtype=float).reshape(4, 2).T
+        usable = (np.isfinite(effectiveness).all() and effectiveness.any()
+                  and np.abs(effectiveness).max() <= EFFECTIVENESS_MAX_RAD_S2_PER_N)
+        return cls(gain, effectiveness if usable else None)
 
     def thrust_change_n(self, shortfall_n) -> np.ndarray:
         """(4,) the other rotors' cover for the rotors' shortfalls (4,), N."""

@@ -15,12 +15,17 @@ A rotor whose bound is below LIVE_SHARE of hover thrust takes no part; with fewe
 live rotors there is no feedback.
 
 Shortfall cover: while all four rotors are live, a rotor that falls short by s (as the FC sees
-in its ESC's speed) is covered by the other three, whose changes df solve the same rows:
-[-a_y; a_x; 1]_others df = [-a_y; a_x; 1]_short s, so the sum and the roll and pitch torque
-stay as planned (the yaw moment does not: the robot spins up, as after a confirmed loss).
+in its ESC's speed or on its gyro) is covered by the other three, whose changes df solve the
+same rows: [-a_y; a_x; 1]_others df = [-a_y; a_x; 1]_short s, so the sum and the roll and
+pitch torque stay as planned (the yaw moment does not: the robot spins up, as after a
+confirmed loss).
 Once the detector has confirmed a fault the plan knows it (a lost rotor's bound, a damaged
 propeller's effectiveness) and no cover is sent: covering it as well would count the
-shortfall twice.
+shortfall twice. With the cover goes each rotor's effectiveness, the roll and pitch
+acceleration a newton of its thrust gives at the planned posture (the inverse inertia times
+[-a_y; a_x; spin k_m], the reaction moment included for the products of inertia): the FC
+measures on its gyro what the robot lacks of the planned angular acceleration and explains
+it by the rotors that fall short, which is how it covers a rotor without ESC telemetry.
 
 Pure logic: no clock, no I/O.
 """
@@ -33,7 +38,8 @@ import numpy as np
 from companion.core import rom
 from companion.core.casadi_call import BufferedFunction
 from m4.airframe import ROTOR_COUNT, Airframe
-from m4.setpoint import RATE_GAIN_MAX_N_PER_RAD_S, SHORTFALL_GAIN_MAX, RateFeedback, ShortfallCover
+from m4.setpoint import (EFFECTIVENESS_MAX_RAD_S2_PER_N, RATE_GAIN_MAX_N_PER_RAD_S, SHORTFALL_GAIN_MAX, RateFeedback,
+                         ShortfallCover)
 
 LIVE_SHARE = 0.5
 
@@ -71,7 +77,7 @@ class RateFeedbackDesign:
         hip = np.asarray(hip_rad, dtype=float)
         if not self.shortfall_cover or fault_confirmed or not np.isfinite(hip).all():
             return None
-        allocation, _ = self._allocation(hip)
+        allocation, inertia = self._allocation(hip)
         gain = np.zeros((ROTOR_COUNT, ROTOR_COUNT))
         for short in range(ROTOR_COUNT):
             others = [i for i in range(ROTOR_COUNT) if i != short]
@@ -81,7 +87,12 @@ class RateFeedbackDesign:
                 return None
         if not np.isfinite(gain).all() or np.abs(gain).max() > SHORTFALL_GAIN_MAX:
             return None
-        return ShortfallCover(np.asarray(gain, dtype=np.float32).astype(float))     # as MAVLink carries it
+        torque = np.vstack([allocation[:2], self.af.moment_coefficient_m * np.asarray(self.af.spin_sign, dtype=float)])
+        effectiveness = np.linalg.solve(inertia, torque)[:2]
+        if not np.isfinite(effectiveness).all() or np.abs(effectiveness).max() > EFFECTIVENESS_MAX_RAD_S2_PER_N:
+            return None
+        f32 = lambda v: np.asarray(v, dtype=np.float32).astype(float)     # as MAVLink carries them
+        return ShortfallCover(f32(gain), f32(effectiveness))
 
     def _allocation(self, hip: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(3, 4) each rotor's roll and pitch torque and sum per newton, and the (3, 3) inertia;
@@ -89,7 +100,7 @@ class RateFeedbackDesign:
         key = hip.tobytes()
         if self._last is None or self._last[0] != key:
             arms, inertia = self._geometry(hip)
-            self._last = (key, (np.vstack([-arms[1], arms[0], np.ones(ROTOR_COUNT)]), inertia))
+            self._last = (key, (np.vstack([-arms[1], arms[0], np.ones(ROTOR_COUNT)]), np.asarray(inertia)))
         return self._last[1]
 
     def feedback(self, x_start, x_next, dt_s: float, thrust_bound_n) -> RateFeedback | None:

@@ -8492,22 +8492,22 @@ class MAVLink_m4_setpoint_message(MAVLink_message):
 
     id = MAVLINK_MSG_ID_M4_SETPOINT
     msgname = "M4_SETPOINT"
-    fieldnames = ["target_system", "target_component", "time_boot_ms", "period_ms", "thrust_n", "hip_angle_rad", "hip_rate_rad_s", "flags", "rates_ref_frd_rad_s", "rates_ref_change_frd_rad_s2", "rate_gain", "shortfall_gain"]
-    ordered_fieldnames = ["time_boot_ms", "thrust_n", "hip_angle_rad", "hip_rate_rad_s", "period_ms", "target_system", "target_component", "flags", "rates_ref_frd_rad_s", "rates_ref_change_frd_rad_s2", "rate_gain", "shortfall_gain"]
-    fieldtypes = ["uint8_t", "uint8_t", "uint32_t", "uint16_t", "float", "float", "float", "uint8_t", "float", "float", "float", "float"]
+    fieldnames = ["target_system", "target_component", "time_boot_ms", "period_ms", "thrust_n", "hip_angle_rad", "hip_rate_rad_s", "flags", "rates_ref_frd_rad_s", "rates_ref_change_frd_rad_s2", "rate_gain", "shortfall_gain", "effectiveness_frd_rad_s2_per_n"]
+    ordered_fieldnames = ["time_boot_ms", "thrust_n", "hip_angle_rad", "hip_rate_rad_s", "period_ms", "target_system", "target_component", "flags", "rates_ref_frd_rad_s", "rates_ref_change_frd_rad_s2", "rate_gain", "shortfall_gain", "effectiveness_frd_rad_s2_per_n"]
+    fieldtypes = ["uint8_t", "uint8_t", "uint32_t", "uint16_t", "float", "float", "float", "uint8_t", "float", "float", "float", "float", "float"]
     fielddisplays_by_name: Dict[str, str] = {"flags": "bitmask"}
     fieldenums_by_name: Dict[str, str] = {"flags": "M4_SETPOINT_FLAGS"}
     fieldunits_by_name: Dict[str, str] = {"time_boot_ms": "ms", "period_ms": "ms", "thrust_n": "N", "hip_angle_rad": "rad", "hip_rate_rad_s": "rad/s", "rates_ref_frd_rad_s": "rad/s", "rates_ref_change_frd_rad_s2": "rad/s/s"}
-    native_format = bytearray(b"<IfffHBBBffff")
-    orders = [5, 6, 0, 4, 1, 2, 3, 7, 8, 9, 10, 11]
-    lengths = [1, 4, 4, 4, 1, 1, 1, 1, 3, 3, 12, 16]
-    array_lengths = [0, 4, 4, 4, 0, 0, 0, 0, 3, 3, 12, 16]
+    native_format = bytearray(b"<IfffHBBBfffff")
+    orders = [5, 6, 0, 4, 1, 2, 3, 7, 8, 9, 10, 11, 12]
+    lengths = [1, 4, 4, 4, 1, 1, 1, 1, 3, 3, 12, 16, 8]
+    array_lengths = [0, 4, 4, 4, 0, 0, 0, 0, 3, 3, 12, 16, 8]
     crc_extra = 204
-    unpacker = struct.Struct("<I4f4f4fHBBB3f3f12f16f")
+    unpacker = struct.Struct("<I4f4f4fHBBB3f3f12f16f8f")
     instance_field = None
     instance_offset = -1
 
-    def __init__(self, target_system: int, target_component: int, time_boot_ms: int, period_ms: int, thrust_n: Sequence[float], hip_angle_rad: Sequence[float], hip_rate_rad_s: Sequence[float], flags: int, rates_ref_frd_rad_s: Sequence[float] = (0, 0, 0), rates_ref_change_frd_rad_s2: Sequence[float] = (0, 0, 0), rate_gain: Sequence[float] = (0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0), shortfall_gain: Sequence[float] = (0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)):
+    def __init__(self, target_system: int, target_component: int, time_boot_ms: int, period_ms: int, thrust_n: Sequence[float], hip_angle_rad: Sequence[float], hip_rate_rad_s: Sequence[float], flags: int, rates_ref_frd_rad_s: Sequence[float] = (0, 0, 0), rates_ref_change_frd_rad_s2: Sequence[float] = (0, 0, 0), rate_gain: Sequence[float] = (0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0), shortfall_gain: Sequence[float] = (0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0), effectiveness_frd_rad_s2_per_n: Sequence[float] = (0, 0, 0, 0, 0, 0, 0, 0)):
         MAVLink_message.__init__(self, MAVLink_m4_setpoint_message.id, MAVLink_m4_setpoint_message.msgname)
         self._fieldnames = MAVLink_m4_setpoint_message.fieldnames
         self._instance_field = MAVLink_m4_setpoint_message.instance_field
@@ -8524,9 +8524,10 @@ class MAVLink_m4_setpoint_message(MAVLink_message):
         self.rates_ref_change_frd_rad_s2 = rates_ref_change_frd_rad_s2
         self.rate_gain = rate_gain
         self.shortfall_gain = shortfall_gain
+        self.effectiveness_frd_rad_s2_per_n = effectiveness_frd_rad_s2_per_n
 
     def pack(self, mav: "MAVLink", force_mavlink1: bool = False) -> bytes:
-        return self._pack(mav, self.crc_extra, self.unpacker.pack(self.time_boot_ms, self.thrust_n[0], self.thrust_n[1], self.thrust_n[2], self.thrust_n[3], self.hip_angle_rad[0], self.hip_angle_rad[1], self.hip_angle_rad[2], self.hip_angle_rad[3], self.hip_rate_rad_s[0], self.hip_rate_rad_s[1], self.hip_rate_rad_s[2], self.hip_rate_rad_s[3], self.period_ms, self.target_system, self.target_component, self.flags, self.rates_ref_frd_rad_s[0], self.rates_ref_frd_rad_s[1], self.rates_ref_frd_rad_s[2], self.rates_ref_change_frd_rad_s2[0], self.rates_ref_change_frd_rad_s2[1], self.rates_ref_change_frd_rad_s2[2], self.rate_gain[0], self.rate_gain[1], self.rate_gain[2], self.rate_gain[3], self.rate_gain[4], self.rate_gain[5], self.rate_gain[6], self.rate_gain[7], self.rate_gain[8], self.rate_gain[9], self.rate_gain[10], self.rate_gain[11], self.shortfall_gain[0], self.shortfall_gain[1], self.shortfall_gain[2], self.shortfall_gain[3], self.shortfall_gain[4], self.shortfall_gain[5], self.shortfall_gain[6], self.shortfall_gain[7], self.shortfall_gain[8], self.shortfall_gain[9], self.shortfall_gain[10], self.shortfall_gain[11], self.shortfall_gain[12], self.shortfall_gain[13], self.shortfall_gain[14], self.shortfall_gain[15]), force_mavlink1=force_mavlink1)
+        return self._pack(mav, self.crc_extra, self.unpacker.pack(self.time_boot_ms, self.thrust_n[0], self.thrust_n[1], self.thrust_n[2], self.thrust_n[3], self.hip_angle_rad[0], self.hip_angle_rad[1], self.hip_angle_rad[2], self.hip_angle_rad[3], self.hip_rate_rad_s[0], self.hip_rate_rad_s[1], self.hip_rate_rad_s[2], self.hip_rate_rad_s[3], self.period_ms, self.target_system, self.target_component, self.flags, self.rates_ref_frd_rad_s[0], self.rates_ref_frd_rad_s[1], self.rates_ref_frd_rad_s[2], self.rates_ref_change_frd_rad_s2[0], self.rates_ref_change_frd_rad_s2[1], self.rates_ref_change_frd_rad_s2[2], self.rate_gain[0], self.rate_gain[1], self.rate_gain[2], self.rate_gain[3], self.rate_gain[4], self.rate_gain[5], self.rate_gain[6], self.rate_gain[7], self.rate_gain[8], self.rate_gain[9], self.rate_gain[10], self.rate_gain[11], self.shortfall_gain[0], self.shortfall_gain[1], self.shortfall_gain[2], self.shortfall_gain[3], self.shortfall_gain[4], self.shortfall_gain[5], self.shortfall_gain[6], self.shortfall_gain[7], self.shortfall_gain[8], self.shortfall_gain[9], self.shortfall_gain[10], self.shortfall_gain[11], self.shortfall_gain[12], self.shortfall_gain[13], self.shortfall_gain[14], self.shortfall_gain[15], self.effectiveness_frd_rad_s2_per_n[0], self.effectiveness_frd_rad_s2_per_n[1], self.effectiveness_frd_rad_s2_per_n[2], self.effectiveness_frd_rad_s2_per_n[3], self.effectiveness_frd_rad_s2_per_n[4], self.effectiveness_frd_rad_s2_per_n[5], self.effectiveness_frd_rad_s2_per_n[6], self.effectiveness_frd_rad_s2_per_n[7]), force_mavlink1=force_mavlink1)
 
 
 # Define name on the class for backwards compatibility (it is now msgname).
@@ -23794,7 +23795,7 @@ class MAVLink(object):
         m._header = MAVLink_header(msgId, incompat_flags, compat_flags, mlen, seq, srcSystem, srcComponent)
         return m
 
-    def m4_setpoint_encode(self, target_system: int, target_component: int, time_boot_ms: int, period_ms: int, thrust_n: Sequence[float], hip_angle_rad: Sequence[float], hip_rate_rad_s: Sequence[float], flags: int, rates_ref_frd_rad_s: Sequence[float] = (0, 0, 0), rates_ref_change_frd_rad_s2: Sequence[float] = (0, 0, 0), rate_gain: Sequence[float] = (0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0), shortfall_gain: Sequence[float] = (0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)) -> MAVLink_m4_setpoint_message:
+    def m4_setpoint_encode(self, target_system: int, target_component: int, time_boot_ms: int, period_ms: int, thrust_n: Sequence[float], hip_angle_rad: Sequence[float], hip_rate_rad_s: Sequence[float], flags: int, rates_ref_frd_rad_s: Sequence[float] = (0, 0, 0), rates_ref_change_frd_rad_s2: Sequence[float] = (0, 0, 0), rate_gain: Sequence[float] = (0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0), shortfall_gain: Sequence[float] = (0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0), effectiveness_frd_rad_s2_per_n: Sequence[float] = (0, 0, 0, 0, 0, 0, 0, 0)) -> MAVLink_m4_setpoint_message:
         """
         Actuator setpoint from the companion to the flight controller: four
         thrusts and four hip (sagittal) joint targets. Sent at the
@@ -23812,11 +23813,12 @@ class MAVLink(object):
         rates_ref_change_frd_rad_s2        : How the planned body rates change per second while this setpoint is in force (the planned rates are held after period_ms). [rad/s/s] (type:float)
         rate_gain                 : Thrust change of rotors 1..4 per unit body-rate error (N per rad/s) about the FRD x, y and z axes, by rotor: rotor 1 x, y, z, rotor 2 x, y, z, ... All zero: no rate feedback (a flight controller that knows nothing of these fields flies thrust_n alone). (type:float)
         shortfall_gain            : Thrust change of rotors 1..4 per newton by which a rotor falls short of what the flight controller commands it, as the flight controller measures by its ESC's rotor speed (an overspeeding, unloaded rotor gives nothing), by rotor: rotor 1 per shortfall of rotors 1, 2, 3, 4, rotor 2 per ..., added to thrust_n with the rate feedback. Lets the other rotors cover a failing one before the companion has seen it. All zero: no cover. (type:float)
+        effectiveness_frd_rad_s2_per_n        : Angular acceleration (rad/s/s) about the FRD x and y axes per newton of each rotor's thrust at the planned posture, by rotor: rotor 1 x, y, rotor 2 x, y, ... With shortfall_gain, the flight controller also measures each rotor's shortfall on its own gyro: the roll and pitch acceleration it lacks against the one planned (rates_ref_change_frd_rad_s2) and the one its own changes to thrust_n give, explained by the rotors that fall short; with ESC telemetry the larger of the two measures counts. All zero: the ESCs' speed alone. (type:float)
 
         """
-        return MAVLink_m4_setpoint_message(target_system, target_component, time_boot_ms, period_ms, thrust_n, hip_angle_rad, hip_rate_rad_s, flags, rates_ref_frd_rad_s, rates_ref_change_frd_rad_s2, rate_gain, shortfall_gain)
+        return MAVLink_m4_setpoint_message(target_system, target_component, time_boot_ms, period_ms, thrust_n, hip_angle_rad, hip_rate_rad_s, flags, rates_ref_frd_rad_s, rates_ref_change_frd_rad_s2, rate_gain, shortfall_gain, effectiveness_frd_rad_s2_per_n)
 
-    def m4_setpoint_send(self, target_system: int, target_component: int, time_boot_ms: int, period_ms: int, thrust_n: Sequence[float], hip_angle_rad: Sequence[float], hip_rate_rad_s: Sequence[float], flags: int, rates_ref_frd_rad_s: Sequence[float] = (0, 0, 0), rates_ref_change_frd_rad_s2: Sequence[float] = (0, 0, 0), rate_gain: Sequence[float] = (0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0), shortfall_gain: Sequence[float] = (0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0), force_mavlink1: bool = False) -> None:
+    def m4_setpoint_send(self, target_system: int, target_component: int, time_boot_ms: int, period_ms: int, thrust_n: Sequence[float], hip_angle_rad: Sequence[float], hip_rate_rad_s: Sequence[float], flags: int, rates_ref_frd_rad_s: Sequence[float] = (0, 0, 0), rates_ref_change_frd_rad_s2: Sequence[float] = (0, 0, 0), rate_gain: Sequence[float] = (0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0), shortfall_gain: Sequence[float] = (0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0), effectiveness_frd_rad_s2_per_n: Sequence[float] = (0, 0, 0, 0, 0, 0, 0, 0), force_mavlink1: bool = False) -> None:
         """
         Actuator setpoint from the companion to the flight controller: four
         thrusts and four hip (sagittal) joint targets. Sent at the
@@ -23834,9 +23836,10 @@ class MAVLink(object):
         rates_ref_change_frd_rad_s2        : How the planned body rates change per second while this setpoint is in force (the planned rates are held after period_ms). [rad/s/s] (type:float)
         rate_gain                 : Thrust change of rotors 1..4 per unit body-rate error (N per rad/s) about the FRD x, y and z axes, by rotor: rotor 1 x, y, z, rotor 2 x, y, z, ... All zero: no rate feedback (a flight controller that knows nothing of these fields flies thrust_n alone). (type:float)
         shortfall_gain            : Thrust change of rotors 1..4 per newton by which a rotor falls short of what the flight controller commands it, as the flight controller measures by its ESC's rotor speed (an overspeeding, unloaded rotor gives nothing), by rotor: rotor 1 per shortfall of rotors 1, 2, 3, 4, rotor 2 per ..., added to thrust_n with the rate feedback. Lets the other rotors cover a failing one before the companion has seen it. All zero: no cover. (type:float)
+        effectiveness_frd_rad_s2_per_n        : Angular acceleration (rad/s/s) about the FRD x and y axes per newton of each rotor's thrust at the planned posture, by rotor: rotor 1 x, y, rotor 2 x, y, ... With shortfall_gain, the flight controller also measures each rotor's shortfall on its own gyro: the roll and pitch acceleration it lacks against the one planned (rates_ref_change_frd_rad_s2) and the one its own changes to thrust_n give, explained by the rotors that fall short; with ESC telemetry the larger of the two measures counts. All zero: the ESCs' speed alone. (type:float)
 
         """
-        self.send(self.m4_setpoint_encode(target_system, target_component, time_boot_ms, period_ms, thrust_n, hip_angle_rad, hip_rate_rad_s, flags, rates_ref_frd_rad_s, rates_ref_change_frd_rad_s2, rate_gain, shortfall_gain), force_mavlink1=force_mavlink1)
+        self.send(self.m4_setpoint_encode(target_system, target_component, time_boot_ms, period_ms, thrust_n, hip_angle_rad, hip_rate_rad_s, flags, rates_ref_frd_rad_s, rates_ref_change_frd_rad_s2, rate_gain, shortfall_gain, effectiveness_frd_rad_s2_per_n), force_mavlink1=force_mavlink1)
 
     def m4_thruster_status_encode(self, time_boot_ms: int, thrust_cmd_n: Sequence[float], thrust_limit_n: Sequence[float]) -> MAVLink_m4_thruster_status_message:
         """

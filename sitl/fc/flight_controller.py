@@ -51,6 +51,7 @@ from sitl.fc.commands import CommandHandler
 from sitl.fc.esc_telemetry import EscTelemetry
 from sitl.fc.estimator import Estimator
 from sitl.fc.failsafe import Failsafe
+from sitl.fc.gyro_shortfall import GyroShortfallMeter
 from sitl.fc.modes import FcMode, current_mode
 from sitl.fc.rotor_watch import RotorWatch
 from sitl.fc.shortfall import ShortfallMeter
@@ -101,6 +102,12 @@ class _Measured(NamedTuple):
     state: PlantState
 
 
+class _Gyro(NamedTuple):
+    """The gyro's body rates (FRD, rad/s) at one instant of the FC's clock (read once per instant)."""
+    time_ms: int
+    rates_frd_rad_s: np.ndarray
+
+
 @dataclass
 class FcCounters:
     setpoints_accepted: int = 0
@@ -130,7 +137,11 @@ class FlightController:
         self.fault_status: mavlink.MAVLink_m4_fault_status_message | None = None
         self.rotor_watch = RotorWatch(airframe)
         self.shortfall = ShortfallMeter(airframe, TICK_MS / 1000.0)
-        self._shortfall_n: list[float] | None = None      # None: no ESC telemetry, no cover
+        self._esc_shortfall_n: list[float] | None = None   # None: no ESC telemetry
+        self.gyro_shortfall = GyroShortfallMeter(airframe, TICK_MS / 1000.0)
+        self._gyro_shortfall_n: list[float] | None = None  # None: the setpoint in force gives no effectiveness
+        self._gyro_measured_ms: int | None = None
+        self._gyro_read: _Gyro | None = None
         self.lockstep = lockstep
         self.plant = plant
         self.esc = esc                          # None: no ESC telemetry (many FCs have none)
@@ -159,12 +170,17 @@ class FlightController:
         self.estimator.feed(self.plant.take_sensor_samples())
         return self.estimator.report(measured)
 
-    def _gyro_rates(self) -> np.ndarray:
-        """The body rates the fast loop flies on: the gyro, less the estimator's bias if it has one."""
-        if self.estimator is None:
-            return self.plant.measured_rates_frd_rad_s()
-        self.estimator.feed(self.plant.take_sensor_samples())
-        return self.estimator.rates_frd_rad_s
+    def _gyro(self, now_ms: int) -> np.ndarray:
+        """The body rates the fast loops fly on, read once per instant: the gyro, less the
+        estimator's bias if it has one."""
+        if self._gyro_read is None or self._gyro_read.time_ms != now_ms:
+            if self.estimator is None:
+                rates = self.plant.measured_rates_frd_rad_s()
+            else:
+                self.estimator.feed(self.plant.take_sensor_samples())
+                rates = self.estimator.rates_frd_rad_s
+            self._gyro_read = _Gyro(now_ms, rates)
+        return self._gyro_read.rates_frd_rad_s
 
     def _command_plant(self, thrust_n, hip_rad, hip_rate_rad_s=None) -> None:
         self.plant.command(thrust_n, hip_rad, hip_rate_rad_s)
@@ -172,14 +188,14 @@ class FlightController:
 
     def _fast_loop(self, sp: Setpoint, now_ms: int) -> None:
         """The companion's thrusts plus, every tick, its rate feedback on our gyro and the other
-        rotors' cover for a rotor our ESCs show falling short (m4.setpoint)."""
+        rotors' cover for a rotor our ESCs or our gyro show falling short (m4.setpoint)."""
         change = np.zeros(ROTOR_COUNT)
         if sp.rate_feedback is not None:
-            rates = self._gyro_rates()      # the gyro alone: cheap at every tick
-            change += sp.rate_feedback.thrust_change_n(rates, (now_ms - self._applied_at_ms) / 1000.0,
+            change += sp.rate_feedback.thrust_change_n(self._gyro(now_ms), (now_ms - self._applied_at_ms) / 1000.0,
                                                        self.setpoint.period_ms / 1000.0)
-        if sp.shortfall_cover is not None and self._shortfall_n is not None:
-            change += sp.shortfall_cover.thrust_change_n(self._shortfall_n)
+        shortfall = self._shortfall_n()
+        if sp.shortfall_cover is not None and shortfall is not None:
+            change += sp.shortfall_cover.thrust_change_n(shortfall)
         af = self.airframe
         self.plant.command_thrust(_clip(sp.thrust_n + change, af.thrust_min_n, af.thrust_max_n))
         self._measured = None
@@ -224,8 +240,9 @@ class FlightController:
             rotors = self.plant.rotor_state()
             self.esc.sample(now_ms, rotors)
             rpm = self.esc.report(now_ms).rpm
-            self._shortfall_n = self.shortfall.update(rotors.thrust_cmd_n, rpm)
+            self._esc_shortfall_n = self.shortfall.update(rotors.thrust_cmd_n, rpm)
             self._watch_rotors(now_ms, rotors.thrust_cmd_n, rpm)
+        self._measure_on_gyro(now_ms)
         if not self.armed:
             self._set_mode(FcMode.LANDED)
             self._command_plant(np.zeros(ROTOR_COUNT), self.failsafe.hip_rad)
@@ -252,6 +269,30 @@ class FlightController:
         self._command_plant(out.thrust_n, out.hip_rad)
         if out.mode == FcMode.LANDED:
             self.set_armed(False)
+
+    def _measure_on_gyro(self, now_ms: int) -> None:
+        """The rotors' shortfall on our gyro (sitl/fc/gyro_shortfall.py) against the setpoint we
+        flew over the last tick, once per tick (a setpoint arriving runs tick() at its instant
+        too); the filter runs whoever flies."""
+        if now_ms == self._gyro_measured_ms or now_ms % TICK_MS:
+            return
+        self._gyro_measured_ms = now_ms
+        commanded = self.plant.rotor_state().thrust_cmd_n
+        flown = self._applied.command if self._applied is not None and self.mode == FcMode.COMPANION else None
+        planned, accel, effectiveness = commanded, np.zeros(2), None
+        if flown is not None:
+            planned = flown.thrust_n
+            if flown.rate_feedback is not None and now_ms - self._applied_at_ms < self._applied.period_ms:
+                accel = flown.rate_feedback.rates_ref_change_frd_rad_s2[:2]
+            if flown.shortfall_cover is not None:
+                effectiveness = flown.shortfall_cover.effectiveness_frd_rad_s2_per_n
+        self._gyro_shortfall_n = self.gyro_shortfall.update(self._gyro(now_ms), commanded, planned, accel,
+                                                            effectiveness)
+
+    def _shortfall_n(self) -> list[float] | None:
+        """Each rotor's shortfall, the larger of what the ESCs and the gyro measure (None: neither)."""
+        measures = [m for m in (self._esc_shortfall_n, self._gyro_shortfall_n) if m is not None]
+        return [max(values) for values in zip(*measures)] if measures else None
 
     def lost_rotor(self) -> int | None:
         """The rotor the companion last reported lost (confirmed, below LOST_FRACTION of hover
@@ -338,7 +379,7 @@ class FlightController:
             thrust_cut=bool(msg.flags & mavlink.M4_SETPOINT_FLAG_THRUST_CUT),
             rate_feedback=RateFeedback.from_fields(msg.rates_ref_frd_rad_s, msg.rates_ref_change_frd_rad_s2,
                                                    msg.rate_gain),
-            shortfall_cover=ShortfallCover.from_fields(msg.shortfall_gain)))
+            shortfall_cover=ShortfallCover.from_fields(msg.shortfall_gain, msg.effectiveness_frd_rad_s2_per_n)))
         self.counters.setpoints_accepted += 1
         self.tick(now_ms)
 

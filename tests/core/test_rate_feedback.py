@@ -10,7 +10,8 @@ import pytest
 from companion.core import rom
 from companion.core.rate_feedback import RateFeedbackDesign
 from m4.airframe import load_airframe
-from m4.setpoint import RATE_GAIN_MAX_N_PER_RAD_S, SHORTFALL_GAIN_MAX, RateFeedback, ShortfallCover
+from m4.setpoint import (EFFECTIVENESS_MAX_RAD_S2_PER_N, RATE_GAIN_MAX_N_PER_RAD_S, SHORTFALL_GAIN_MAX, RateFeedback,
+                         ShortfallCover)
 
 AF = load_airframe()
 BW = 20.0
@@ -89,6 +90,21 @@ def test_the_other_three_rotors_cover_a_shortfall_keeping_sum_and_roll_and_pitch
     assert np.all(cover.gain.astype(np.float32) == cover.gain)   # as MAVLink carries it
 
 
+@pytest.mark.parametrize("hip_deg", [[45, 45, 45, 45], [87, 2, 53, 23]])
+def test_with_the_cover_goes_the_roll_and_pitch_acceleration_each_rotor_gives_per_newton(hip_deg):
+    """As the ROM has it: its angular acceleration per newton of one rotor, from rest."""
+    hip = np.radians(hip_deg)
+    f = rom.dynamics(AF)
+    x, u = rom.hover_state(AF, hip_rad=hip), rom.hover_input(AF)
+    accel = lambda u: np.asarray(f(x, u, np.zeros(rom.ND))).ravel()[rom.RATES][:2]
+    effectiveness = COVERING.cover(hip, fault_confirmed=False).effectiveness_frd_rad_s2_per_n
+    for rotor in range(4):
+        more = u.copy()
+        more[rom.THRUST.start + rotor] += 1.0
+        assert effectiveness[:, rotor] == pytest.approx(accel(more) - accel(u), rel=1e-6, abs=1e-6)
+    assert np.all(effectiveness.astype(np.float32) == effectiveness)   # as MAVLink carries it
+
+
 def test_no_cover_when_switched_off_or_once_a_fault_is_confirmed():
     """A confirmed fault is in the plan (a damaged propeller keeps a bound above hover, its
     effectiveness modelled): covering it too would count its shortfall twice."""
@@ -104,3 +120,14 @@ def test_the_fc_side_reads_no_cover_from_zero_or_unusable_fields():
     assert ShortfallCover.from_fields(np.full(16, 2 * SHORTFALL_GAIN_MAX)) is None
     cover = ShortfallCover.from_fields(np.r_[0.0, 0.0, 0.0, 1.0, np.zeros(12)])
     assert cover.thrust_change_n([0.0, 0.0, 0.0, 3.0]) == pytest.approx([3.0, 0.0, 0.0, 0.0])
+    assert cover.effectiveness_frd_rad_s2_per_n is None
+
+
+def test_the_fc_side_reads_the_effectiveness_by_rotor_and_leaves_an_unusable_one_out_alone():
+    gain = np.r_[0.0, 0.0, 0.0, 1.0, np.zeros(12)]
+    by_rotor = [1.0, -2.0, 3.0, -4.0, 5.0, -6.0, 7.0, -8.0]           # rotor 1 x, y, rotor 2 x, y, ...
+    cover = ShortfallCover.from_fields(gain, by_rotor)
+    assert np.array_equal(cover.effectiveness_frd_rad_s2_per_n, [[1.0, 3.0, 5.0, 7.0], [-2.0, -4.0, -6.0, -8.0]])
+    for unusable in (np.zeros(8), np.r_[np.nan, np.ones(7)], np.full(8, 2 * EFFECTIVENESS_MAX_RAD_S2_PER_N)):
+        cover = ShortfallCover.from_fields(gain, unusable)
+        assert cover is not None and cover.effectiveness_frd_rad_s2_per_n is None

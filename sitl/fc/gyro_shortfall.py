@@ -1,0 +1,113 @@
+"""How far each rotor falls short of its command, as the flight controller sees it on its gyro:
+the incremental (INDI-style) measure, for a FC without ESC telemetry and for what the ESCs
+misread.
+
+Incremental nonlinear dynamic inversion (Smeur, Chu and de Croon; Sun et al. flew a
+quadrotor on it after losing rotors) does not model what acts on the robot: it measures the
+angular acceleration and changes the thrusts by what the robot lacks. Here the FC compares,
+at every tick, the roll and pitch acceleration its gyro shows with the one it expects: the
+plan's (M4_SETPOINT's planned rate change) plus what its own changes to the plan's thrusts
+give (the setpoint's effectiveness times the difference between the thrust its commands give
+and the thrust the plan's give, both through the motor model, sitl/fc/motor_model.py). The
+gyro is differentiated through a second-order low-pass filter (CUTOFF_RAD_S, DAMPING) and the
+expectation goes through the same filter, so the two meet at the same delay. What the robot
+lacks is then explained by the rotors that fall short: a rotor short by s takes
+effectiveness[:, i] x s from the angular acceleration, so the shortfall is the s >= 0 with
+effectiveness @ s = lacking of least total (a lost rotor's torque lies along its own arm and
+names it alone; one between two arms is shared by those two), beyond DEADBAND_N (the
+effectiveness' and the plan's model errors, the gyro's noise).
+
+The FC needs nothing a real one lacks: its gyro, its own commands, the motor constants it is
+tuned with, and the setpoint's design data. It does not need to know what failed: a lost
+propeller, a stopped motor or a capped drive all take the same angular acceleration away.
+The shortfall cover (m4/setpoint.py) turns the measure into the other rotors' change; they
+keep the sum and the roll and pitch torque, so the measure itself does not change while they
+cover (the robot moves as expected, less what the short rotor lacks).
+
+FC logic, without sockets: sitl/fc/flight_controller.py feeds it at every tick.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import scipy.linalg
+
+from m4.airframe import ROTOR_COUNT, Airframe
+from sitl.fc.motor_model import MotorModel
+
+CUTOFF_RAD_S = 60.0           # the low-pass filter's natural frequency (about 10 Hz) ...
+DAMPING = 0.7                 # ... and damping (Butterworth)
+DEADBAND_N = 1.5
+_PAIRS = tuple(itertools.combinations(range(ROTOR_COUNT), 2))
+_SINGULAR = 1e-6              # |det| / (largest entry)^2 below this: two rotors on one line
+
+
+class DifferentiatingFilter:
+    """Second-order low-pass filter y'' = w^2 (u - y) - 2 zeta w y' on several channels,
+    discretised exactly for input held over each tick; gives y and y'."""
+
+    def __init__(self, tick_s: float, cutoff_rad_s: float = CUTOFF_RAD_S, damping: float = DAMPING):
+        w = cutoff_rad_s
+        a = np.array([[0.0, 1.0, 0.0], [-w * w, -2.0 * damping * w, w * w], [0.0, 0.0, 0.0]])
+        m = scipy.linalg.expm(a * tick_s)
+        self._phi, self._gamma = m[:2, :2], m[:2, 2:]
+        self._state: np.ndarray | None = None       # (2, channels): value, derivative
+
+    def update(self, u) -> tuple[np.ndarray, np.ndarray]:
+        """Filter the input held over the last tick; (value, derivative). The first input
+        starts the filter settled on it."""
+        u = np.asarray(u, dtype=float)[None, :]
+        if self._state is None:
+            self._state = np.vstack([u, np.zeros_like(u)])
+        else:
+            self._state = self._phi @ self._state + self._gamma @ u
+        return self._state[0], self._state[1]
+
+
+def rotor_shortfall_n(effectiveness: np.ndarray, lacking: np.ndarray) -> list[float]:
+    """The s >= 0 (4,) of least total with effectiveness (2, 4) @ s = lacking (2,): one rotor,
+    or the two whose effects bracket it; zeros where no rotors' effects bracket it (a posture
+    whose rotors do not surround the centre of mass)."""
+    e, target = effectiveness.tolist(), [float(v) for v in lacking]
+    best, best_total = None, math.inf
+    for i, j in _PAIRS:
+        a, b, c, d = e[0][i], e[0][j], e[1][i], e[1][j]
+        det = a * d - b * c
+        if abs(det) <= _SINGULAR * max(abs(a), abs(b), abs(c), abs(d)) ** 2:
+            continue
+        s_i = (target[0] * d - b * target[1]) / det
+        s_j = (a * target[1] - c * target[0]) / det
+        if s_i >= 0.0 and s_j >= 0.0 and s_i + s_j < best_total:
+            best, best_total = (i, s_i, j, s_j), s_i + s_j
+    shortfall = [0.0] * ROTOR_COUNT
+    if best is not None:
+        shortfall[best[0]], shortfall[best[2]] = best[1], best[3]
+    return shortfall
+
+
+class GyroShortfallMeter:
+    def __init__(self, af: Airframe, tick_s: float):
+        self._commanded = MotorModel(af, tick_s)      # what the FC's commands give
+        self._planned = MotorModel(af, tick_s)        # what the plan's thrusts would give
+        self._filter = DifferentiatingFilter(tick_s)
+        self.lacking_rad_s2 = np.zeros(2)             # the last roll and pitch acceleration lacking
+
+    def update(self, rates_frd_rad_s, thrust_cmd_n, planned_thrust_n, planned_accel_frd_rad_s2,
+               effectiveness: np.ndarray | None) -> list[float] | None:
+        """One tick: the gyro now (3,), the FC's commands (4,) and the plan's thrusts (4,) over
+        the last tick, the plan's roll and pitch acceleration (2,); the rotors' shortfall (N,
+        rotors 1..4), None without an effectiveness (the filter runs on regardless, so that it
+        is settled when one comes)."""
+        self._commanded.update(thrust_cmd_n)
+        self._planned.update(planned_thrust_n)
+        expected = np.asarray(planned_accel_frd_rad_s2, dtype=float)
+        if effectiveness is not None:
+            expected = expected + effectiveness @ np.subtract(self._commanded.thrust_n, self._planned.thrust_n)
+        value, derivative = self._filter.update(np.r_[np.asarray(rates_frd_rad_s, dtype=float)[:2], expected])
+        self.lacking_rad_s2 = value[2:] - derivative[:2]
+        if effectiveness is None:
+            return None
+        return [max(s - DEADBAND_N, 0.0) for s in rotor_shortfall_n(effectiveness, self.lacking_rad_s2)]
