@@ -38,7 +38,7 @@ import scipy.linalg
 from m4.airframe import ROTOR_COUNT, Airframe
 from sitl.fc.motor_model import MotorModel
 
-CUTOFF_RAD_S = 60.0           # the low-pass filter's natural frequency (about 10 Hz) ...
+CUTOFF_RAD_S = 188.0          # the low-pass filter's natural frequency (30 Hz; docs/fast-loops.md) ...
 DAMPING = 0.7                 # ... and damping (Butterworth)
 DEADBAND_N = 1.5
 _PAIRS = tuple(itertools.combinations(range(ROTOR_COUNT), 2))
