@@ -140,7 +140,7 @@ class FlightController:
         self._esc_shortfall_n: list[float] | None = None   # None: no ESC telemetry
         self.gyro_shortfall = GyroShortfallMeter(airframe, TICK_MS / 1000.0)
         self._gyro_shortfall_n: list[float] | None = None  # None: the setpoint in force gives no effectiveness
-        self._gyro_measured_ms: int | None = None
+        self._measured_tick_ms: int | None = None
         self._gyro_read: _Gyro | None = None
         self.lockstep = lockstep
         self.plant = plant
@@ -236,13 +236,7 @@ class FlightController:
     def tick(self, now_ms: int) -> None:
         """Choose who flies (companion or failsafe) and command the plant accordingly; the ESCs
         answer this output frame."""
-        if self.esc is not None:
-            rotors = self.plant.rotor_state()
-            self.esc.sample(now_ms, rotors)
-            rpm = self.esc.report(now_ms).rpm
-            self._esc_shortfall_n = self.shortfall.update(rotors.thrust_cmd_n, rpm)
-            self._watch_rotors(now_ms, rotors.thrust_cmd_n, rpm)
-        self._measure_on_gyro(now_ms)
+        self._measure(now_ms)
         if not self.armed:
             self._set_mode(FcMode.LANDED)
             self._command_plant(np.zeros(ROTOR_COUNT), self.failsafe.hip_rad)
@@ -270,14 +264,26 @@ class FlightController:
         if out.mode == FcMode.LANDED:
             self.set_armed(False)
 
-    def _measure_on_gyro(self, now_ms: int) -> None:
-        """The rotors' shortfall on our gyro (sitl/fc/gyro_shortfall.py) against the setpoint we
-        flew over the last tick, once per tick (a setpoint arriving runs tick() at its instant
-        too); the filter runs whoever flies."""
-        if now_ms == self._gyro_measured_ms or now_ms % TICK_MS:
+    def _measure(self, now_ms: int) -> None:
+        """Once per tick, what the last tick's output gave: the ESCs answer it, and both
+        shortfall meters read it. A setpoint arriving runs tick() at its instant too (or between
+        ticks, in real time): measuring again would age the meters' motor model by a tick that
+        did not pass, and the ESC meter would read a rotor the cover slows as one that lost its
+        load."""
+        if now_ms == self._measured_tick_ms or now_ms % TICK_MS:
             return
-        self._gyro_measured_ms = now_ms
-        commanded = self.plant.rotor_state().thrust_cmd_n
+        self._measured_tick_ms = now_ms
+        rotors = self.plant.rotor_state()
+        if self.esc is not None:
+            self.esc.sample(now_ms, rotors)
+            rpm = self.esc.report(now_ms).rpm
+            self._esc_shortfall_n = self.shortfall.update(rotors.thrust_cmd_n, rpm)
+            self._watch_rotors(now_ms, rotors.thrust_cmd_n, rpm)
+        self._measure_on_gyro(now_ms, rotors.thrust_cmd_n)
+
+    def _measure_on_gyro(self, now_ms: int, commanded) -> None:
+        """The rotors' shortfall on our gyro (sitl/fc/gyro_shortfall.py) against the setpoint we
+        flew over the last tick (commanded: what we sent the ESCs); the filter runs whoever flies."""
         flown = self._applied.command if self._applied is not None and self.mode == FcMode.COMPANION else None
         planned, accel, effectiveness = commanded, np.zeros(2), None
         if flown is not None:

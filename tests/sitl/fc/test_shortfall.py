@@ -85,3 +85,23 @@ def test_the_fc_covers_a_rotor_its_escs_show_stopped_as_the_setpoint_asks():
 def test_no_cover_without_the_field_or_without_a_shortfall():
     assert _fly(np.zeros(16), fail_rotor=4) == pytest.approx([THRUST_N] * 4, abs=1e-5)
     assert _fly(COVER_4.ravel(), fail_rotor=None) == pytest.approx([THRUST_N] * 4, abs=1e-5)
+
+
+def test_setpoints_arriving_at_the_fcs_ticks_do_not_make_a_healthy_rotor_slowing_down_look_short():
+    """Each setpoint runs the FC's tick at its instant once more; a meter aged by that second
+    tick expects rotor 4 slower than it is while the plan winds it down, reads it as unloaded
+    and has the others cover it."""
+    vehicle = Vehicle(Scenario(name="hover", duration_s=1.0), AF)
+    vehicle.start(lambda msgs: None)
+    covered = []
+    for k, rotor_4_n in enumerate([THRUST_N, 8.0, 4.0, 2.0, 2.0, 2.0]):
+        t_ms = 100 + 20 * k
+        vehicle.advance_to(t_ms, lambda msgs: None)
+        thrust = [THRUST_N, THRUST_N, THRUST_N, rotor_4_n]
+        sp = mavlink.MAVLink_m4_setpoint_message(1, 1, t_ms, 20, thrust, [AF.nominal_hip_rad] * 4, [0.0] * 4, 0,
+                                                 shortfall_gain=COVER_4.ravel())
+        vehicle.handle([_from_companion(sp)], lambda msgs: None)
+        for tick_ms in range(t_ms + TICK_MS, t_ms + 20, TICK_MS):
+            vehicle.advance_to(tick_ms, lambda msgs: None)
+            covered.append(vehicle.fc.measured_state(tick_ms).thrust_cmd_n[:3] - THRUST_N)
+    assert np.abs(covered).max() < 1e-5            # THRUST_N as float32 carries it
