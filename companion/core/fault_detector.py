@@ -165,7 +165,9 @@ class FaultDetector:
         self._asked_n = np.zeros(ROTOR_COUNT)      # the command in force (clipped to the limits)
         # The FC may change a command anywhere between our frames (its rate feedback, its cover
         # of a failing rotor): the lagged command lies between these two, each frame's change
-        # taken at its start or at its end.
+        # taken at its start or at its end; the low one through the lag of the rotor's speed,
+        # the fastest a healthy rotor can give up its thrust (the cover drops a lost rotor's
+        # diagonal partner to nothing within milliseconds).
         self._cmd_lag_low_n = np.zeros(ROTOR_COUNT)
         self._cmd_lag_high_n = np.zeros(ROTOR_COUNT)
         self._esc_time_s = -math.inf               # newest ESC frame used
@@ -242,7 +244,7 @@ class FaultDetector:
             return self.status
         average_n, self._lag_n = self._model.motor_response(self._lag_n, target, dt)
         self._cmd_lag_n = self._model.motor_response(self._cmd_lag_n, asked, dt)[1]
-        self._cmd_lag_low_n = self._model.motor_response(self._cmd_lag_low_n, np.minimum(asked_before, asked), dt)[1]
+        self._cmd_lag_low_n = self._model.spin_response_n(self._cmd_lag_low_n, np.minimum(asked_before, asked), dt)
         self._cmd_lag_high_n = self._model.motor_response(self._cmd_lag_high_n, np.maximum(asked_before, asked), dt)[1]
         reading = self._esc_reading(time_s, esc)
         evidence = self._residual_evidence(time_s, prev.state, x, average_n, cmd, dt, reading)

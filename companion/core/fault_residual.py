@@ -96,6 +96,15 @@ class ThrustResidualModel:
         return (target_n + (start_n - target_n) * self._af.motor_time_constant_s / dt_s * (1 - decay),
                 target_n + (start_n - target_n) * decay)
 
+    def spin_response_n(self, start_n: np.ndarray, target_n: np.ndarray, dt_s: float) -> np.ndarray:
+        """The thrust at the end when the rotor's speed, not its thrust, follows the first-order
+        lag (as a motor does): k_t w^2, w heading from sqrt(start / k_t) to sqrt(target / k_t).
+        A rotor slowing to a stop loses its thrust at twice the lag's rate."""
+        k_n_s2, decay = self._af.thrust_coefficient_n_s2, self.motor_decay(dt_s)
+        start, target = (np.sqrt(np.maximum(v, 0.0) / k_n_s2) for v in (start_n, target_n))
+        speed = target + (start - target) * decay
+        return k_n_s2 * speed * speed
+
     def fit(self, x_prev: np.ndarray, x_now: np.ndarray, expected_thrust_n: np.ndarray,
             dt_s: float, bias_per_s: np.ndarray) -> tuple[IntervalFit, np.ndarray]:
         """Fit the interval x_prev -> x_now flown with the given interval-average thrusts.

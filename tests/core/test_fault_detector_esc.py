@@ -229,3 +229,13 @@ def test_a_speed_no_esc_telemetry_can_carry_is_not_reported():
     reading = read_escs(EscSample(0.0, rpm, current, np.full(ROTOR_COUNT, 14.8)), np.full(ROTOR_COUNT, HOVER_N), PROP)
     assert np.all(np.isnan(reading.thrust_n[:2])) and reading.condition[:2] == (RotorCondition.NORMAL,) * 2
     assert reading.thrust_n[2] == pytest.approx(HOVER_N)
+
+
+def test_a_rotor_commanded_down_to_nothing_spins_down_as_fast_as_its_speed_lag_without_alarm():
+    """The FC's cover drops the lost rotor's diagonal partner to nothing between our frames: its
+    speed follows the motor lag, so its thrust (speed squared) falls at twice that rate; that
+    is no shortfall."""
+    drop = np.full(ROTOR_COUNT, HOVER_N)
+    drop[1] = AF.thrust_min_n
+    statuses = fly(Escs(), hover(5) + [drop] * 10)
+    assert all(s.state is FaultState.HEALTHY for s in statuses)
