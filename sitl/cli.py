@@ -1,7 +1,7 @@
 """`m4-sitl`: the simulator's command line.
 
     m4-sitl serve [--scenario SCENARIO] [--mavlink URL]... [--realtime] [--viewer] [--tlog PATH] [--truth-log PATH]
-                  [--signing-key FILE] [--signing-state FILE] [--companion SYS:COMP] [--seed N] [--duration S]
+                  [--signing-key FILE] [--signing-state FILE] [--params FILE] [--companion SYS:COMP] [--seed N] [--duration S]
                   [--lockstep-timeout S] [--link-delay-ms MS] [--link-loss P]
     m4-sitl physics --autopilot ardupilot [--scenario SCENARIO] [--port N] [--truth-log PATH] [--seed N] [--duration S]
     m4-sitl fly-ardupilot SCENARIO [--out DIR] [--speedup N] [--instance I]
@@ -53,6 +53,9 @@ def _add_serve(sub) -> None:
     p.add_argument("--signing-state", type=Path, metavar="FILE",
                    help="where the signing timestamps are kept across restarts, so no captured packet can be "
                         "replayed (default: the key file's path + .timestamps)")
+    p.add_argument("--params", type=Path, metavar="FILE",
+                   help="where the parameters set over MAVLink are kept and loaded from at start (default: the "
+                        "signing key + .params.toml; without a key they last the run)")
     p.add_argument("--companion", type=_ids, default=(FC_SYSTEM_ID, COMPANION_COMPONENT_ID), metavar="SYS:COMP",
                    help="the one system and component whose setpoints and commands are obeyed (default 1:191)")
     p.add_argument("--truth-log", type=Path, metavar="PATH", help="write the plant's true state at 100 Hz (.npz); the last 10 minutes are kept (a ring "
@@ -84,7 +87,9 @@ def _serve(args) -> int:
                            seed=args.seed, duration_s=args.duration, lockstep_timeout_s=args.lockstep_timeout,
                            truth_log_path=args.truth_log, companion_ids=args.companion, link=link_of(args),
                            signing_state_path=args.signing_state or (
-                               Path(f"{args.signing_key}.timestamps") if args.signing_key else None))
+                               Path(f"{args.signing_key}.timestamps") if args.signing_key else None),
+                           params_path=args.params or (Path(f"{args.signing_key}.params.toml") if args.signing_key
+                                                       else None))
     try:
         server = Server(options)
     except ServeError as e:

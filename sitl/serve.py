@@ -33,6 +33,10 @@ and the telemetry streams keep their pace. A udpin link answers the paired compa
 address only (signed, with a key): nobody else can redirect the telemetry. With a key and
 `signing_state_path`, the signing timestamps survive a restart (m4.mavlink.signing).
 
+Parameters (PARAM_* protocol, sitl/fc/params.py) are answered to the companion and to ground
+stations alike (only signed, with a key); what is set is kept in `params_path` and loaded
+from it at the next start (m4/params_file.py).
+
 A second sender claiming the companion's ids is reported by the FC (m4/mavlink/second_sender.py):
 a packet signing refused (unsigned, badly signed, replayed), one that passed signing unsigned
 (HEARTBEAT) though the key requires signatures, or one from another place (link and address)
@@ -53,6 +57,8 @@ from m4.mavlink.link import UdpLink, wait_readable
 from m4.mavlink.second_sender import OTHER_ADDRESS, PairedPlace, address_text
 from m4.mavlink.signing import StreamTimestamps, refusal
 from m4.mavlink.tlog import TlogWriter
+from m4.params_file import ParamFile
+from m4.toml_fields import ConfigError
 from sitl.links.emulation import EmulatedLink, LinkEmulation
 from sitl.fc.routing import Router
 from m4.scenario import Scenario
@@ -81,6 +87,7 @@ class ServeOptions:
     companion_ids: tuple[int, int] = (FC_SYSTEM_ID, COMPANION_COMPONENT_ID)   # the paired companion
     signing_state_path: Path | None = None     # signing timestamps kept across restarts (with a key)
     link: LinkEmulation | None = None          # delay and loss on the first link (the companion's)
+    params_path: Path | None = None            # the FC's parameters set over MAVLink, kept across restarts
 
 
 class ServeError(RuntimeError):
@@ -92,9 +99,13 @@ class Server:
 
     def __init__(self, options: ServeOptions, airframe: Airframe | None = None):
         self.options = options
-        self.vehicle = Vehicle(options.scenario, airframe or load_airframe(), options.seed,
-                               lockstep=not options.realtime, companion_ids=options.companion_ids,
-                               require_signed=options.signing_key is not None)
+        try:
+            self.vehicle = Vehicle(options.scenario, airframe or load_airframe(), options.seed,
+                                   lockstep=not options.realtime, companion_ids=options.companion_ids,
+                                   require_signed=options.signing_key is not None,
+                                   params_file=ParamFile(options.params_path) if options.params_path else None)
+        except ConfigError as e:
+            raise ServeError(f"parameters: {e}") from None
         self._viewer = None
         self._viewer_synced = 0.0
         self._stop = False
@@ -231,8 +242,10 @@ class Server:
         wall0, cpu0 = time.monotonic(), time.process_time()
         mode = "real time" if self.options.realtime else "lockstep"
         unsigned = "" if self.options.signing_key else "; MAVLink signing off (no --signing-key): anyone may command it"
+        params = self.options.params_path
+        kept = f"; parameters kept in {params}" if params else "; parameters set over MAVLink last this run (no --params)"
         log(f"serving {self.options.scenario.name!r} in {mode} on "
-             + ", ".join(link.endpoint.url for link in self.links) + unsigned)
+             + ", ".join(link.endpoint.url for link in self.links) + unsigned + kept)
         try:
             (self._run_realtime if self.options.realtime else self._run_lockstep)()
         finally:

@@ -16,12 +16,15 @@ from collections.abc import Callable, Iterable
 from typing import Protocol
 
 from m4.airframe import Airframe
-from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from m4.mavlink.param_service import ParamService
+from m4.params_file import ParamFile
 from m4.scenario import Scenario
 from m4.sensor_profiles import PROFILES
 from sitl.fc.esc_telemetry import EscTelemetry
 from sitl.fc.estimator import Estimator
 from sitl.fc.flight_controller import TICK_MS, FlightController
+from sitl.fc.params import fc_params
 from sitl.plant.faults import FaultSchedule, describe
 from sitl.plant.mujoco_plant import Plant
 from sitl.fc.streams import FRAME
@@ -45,7 +48,10 @@ def log(text: str) -> None:
 
 class Vehicle:
     def __init__(self, scenario: Scenario, airframe: Airframe, seed: int = 0, lockstep: bool = False,
-                 companion_ids: tuple[int, int] = (FC_SYSTEM_ID, COMPANION_COMPONENT_ID), require_signed: bool = False):
+                 companion_ids: tuple[int, int] = (FC_SYSTEM_ID, COMPANION_COMPONENT_ID), require_signed: bool = False,
+                 params_file: ParamFile | None = None):
+        """params_file: the FC's parameters set over MAVLink, loaded here (ConfigError on a bad
+        entry) and kept there (None: they last this run)."""
         self.scenario = scenario
         sensors = PROFILES.get(scenario.sensors.profile)       # None: "ideal", the measured state as it is
         self.plant = Plant(airframe, scenario.plant, start_ned_m=scenario.start.ned_m,
@@ -57,6 +63,10 @@ class Vehicle:
         self.fc = FlightController(airframe, self.plant, lockstep=lockstep, companion_ids=companion_ids,
                                    require_signed=require_signed, log=log, esc=esc, estimator=estimator)
         self.now_ms = 0
+        self.fc.params = ParamService(fc_params(self.fc, lambda: self.now_ms), FC_SYSTEM_ID, FC_COMPONENT_ID, "FC",
+                                      params_file, log)
+        if params_file is not None:
+            params_file.load(self.fc.params.table)
         self._faults = FaultSchedule(scenario.faults)
         self.observers: list[Callable[[int, Plant], None]] = []     # called at every simulated instant
         self.inbox: Inbox | None = None

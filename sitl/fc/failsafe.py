@@ -106,6 +106,7 @@ class Failsafe:
 
     def __init__(self, airframe: Airframe):
         self.controller = HoldController(airframe)
+        self.land_after_s = LAND_AFTER_S        # a parameter (sitl/fc/params.py)
         self.mode = FcMode.HOLD
         self._since_ms = 0
         self._may_land = False
@@ -138,7 +139,7 @@ class Failsafe:
     def update(self, state, now_ms: int) -> FailsafeOutput:
         held_ms = now_ms - self._since_ms
         if self.mode == FcMode.HOLD and (self.three_rotor is not None
-                                               or (self._may_land and held_ms >= LAND_AFTER_S * 1000)):
+                                               or (self._may_land and held_ms >= self.land_after_s * 1000)):
             self.mode = FcMode.LAND
             self._since_ms = now_ms
             self._target_ned_m = np.array(state.pos_ned_m, dtype=float)

@@ -44,6 +44,7 @@ from m4.airframe import ROTOR_COUNT, Airframe
 from m4.fault_kind import FaultKind
 from m4.log_limit import RepeatLimiter
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from m4.mavlink.param_service import PARAM_IDS, ParamService
 from m4.mavlink.second_sender import SecondSender
 from m4.setpoint import RateFeedback, Setpoint, ShortfallCover
 from m4.units import RAD_S_TO_RPM
@@ -91,9 +92,8 @@ class ReceivedSetpoint:
     period_ms: int
     command: Setpoint
 
-    @property
-    def stale_after_ms(self) -> int:
-        return self.time_ms + max(STALE_PERIODS * self.period_ms, STALE_MIN_MS)
+    def stale_after_ms(self, min_ms: int) -> int:
+        return self.time_ms + max(STALE_PERIODS * self.period_ms, min_ms)
 
 
 class _Measured(NamedTuple):
@@ -150,6 +150,11 @@ class FlightController:
         self.schedule = StreamSchedule(DEFAULT_INTERVALS_MS if esc is None else ESC_TELEMETRY_INTERVALS_MS)
         self.failsafe = Failsafe(airframe)
         self.counters = FcCounters()
+        # parameters (sitl/fc/params.py), with the failsafe's and the rotor watch's
+        self.stale_min_ms = STALE_MIN_MS
+        self.rate_feedback_enabled = True
+        self.shortfall_cover_enabled = True
+        self.params: ParamService | None = None         # the parameter protocol (sitl/vehicle.py sets it up)
         self.setpoint: ReceivedSetpoint | None = None
         self.mode: FcMode | None = None
         self._applied: ReceivedSetpoint | None = None
@@ -213,7 +218,7 @@ class FlightController:
             self._outbox += [statustext(*_ANNOUNCE[mode]), current_mode(mode)]
 
     def _fresh(self, now_ms: int) -> bool:
-        return self.setpoint is not None and now_ms <= self.setpoint.stale_after_ms
+        return self.setpoint is not None and now_ms <= self.setpoint.stale_after_ms(self.stale_min_ms)
 
     def set_armed(self, armed: bool) -> None:
         """Arm (the next fresh setpoint, or the failsafe, flies) or disarm (motors off)."""
@@ -328,6 +333,9 @@ class FlightController:
         msg_id = msg.get_msgId()
         if msg_id == mavlink.MAVLINK_MSG_ID_TIMESYNC:
             return [mavlink.MAVLink_timesync_message(now_ms * 1_000_000, msg.ts1)] if msg.tc1 == 0 else []
+        if msg_id in PARAM_IDS and self.params is not None:
+            # from the companion and ground stations alike; with signing, only signed
+            return [] if self.require_signed and not msg.get_signed() else (self.params.handle(msg) or [])
         if msg_id not in _CONTROL_IDS or (msg_id != mavlink.MAVLINK_MSG_ID_M4_FAULT_STATUS
                                           and not self.addressed_to_me(msg)):
             return []
@@ -384,8 +392,9 @@ class FlightController:
             hip_rate_rad_s=_clip(rate, -af.hip_rate_max_rad_s, af.hip_rate_max_rad_s),
             thrust_cut=bool(msg.flags & mavlink.M4_SETPOINT_FLAG_THRUST_CUT),
             rate_feedback=RateFeedback.from_fields(msg.rates_ref_frd_rad_s, msg.rates_ref_change_frd_rad_s2,
-                                                   msg.rate_gain),
-            shortfall_cover=ShortfallCover.from_fields(msg.shortfall_gain, msg.effectiveness_frd_rad_s2_per_n)))
+                                                   msg.rate_gain) if self.rate_feedback_enabled else None,
+            shortfall_cover=ShortfallCover.from_fields(msg.shortfall_gain, msg.effectiveness_frd_rad_s2_per_n)
+            if self.shortfall_cover_enabled else None))
         self.counters.setpoints_accepted += 1
         self.tick(now_ms)
 

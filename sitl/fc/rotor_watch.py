@@ -8,6 +8,7 @@ a healthy rotor spinning up is never taken for a lost one) is lost, and stays lo
 FC's failsafe then flies on the other three.
 The companion's M4_FAULT_STATUS says the same sooner when it is alive; this is for when it
 is not (killed before it confirmed, or restarted and not yet told).
+Its thresholds, and whether it runs at all, are parameters (sitl/fc/params.py).
 """
 
 from __future__ import annotations
@@ -24,21 +25,25 @@ CONFIRM_MS = 100
 class RotorWatch:
     def __init__(self, airframe: Airframe):
         self.k_n_s2 = airframe.thrust_coefficient_n_s2
+        self.enabled = True
+        self.min_command_n = MIN_COMMAND_N
+        self.slow_fraction = SLOW_FRACTION
+        self.confirm_ms = CONFIRM_MS
         self.lost: int | None = None                      # rotor 1..4
         self._slow_since_ms: list[int | None] = [None] * ROTOR_COUNT
 
     def update(self, command_n, speed_rad_s, now_ms: int) -> int | None:
         """Feed the thrusts commanded (4,) and the speeds the ESCs report (4,); the lost rotor, if any."""
-        if self.lost is not None:
+        if self.lost is not None or not self.enabled:
             return self.lost
         command = list(map(float, command_n))         # Python floats: four numbers
         speed = list(map(float, speed_rad_s))
         for i in range(ROTOR_COUNT):
             expected = math.sqrt(max(command[i], 0.0) / self.k_n_s2)
-            if not (command[i] >= MIN_COMMAND_N and speed[i] < SLOW_FRACTION * expected):
+            if not (command[i] >= self.min_command_n and speed[i] < self.slow_fraction * expected):
                 self._slow_since_ms[i] = None
             elif self._slow_since_ms[i] is None:
                 self._slow_since_ms[i] = now_ms
-            elif now_ms - self._slow_since_ms[i] >= CONFIRM_MS:
+            elif now_ms - self._slow_since_ms[i] >= self.confirm_ms:
                 self.lost = i + 1
         return self.lost

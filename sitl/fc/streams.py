@@ -66,6 +66,10 @@ class StreamSchedule:
         self._interval_ms[msg_id] = interval
         self._next_ms[msg_id] = (now_ms // interval + 1) * interval
 
+    def interval_ms(self, msg_id: int) -> int | None:
+        """The stream's interval in force (None: not sent)."""
+        return self._interval_ms.get(msg_id)
+
     def next_due_ms(self) -> int | None:
         return min(self._next_ms.values(), default=None)
 
