@@ -15,6 +15,10 @@ where it was instead of anchoring it where it finds the robot, and joins the FC'
 landing instead of cancelling it (companion.controller). The newest frame is answered as
 soon as the answers are in.
 
+Parameters (companion/params.py, m4/mavlink/param_service.py): requests from a ground station,
+routed by the FC, are answered at once; a value set is in force from the next step and kept in
+the configuration's params_file.
+
 Stale streams (companion.stream_watch): while a stream the controller needs is stale no
 setpoint goes out; it is asked for again and reported (log, STATUSTEXT warning, the feed's
 link topic); when it comes back, control resumes.
@@ -54,6 +58,7 @@ from companion.core.esc_evidence import PropellerModel
 from companion.fc_link import FcLink, LinkEvent, mission_progress
 from companion.feed_publisher import Feed, open_feed
 from companion.loop_timing import LoopTiming
+from companion.params import CompanionParams
 from companion.flight_log import FlightLog, open_flight_log
 from companion.stream_watch import Report, StreamWatch, blocking, labels
 from companion.telemetry import ESC_TELEMETRY, THRUSTER_STATUS, TelemetryAssembler, VehicleSnapshot, rom_state
@@ -61,8 +66,10 @@ from m4.airframe import ROTOR_COUNT
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from m4.mavlink.connect import listens_for_peer, open_link
 from m4.mavlink.link import wait_readable
+from m4.mavlink.param_service import ParamService
 from m4.mavlink.signing import StreamTimestamps, load_key
 from m4.mission_plan import MissionProgress
+from m4.params_file import ParamFile
 
 log = logging.getLogger("m4-companion")
 
@@ -118,6 +125,9 @@ class CompanionApp:
         self._kept_mission: MissionProgress | None = None     # what the FC kept of an earlier run's mission
         self._fc_landing = False                 # the FC's mode, as it last said: its failsafe lands
         self.streams = StreamWatch(config.control_period_s)
+        self.params = ParamService(CompanionParams(config, self._retune).table, FC_SYSTEM_ID, COMPANION_COMPONENT_ID,
+                                   "companion", None if config.params_path is None else ParamFile(config.params_path),
+                                   log.info)
 
     # -- the loop ----------------------------------------------------------------------------------
     def stop(self) -> None:
@@ -145,6 +155,9 @@ class CompanionApp:
                 self._on_kept_status(msg)
             elif msg_id == mavlink.MAVLINK_MSG_ID_CURRENT_MODE:
                 self._fc_landing = msg.standard_mode == mavlink.MAV_STANDARD_MODE_LAND
+        for msg in received.param_requests:
+            if replies := self.params.handle(msg):
+                self.fc.link.send_all(replies)
         self._watch_streams(now)
         if self._frame_ms is not None and self._due(self._frame_ms) and not self.fc.kept_state_pending():
             self._answer(self._frame_ms, now)
@@ -153,6 +166,12 @@ class CompanionApp:
         self.fc.tick(now)
         if self.signing_state is not None:
             self.signing_state.save()
+
+    def _retune(self, config: CompanionConfig) -> None:
+        """A parameter was set (companion/params.py): the settable ones are read from here each step,
+        and the detector's thresholds from its own copy."""
+        self.config = config
+        self.controller.retune_detector(config.fault_detector)
 
     def _on_kept_status(self, msg) -> None:
         """The FC's copy of the last M4_FAULT_STATUS it had from us (from before this process

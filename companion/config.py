@@ -2,7 +2,9 @@
 
 `load_config(path)` reads the file (None: every default, which flies the reference airframe
 on the SITL's default link) and returns a frozen CompanionConfig; anything malformed raises
-ConfigError naming the table and key. deploy/companion.toml documents every key.
+ConfigError naming the table and key. deploy/companion.toml documents every key. The
+parameters a ground station sets (companion/params.py) are kept in `params_file` (default:
+beside the file, companion.toml's in companion.params.toml) and applied over it at start.
 
 The tables map onto the settings dataclasses of the parts they configure (NmpcConfig,
 ReferenceConfig, TouchdownConfig, FaultDetectorConfig, FeedSettings): a key is a field's
@@ -147,6 +149,7 @@ def setting_bounds(af: Airframe) -> dict[type, dict[str, Bounds]]:
 
 
 SIGNING_STATE_SUFFIX = ".companion-timestamps"     # beside the key unless [link] signing_state_file says where
+PARAMS_SUFFIX = ".params.toml"           # companion.toml's parameters: companion.params.toml, unless params_file says
 
 
 @dataclass(frozen=True)
@@ -208,6 +211,7 @@ class CompanionConfig:
     log: LogSettings = field(default_factory=LogSettings)
     airframe_path: Path | None = None       # None: the bundled reference airframe
     mission_path: Path | None = None        # None: no mission (hold where the flight starts)
+    params_path: Path | None = None         # parameters set over MAVLink (companion/params.py); None: for the run
     airframe: Airframe = field(default_factory=load_airframe)
     mission: Mission = field(default_factory=Mission)
 
@@ -221,13 +225,17 @@ def load_config(path: str | Path | None = None) -> CompanionConfig:
     if path is None:
         return parse_config({}, "defaults")
     path = Path(path)
-    return parse_config(load_toml(path), path.name, path.parent)
+    config = parse_config(load_toml(path), path.name, path.parent)
+    if config.params_path is None:
+        config = dataclasses.replace(config, params_path=path.with_name(path.stem + PARAMS_SUFFIX))
+    return config
 
 
 def parse_config(data: dict, where: str, base_dir: Path | None = None) -> CompanionConfig:
     top = Table(data, where)
     airframe_path = top.path("airframe_file", base_dir, must_exist=True)
     mission_path = top.path("mission_file", base_dir, must_exist=True)
+    params_path = top.path("params_file", base_dir)
     airframe = load_airframe(airframe_path)
     bounds = setting_bounds(airframe)
     control = top.table("control")
@@ -256,6 +264,7 @@ def parse_config(data: dict, where: str, base_dir: Path | None = None) -> Compan
         log=_log(top.table("log"), base_dir),
         airframe_path=airframe_path,
         mission_path=mission_path,
+        params_path=params_path,
         airframe=airframe,
         mission=Mission() if mission_path is None else load_mission(mission_path),
     )

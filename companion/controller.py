@@ -163,7 +163,8 @@ class Controller:
         self.nmpc = nmpc or Nmpc(af, s.nmpc)
         propeller = PropellerModel.from_airframe(af)
         codegen = s.nmpc.codegen              # every model evaluated each step: compiled, or none of them
-        self._new_detector = new_detector or (lambda: FaultDetector(af, s.fault_detector, propeller, codegen))
+        self._new_detector = new_detector or (
+            lambda: FaultDetector(af, self.settings.fault_detector, propeller, codegen))
         self._new_reference = new_reference or (
             lambda t0_s, start_ned_m: MissionReference(s.mission, start_ned_m, af, s.reference, t0_s=t0_s))
         self.disturbance = DisturbanceEstimator(af, self.period_s, s.disturbance_gain, codegen=codegen)
@@ -223,6 +224,12 @@ class Controller:
         self.flight = None
         self._last_step_s = None
         self._takeover = True
+
+    def retune_detector(self, config: FaultDetectorConfig) -> None:
+        """The detector's thresholds changed in flight (a parameter): from its next frame on, and
+        for a detector built anew after an FC reboot."""
+        self.settings = replace(self.settings, fault_detector=config)
+        self.detector.retune(config)
 
     def restore_fault(self, rotor: int, thrust_max_estimate_n: float, detected_at_s: float) -> None:
         """A fault confirmed by an earlier run of the companion (the FC kept it): the detector

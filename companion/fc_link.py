@@ -30,6 +30,9 @@
   CURRENT_MODE), which arrive as messages; `kept_state_pending()` until both are answered.
 - Out: M4_SETPOINT, M4_FAULT_STATUS (the detector's status and the mission's progress, which
   the FC keeps for a restarted companion: `mission_progress()` reads it back), STATUSTEXT.
+- Parameter requests (PARAM_REQUEST_LIST, _READ, _SET) from anyone (a ground station's,
+  routed by the FC), once locked on and arriving from the FC's address (signed, when signing is
+  on: the link drops the rest), are handed over apart (`Received.param_requests`).
 - Health counters: bad CRC (garbled packets), bad signature (unsigned or badly signed,
   dropped by signing), foreign (other systems, components or addresses), second sender.
 - A second sender claiming the FC's ids (m4/mavlink/second_sender.py) is counted and reported
@@ -42,7 +45,7 @@ from __future__ import annotations
 
 import enum
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
@@ -52,6 +55,7 @@ from companion.fc_commands import Command, CommandQueue
 from companion.link_delay import LinkDelay
 from companion.telemetry import REQUESTED, STREAMS
 from m4.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from m4.mavlink.param_service import PARAM_IDS
 from m4.mavlink.second_sender import OTHER_ADDRESS, SecondSender, address_text
 from m4.mavlink.signing import SigningCounters, refusal
 from m4.mission_plan import MissionProgress, PlanProgress, PlanState
@@ -107,10 +111,12 @@ class LinkEvent(enum.Enum):
 
 @dataclass(frozen=True)
 class Received:
-    """What one receive() brought: events in the order given in LinkEvent, then the FC's messages."""
+    """What one receive() brought: events in the order given in LinkEvent, then the FC's messages,
+    then the parameter requests (from anyone, through the FC)."""
 
     events: tuple[LinkEvent, ...]
     messages: list[mavlink.MAVLink_message]
+    param_requests: list[mavlink.MAVLink_message] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -186,9 +192,12 @@ class FcLink:
         """The messages from the flight controller that have arrived (the rest is counted), and
         what they, or their absence until now_s, mean."""
         events: set[LinkEvent] = set()
-        out = []
+        out, param_requests = [], []
         for sender, msgs in self.link.receive_from():
             for msg in msgs:
+                if msg.get_msgId() in PARAM_IDS and sender == self.fc_address:
+                    param_requests.append(msg)      # a ground station's (or the FC's), routed to us
+                    continue
                 if (msg.get_srcSystem(), msg.get_srcComponent()) != self.fc_ids:
                     self._foreign += 1
                     continue
@@ -213,7 +222,7 @@ class FcLink:
             self.connected = False
             self.link.lock_peer(self.fc_address, hear_others=True)     # a restarted FC may come from elsewhere
             events.add(LinkEvent.LOST)
-        return Received(tuple(e for e in LinkEvent if e in events), out)
+        return Received(tuple(e for e in LinkEvent if e in events), out, param_requests)
 
     def _warn_fc(self, text: str) -> None:
         """A STATUSTEXT WARNING to the FC, once there is one (nothing is sent before)."""

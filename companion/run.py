@@ -61,6 +61,7 @@ def _say_ready(fd: int, text: str) -> None:
 
 def _config(args: argparse.Namespace):
     from companion.config import load_config
+    from companion.params import with_params_file
     from m4.mavlink.connect import check_url
     from m4.scenario import load_mission
 
@@ -73,7 +74,7 @@ def _config(args: argparse.Namespace):
     config = dataclasses.replace(config, link=dataclasses.replace(config.link, **link))
     if args.mission is not None:
         config = dataclasses.replace(config, mission=load_mission(args.mission), mission_path=args.mission)
-    return config
+    return with_params_file(config)
 
 
 def _ms(value_ms: float | None, decimals: int) -> str:

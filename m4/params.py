@@ -59,6 +59,7 @@ class Param:
     get: Callable[[], float]
     set: Callable[[float], None] | None = None    # None: read-only
     read_only_why: str = ""                       # for a read-only one: where it is changed, and why not here
+    lo_open: bool = False                         # lo itself excluded
 
     @property
     def settable(self) -> bool:
@@ -70,8 +71,9 @@ class Param:
             return "not a number"
         if self.type.whole and value != int(value):
             return f"wrong type: {self.type.name} takes whole numbers"
-        if not float32(self.lo) <= value <= float32(self.hi):
-            return f"out of range {self.lo:g}..{self.hi:g}"
+        lo, hi = float32(self.lo), float32(self.hi)
+        if value < lo or value > hi or (self.lo_open and value == lo):
+            return f"out of range {'(' if self.lo_open else '['}{self.lo:g}, {self.hi:g}]"
         return None
 
 

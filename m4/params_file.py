@@ -3,9 +3,10 @@
 A component loads it at start over its configuration (`ParamFile.load`): every entry must
 name one of its settable parameters and hold a value that parameter takes, else ConfigError
 naming the file and the entry, as the TOML configuration files are checked (m4/toml_fields.py).
-Each accepted PARAM_SET writes the file anew (`ParamFile.record`: a whole new file renamed
-over the old one, so a crash never leaves half of one); only the parameters set are in it, the
-rest keep their configured values. A missing file is an empty one.
+Each accepted PARAM_SET writes the file anew (`ParamFile.record`: what it held and the new
+value, as a whole new file renamed over the old one, so a crash never leaves half of one);
+only the parameters set are in it, the rest keep their configured values. A missing file is
+an empty one.
 """
 
 from __future__ import annotations
@@ -22,7 +23,6 @@ HEADER = "# parameters set over MAVLink (PARAM_SET); loaded at start over the co
 class ParamFile:
     def __init__(self, path: Path):
         self.path = Path(path)
-        self.values: dict[str, float] = {}
 
     def load(self, table: ParamTable) -> None:
         """Apply the file's values to `table` (nothing when there is no file); ConfigError on a bad entry."""
@@ -39,12 +39,15 @@ class ParamFile:
             if refusal is not None:
                 extra = f" ({table.params[i].read_only_why})" if refusal.reason == "read-only" else ""
                 raise ConfigError(f"{where}: {refusal.reason}{extra}, got {value!r}")
-            self.values[name] = value
 
     def record(self, name: str, value: float) -> str | None:
         """Keep `name = value` in the file; the reason when it could not be written (None: written)."""
-        self.values[name] = value
-        lines = [HEADER] + [f"{n} = {_toml_number(v)}\n" for n, v in sorted(self.values.items())]
+        try:
+            values = load_toml(self.path) if self.path.exists() else {}
+        except ConfigError as e:
+            return str(e)
+        values[name] = value
+        lines = [HEADER] + [f"{n} = {_toml_number(v)}\n" for n, v in sorted(values.items())]
         partial = self.path.with_name(self.path.name + ".partial")
         try:
             partial.write_text("".join(lines))

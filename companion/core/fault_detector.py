@@ -189,6 +189,12 @@ class FaultDetector:
         self._estimate_n = math.inf                # ceiling of the confirmed rotor
         self._effectiveness = 1.0                  # thrust per command of the confirmed rotor
 
+    def retune(self, config: FaultDetectorConfig) -> None:
+        """Decide by `config`'s thresholds from the next frame on (a parameter set in flight); the
+        residual's noise model stays the one built (its fields are read-only parameters)."""
+        config.validate()
+        self._c = config
+
     def restore(self, rotor: int, thrust_max_estimate_n: float, detected_at_s: float) -> None:
         """Start from a fault confirmed before this detector existed (a restarted companion:
         the FC kept its M4_FAULT_STATUS): rotor 1..4, its ceiling, when it was confirmed."""

@@ -7,7 +7,7 @@ As an ArduPilot autopilot answers it (https://mavlink.io/en/services/parameter.h
 - PARAM_SET: applied when the table takes it, kept in the ParamFile (when there is one), and
   answered with PARAM_VALUE holding the value in force: the new one, or the unchanged one on a
   refusal, which a STATUSTEXT WARNING explains ("FC: FS_SP_TIMEOUT refused: out of range
-  0.1..2"). A value that could not be written to the file stays in force for this run, and a
+  [0.1, 1]"). A value that could not be written to the file stays in force for this run, and a
   STATUSTEXT WARNING says it was not kept.
 PARAM_VALUE is a broadcast (no target): every ground station sees it. Values go out cast to
 float (ArduPilot's encoding: MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST), whatever their type.
