@@ -174,3 +174,14 @@ def test_a_bad_params_file_stops_the_start_naming_the_entry(tmp_path, text, mess
     with pytest.raises(ServeError, match="parameters: " + str(path).replace(".", r"\.") + ".*") as e:
         Server(ServeOptions(scenario=HOVER, mavlink_urls=("udpout:127.0.0.1:9",), params_path=path))
     assert message in str(e.value)
+
+
+def test_autopilot_version_says_parameters_go_out_cast_to_float_as_ardupilot_sends_them():
+    companion = StandInCompanion()
+    with served(companion, ServeOptions(scenario=HOVER, realtime=True)):
+        companion.send(mavlink.MAVLink_command_long_message(1, 1, mavlink.MAV_CMD_REQUEST_MESSAGE, 0,
+                                                            float(mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION), *[0.0] * 6))
+        capabilities = companion.wait_for("AUTOPILOT_VERSION").capabilities
+    assert capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
+    assert capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+    assert not capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
