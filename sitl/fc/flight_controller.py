@@ -22,6 +22,10 @@ Arming: the FC starts armed (the scenarios start in the air). Once it has landed
 a thrust cut it is disarmed: setpoints are refused (counted) and the motors stay off until
 the paired companion re-arms it with MAV_CMD_COMPONENT_ARM_DISARM(1).
 
+Parameters (PARAM_* protocol, `params`: m4/mavlink/param_service.py over sitl/fc/params.py) are
+answered to the companion and ground stations alike (with `require_signed`, signed only); their
+values live here (`stale_min_ms`, the fast loops' switches) and in the failsafe and rotor watch.
+
 It keeps the last M4_FAULT_STATUS of its companion until it is armed again (a restarted
 companion asks for it with MAV_CMD_REQUEST_MESSAGE: the fault and the mission's progress) and
 answers TIMESYNC requests (tc1 = 0) with its clock in ns.
