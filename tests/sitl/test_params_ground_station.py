@@ -12,8 +12,6 @@ import select
 import subprocess
 import sys
 import threading
-import time
-
 import pytest
 from mavsdk.asyncio import Configuration, Mavsdk
 from mavsdk.asyncio.plugins.param import ParamAsync
@@ -21,34 +19,13 @@ from mavsdk.component_type import ComponentType
 from mavsdk.plugins.param import ParamError, ParamResult, ProtocolVersion
 
 from m4.mavlink import mavlink
-from m4.mavlink.link import UdpLink, wait_readable
 from m4.scenario import Scenario
 from sitl.flights.flight_run import free_port
 from sitl.serve import ServeOptions, Server
+from support.ground_station import GroundStation
 
 pytestmark = pytest.mark.flight
 COMPANION = 191
-
-
-class Gcs:
-    def __init__(self):
-        self.link = UdpLink("udpin:127.0.0.1:0", 255, 190)
-        self.heard: list = []
-
-    def wait(self, name: str, match=lambda m: True, count: int = 1, timeout_s: float = 15.0) -> list:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            found = [m for m in self.heard if m.get_type() == name and match(m)]
-            if len(found) >= count:
-                return found
-            wait_readable([self.link], 0.05)
-            self.heard += self.link.receive()
-        raise AssertionError(f"no {count} {name} within {timeout_s} s")
-
-    def ask(self, msg, name: str, match=lambda m: True, count: int = 1) -> list:
-        self.heard.clear()
-        self.link.send(msg)
-        return self.wait(name, match, count)
 
 
 @pytest.fixture(scope="module")
@@ -67,9 +44,9 @@ def rig(tmp_path_factory):
     os.close(write_end)
     with os.fdopen(read_end) as ready:
         assert (ready.readline() if select.select([ready], [], [], 120.0)[0] else "").startswith("ready:")
-    gcs = Gcs()
+    gcs = GroundStation()
     server = Server(ServeOptions(scenario=Scenario(name="hover", duration_s=3600.0), realtime=True,
-                                 mavlink_urls=(f"udpout:127.0.0.1:{port}", f"udpout:127.0.0.1:{gcs.link.local_port}",
+                                 mavlink_urls=(f"udpout:127.0.0.1:{port}", gcs.url,
                                                f"udpout:127.0.0.1:{mavsdk_port}")))
     thread = threading.Thread(target=server.run, daemon=True)
     thread.start()
@@ -80,7 +57,7 @@ def rig(tmp_path_factory):
         server.stop()
         thread.join()
         server.close()
-        gcs.link.close()
+        gcs.close()
         proc.terminate()
         proc.wait(timeout=10)
 

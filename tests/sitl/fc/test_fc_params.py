@@ -8,65 +8,31 @@ import time
 import pytest
 
 from m4.mavlink import mavlink
-from m4.mavlink.link import UdpLink, wait_readable
 from m4.params import NAME_MAX
 from m4.scenario import Scenario
 from sitl.fc.params import STREAMS
 from sitl.serve import ServeError, ServeOptions, Server
 from sitl.standin_companion import StandInCompanion, served
+from support.ground_station import GroundStation
 
 HOVER = Scenario(name="hover", duration_s=600.0)
 
 
-class Gcs:
-    """A ground station (255/190, or another component) on one of the FC's links."""
-
-    def __init__(self, component: int = 190, key: bytes | None = None):
-        self.link = UdpLink("udpin:127.0.0.1:0", 255, component, key=key)
-        self.heard: list = []
-
-    @property
-    def url(self) -> str:
-        return f"udpout:127.0.0.1:{self.link.local_port}"
-
-    def send(self, msg) -> None:
-        """To the FC, once it has been heard (a udpin link answers whoever wrote last)."""
-        if not self.heard:
-            self.wait("HEARTBEAT")
-        self.link.send(msg)
-
-    def wait(self, name: str, match=lambda m: True, count: int = 1, timeout_s: float = 10.0) -> list:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            found = [m for m in self.heard if m.get_type() == name and match(m)]
-            if len(found) >= count:
-                return found
-            wait_readable([self.link], 0.05)
-            self.heard += self.link.receive()
-        raise AssertionError(f"no {count} {name} within {timeout_s} s; heard {sorted({m.get_type() for m in self.heard})}")
-
-    def set(self, name: str, value: float, param_type: int = mavlink.MAV_PARAM_TYPE_REAL32, component: int = 1):
-        self.heard.clear()
-        self.send(mavlink.MAVLink_param_set_message(1, component, name.encode(), value, param_type))
-        return self.wait("PARAM_VALUE", lambda m: m.param_id == name)[0]
-
-
 @pytest.fixture
 def gcs():
-    g = Gcs()
+    g = GroundStation()
     yield g
-    g.link.close()
+    g.close()
 
 
-def _serve(gcs: Gcs, **options):
+def _serve(gcs: GroundStation, **options):
     return served(StandInCompanion(), ServeOptions(scenario=HOVER, realtime=True, **options), more_urls=(gcs.url,))
 
 
 def test_a_ground_station_lists_every_parameter_with_its_index_and_count(gcs):
     with _serve(gcs) as server:
-        gcs.send(mavlink.MAVLink_param_request_list_message(1, 0))
         table = server.vehicle.fc.params.table
-        values = gcs.wait("PARAM_VALUE", count=len(table))
+        values = gcs.ask(mavlink.MAVLink_param_request_list_message(1, 0), "PARAM_VALUE", count=len(table))
     assert len(table) == len(values) >= 9 + len(STREAMS)
     assert sorted(v.param_index for v in values) == list(range(len(table)))
     assert {v.param_count for v in values} == {len(table)}
@@ -88,9 +54,8 @@ def test_a_set_is_answered_with_the_value_in_force_and_acts(gcs):
         assert not fc.rotor_watch.enabled
         answer = gcs.set("SR_ATTITUDE", 30.0)                # 33 ms on the FC's millisecond clock
         assert answer.param_value == pytest.approx(1000.0 / 33, rel=1e-6)
-        gcs.heard.clear()
-        gcs.send(mavlink.MAVLink_param_request_read_message(1, 1, b"", answer.param_index))
-        assert gcs.wait("PARAM_VALUE")[0].param_id == "SR_ATTITUDE"
+        read = gcs.ask(mavlink.MAVLink_param_request_read_message(1, 1, b"", answer.param_index), "PARAM_VALUE")
+        assert read[0].param_id == "SR_ATTITUDE"
         attitude = gcs.wait("ATTITUDE", count=20)
     gaps = {b.time_boot_ms - a.time_boot_ms for a, b in zip(attitude[-10:], attitude[-9:])}
     assert gaps == {33}
@@ -128,7 +93,7 @@ def test_an_unknown_name_is_refused_when_addressed_to_the_fc_and_left_to_others_
 
 def test_with_signing_an_unsigned_set_is_dropped_and_a_signed_one_taken(tmp_path):
     key = bytes(range(1, 33))
-    gcs, signed = Gcs(), Gcs(191, key)
+    gcs, signed = GroundStation(), GroundStation(191, key)
     try:
         with served(StandInCompanion(key=key), ServeOptions(scenario=HOVER, realtime=True, signing_key=key),
                     more_urls=(gcs.url, signed.url)) as server:
@@ -142,8 +107,8 @@ def test_with_signing_an_unsigned_set_is_dropped_and_a_signed_one_taken(tmp_path
             assert fc.stale_min_ms == 200
             assert fc.failsafe.land_after_s == 2.0
     finally:
-        gcs.link.close()
-        signed.link.close()
+        gcs.close()
+        signed.close()
 
 
 def test_what_was_set_is_kept_in_the_params_file_and_in_force_after_a_restart(gcs, tmp_path):
