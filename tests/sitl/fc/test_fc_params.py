@@ -7,13 +7,17 @@ import time
 
 import pytest
 
-from m4.mavlink import mavlink
+from m4.airframe import load_airframe
+from m4.fault_kind import FaultKind
+from m4.mavlink import mavlink, new_mav
 from m4.params import NAME_MAX
 from m4.scenario import Scenario
 from sitl.fc.params import STREAMS
 from sitl.serve import ServeError, ServeOptions, Server
 from sitl.standin_companion import StandInCompanion, served
+from sitl.vehicle import Vehicle
 from support.ground_station import GroundStation
+from support.packets import packed
 
 HOVER = Scenario(name="hover", duration_s=600.0)
 
@@ -150,3 +154,41 @@ def test_autopilot_version_says_parameters_go_out_cast_to_float_as_ardupilot_sen
     assert capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
     assert capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
     assert not capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+
+
+def _as_received(msg, system: int, component: int):
+    """msg as `system/component` sends it, decoded as the FC receives it."""
+    return new_mav(None, 1, 1).parse_buffer(packed([msg], system, component)[0])[0]
+
+
+def _vehicle_with(name: str, value: float, param_type: int) -> Vehicle:
+    """A hovering vehicle at t = 100 ms whose FC a ground station has set `name` on."""
+    vehicle = Vehicle(Scenario(name="hover", duration_s=5.0), load_airframe())
+    vehicle.start(lambda msgs: None)
+    vehicle.advance_to(100, lambda msgs: None)
+    answers = []
+    vehicle.handle([_as_received(mavlink.MAVLink_param_set_message(1, 1, name.encode(), value, param_type), 255, 190)],
+                   answers.extend)
+    assert [m.param_value for m in answers if m.get_type() == "PARAM_VALUE"] == [value]
+    return vehicle
+
+
+@pytest.mark.parametrize("enabled", [1, 0])
+def test_with_m4_rate_fb_ena_0_the_fc_flies_the_setpoint_thrusts_without_its_rate_feedback(enabled):
+    vehicle = _vehicle_with("M4_RATE_FB_ENA", enabled, mavlink.MAV_PARAM_TYPE_INT8)
+    hip = [load_airframe().nominal_hip_rad] * 4
+    gain = [2.0, 0.0, 0.0] + [0.0] * 9                      # rotor 1: 2 N per rad/s of roll-rate error
+    sp = mavlink.MAVLink_m4_setpoint_message(1, 1, 100, 20, [14.7] * 4, hip, [0.0] * 4, 0, [1.0, 0.0, 0.0],
+                                             [0.0, 0.0, 0.0], gain)
+    vehicle.handle([_as_received(sp, 1, 191)], lambda msgs: None)
+    vehicle.advance_to(100 + 2 * 4, lambda msgs: None)
+    thrust = vehicle.fc.measured_state(vehicle.now_ms).thrust_cmd_n
+    assert (thrust[0] > 14.7 + 1.0) == bool(enabled)
+
+
+@pytest.mark.parametrize("enabled", [1, 0])
+def test_with_m4_esc_chk_0_the_fc_no_longer_finds_a_stopped_motor_on_its_escs(enabled):
+    vehicle = _vehicle_with("M4_ESC_CHK", enabled, mavlink.MAV_PARAM_TYPE_INT8)
+    vehicle.fc.set_rotor_loss(4, 1.0, FaultKind.MOTOR)
+    vehicle.advance_to(600, lambda msgs: None)
+    assert vehicle.fc.lost_rotor() == (4 if enabled else None)
