@@ -36,12 +36,13 @@ def test_defaults_fly_the_reference_airframe_at_50_hz_on_the_sitl_link(tmp_path)
 def test_example_file_loads_and_differs_from_the_defaults_only_in_link_feed_log_folder_and_priority():
     c = load_config(EXAMPLE)
     assert c.realtime_priority == 40 and CompanionConfig().realtime_priority == 0   # a laptop: normal priority
+    assert c.params_path == Path("/var/lib/m4/companion.params.toml")       # /etc is read-only to the service
     assert c.link.fc_url == "/dev/ttyTHS1,921600"
     assert c.feed.enabled and c.feed.vehicle == "m4" and c.feed.zenoh_config == Path("/etc/m4/zenoh-companion.json5")
     assert c.log.dir == Path("/var/log/m4")                  # the tests' default is $M4_LOG_DIR
     # A default changed in code and not in the example (or the reverse) shows up here.
     defaults = CompanionConfig()
-    assert dataclasses.replace(c, link=defaults.link, feed=defaults.feed, realtime_priority=0,
+    assert dataclasses.replace(c, link=defaults.link, feed=defaults.feed, realtime_priority=0, params_path=None,
                                log=dataclasses.replace(c.log, dir=defaults.log.dir)) == load_config()
 
 
@@ -54,7 +55,7 @@ def test_example_file_names_every_key_of_every_table():
     c = CompanionConfig()
     keys = (_file_keys(c.nmpc) - {"weights", "control_period_s"} | _file_keys(c.nmpc.weights)
             | _file_keys(c.fault_detector) | _file_keys(c.reference) | _file_keys(c.touchdown)
-            | {"rate_hz", "realtime_priority", "disturbance_gain", "airframe_file", "mission_file", "fc_url",
+            | {"rate_hz", "realtime_priority", "disturbance_gain", "airframe_file", "mission_file", "params_file", "fc_url",
                "signing", "signing_key_file", "signing_state_file", "telemetry_timeout_s", "fc_system_id",
                "fc_component_id"} | _file_keys(c.log))
     missing = sorted(k for k in keys if f"\n{k} = " not in text and f"\n# {k} = " not in text)
