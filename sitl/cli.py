@@ -1,8 +1,8 @@
 """`m4-sitl`: the simulator's command line.
 
     m4-sitl serve [--scenario SCENARIO] [--mavlink URL]... [--realtime] [--viewer] [--tlog PATH] [--truth-log PATH]
-                  [--signing-key FILE] [--signing-state FILE] [--params FILE] [--companion SYS:COMP] [--seed N] [--duration S]
-                  [--lockstep-timeout S] [--link-delay-ms MS] [--link-loss P]
+                  [--signing-key FILE] [--signing-state FILE] [--params FILE] [--companion SYS:COMP] [--seed N]
+                  [--duration S] [--lockstep-timeout S] [--link-delay-ms MS] [--link-loss P]
     m4-sitl physics --autopilot ardupilot [--scenario SCENARIO] [--port N] [--truth-log PATH] [--seed N] [--duration S]
     m4-sitl fly-ardupilot SCENARIO [--out DIR] [--speedup N] [--instance I]
     m4-sitl list

@@ -243,7 +243,7 @@ class Server:
         mode = "real time" if self.options.realtime else "lockstep"
         unsigned = "" if self.options.signing_key else "; MAVLink signing off (no --signing-key): anyone may command it"
         params = self.options.params_path
-        kept = f"; parameters kept in {params}" if params else "; parameters set over MAVLink last this run (no --params)"
+        kept = f"; parameters kept in {params}" if params else "; parameters set last this run (no --params)"
         log(f"serving {self.options.scenario.name!r} in {mode} on "
              + ", ".join(link.endpoint.url for link in self.links) + unsigned + kept)
         try:

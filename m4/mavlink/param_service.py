@@ -98,7 +98,8 @@ class ParamService:
         return [self.statustext(m.MAV_SEVERITY_WARNING, f"{what}: no such parameter")]
 
     def statustext(self, severity: int, text: str) -> m.MAVLink_statustext_message:
-        return m.MAVLink_statustext_message(severity, f"{self.label}: {text}".encode("ascii", "replace")[:STATUSTEXT_MAX])
+        text = f"{self.label}: {text}".encode("ascii", "replace")[:STATUSTEXT_MAX]
+        return m.MAVLink_statustext_message(severity, text)
 
 
 _CARRIED_TYPES = frozenset({m.MAV_PARAM_TYPE_UINT8, m.MAV_PARAM_TYPE_INT8, m.MAV_PARAM_TYPE_UINT16,

@@ -55,7 +55,8 @@ def test_example_file_names_every_key_of_every_table():
     c = CompanionConfig()
     keys = (_file_keys(c.nmpc) - {"weights", "control_period_s"} | _file_keys(c.nmpc.weights)
             | _file_keys(c.fault_detector) | _file_keys(c.reference) | _file_keys(c.touchdown)
-            | {"rate_hz", "realtime_priority", "disturbance_gain", "airframe_file", "mission_file", "params_file", "fc_url",
+            | {"rate_hz", "realtime_priority", "disturbance_gain", "airframe_file", "mission_file", "params_file",
+               "fc_url",
                "signing", "signing_key_file", "signing_state_file", "telemetry_timeout_s", "fc_system_id",
                "fc_component_id"} | _file_keys(c.log))
     missing = sorted(k for k in keys if f"\n{k} = " not in text and f"\n# {k} = " not in text)

@@ -28,7 +28,8 @@ class GroundStation:
                 return found
             wait_readable([self.link], 0.05)
             self.heard += self.link.receive()
-        raise AssertionError(f"no {count} {name} within {timeout_s} s; heard {sorted({m.get_type() for m in self.heard})}")
+        heard = sorted({m.get_type() for m in self.heard})
+        raise AssertionError(f"no {count} {name} within {timeout_s} s; heard {heard}")
 
     def send(self, msg) -> None:
         """To the FC, once it has been heard since the last `ask` (a udpin link answers whoever
