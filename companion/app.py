@@ -242,6 +242,7 @@ class CompanionApp:
         self.fc.send_setpoint(t_ms, self.period_ms, step.setpoint, sent_s, step.fault,
                               self.controller.mission_progress(t_s))
         self.timing.answered(read_s, sent_s)
+        self.controller.prepare()                  # the NMPC's next QP, off the critical path
         if (report := self.timing.report(sent_s)) is not None:
             log.warning("t=%.3f s: %s", t_s, report.text)
             self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, report.statustext)

@@ -33,6 +33,10 @@ on one rotor is exactly what the detector must find itself, so it is not handed 
 NMPC's bounds are the detector's (thrust_bound_n); a fault is announced at each confirmation
 (after a recovery, a second fault is announced too).
 
+The real-time iteration ([nmpc] scheme = "rti"): `step` is its feedback (one QP); `prepare`,
+called once the setpoint has left, is its preparation for the next step, at the state the plan
+predicts then, along the reference from then, with this step's bounds and disturbance.
+
 Takeover: at the flight's first step and after a gap in which our setpoints went stale at the
 FC (its failsafe flew; FC_STALE_PERIODS, FC_STALE_MIN_S: the FC contract), the thrusts ramp
 from what the FC reports commanding (companion.core.takeover), and, when the FC says its
@@ -176,6 +180,7 @@ class Controller:
         self.applied = AppliedThrust(self.period_s)
         self.ramp = TakeoverRamp(self.period_s)
         self._hip_goal: HipGoal | None = None
+        self._solved: tuple[float, float, np.ndarray, np.ndarray] | None = None   # (time_s, lead_s, bound, d)
         self._last_step_s: float | None = None
         self._takeover = True             # the next step takes control from the FC's own controller
 
@@ -214,6 +219,7 @@ class Controller:
         self.sent.clear()
         self.applied.clear()
         self._hip_goal = None
+        self._solved = None
 
     def restart(self) -> None:
         """The flight controller rebooted: its clock, and so the mission's time, starts over.
@@ -281,8 +287,24 @@ class Controller:
                      shortfall_cover=self.rate_feedback.cover(x_plan[rom.HIP], fault.state is FaultState.CONFIRMED))
         self.sent.add(SentCommand(time_s, x, np.concatenate([sp.thrust_n, res.u[rom.HIP_ACCEL]]), sp.rate_feedback,
                                   sp.shortfall_cover))
+        self._solved = (time_s, lead_s, fault.thrust_bound_n, d)
         return ControlStep(time_s=time_s, setpoint=sp, state=x_plan, fault=fault, fault_confirmed_now=confirmed_now,
                            disturbance=d, lead_s=lead_s, reference=x_ref, nmpc=res, took_over=took_over)
+
+    def prepare(self) -> None:
+        """After the last step's setpoint was sent: the NMPC prepares the next step's solve (the
+        real-time iteration's preparation; nothing with the SQP, or when the last step solved
+        nothing: what was prepared before is dropped). The next step is expected one period on,
+        at the same lead."""
+        solved, self._solved = self._solved, None
+        if solved is None or self.flight is None:
+            self.nmpc.unprepare()
+            return
+        time_s, lead_s, thrust_bound_n, d = solved
+        c = self.nmpc.config
+        x_ref = self.flight.reference.reference(self.flight.mission_time_s(time_s + self.period_s) + lead_s,
+                                                c.horizon, c.dt_s)
+        self.nmpc.prepare(x_ref, thrust_bound_n, d)
 
     # ------------------------------------------------------------------------------------------
     def _note_gap(self, time_s: float) -> None:
@@ -398,6 +420,7 @@ class Controller:
         self.ramp.end()
         self.sent.clear()
         self._hip_goal = None
+        self._solved = None
         return ControlStep(time_s=time_s, setpoint=sp, state=x, fault=fault, fault_confirmed_now=confirmed_now,
                            disturbance=d, crash=crash, crash_now=crash_now)
 
@@ -408,5 +431,6 @@ class Controller:
                            fault.thrust_bound_n, x[rom.HIP])
         self.sent.clear()
         self._hip_goal = None
+        self._solved = None
         return ControlStep(time_s=time_s, setpoint=sp, state=x, fault=fault, fault_confirmed_now=confirmed_now,
                            disturbance=d)

@@ -20,24 +20,32 @@ from companion.core.casadi_call import BufferedFunction
 from companion.core.rom import ND, NU, NX
 
 
-def linearisation(step: ca.Function, horizon: int) -> ca.Function:
-    """(x0 (20), U (8, N), d (6)) -> X (20, N+1), A (20, 20 N), B (20, 8 N)."""
+def linearisation(step: ca.Function, horizon: int, disturbance_jacobian: bool = False) -> ca.Function:
+    """(x0 (20), U (8, N), d (6)) -> X (20, N+1), A (20, 20 N), B (20, 8 N), and with
+    disturbance_jacobian D (20, 6 N), D_k = dx+/dd (the real-time iteration's feedback moves
+    its QP with the disturbance estimate)."""
     x, u, d = ca.SX.sym("x", NX), ca.SX.sym("u", NU), ca.SX.sym("d", ND)
     x_next = step(x, u, d)
-    stage = ca.Function("m4_nmpc_stage", [x, u, d], [x_next, ca.jacobian(x_next, x), ca.jacobian(x_next, u)])
+    jacobians = [ca.jacobian(x_next, x), ca.jacobian(x_next, u)]
+    if disturbance_jacobian:
+        jacobians.append(ca.jacobian(x_next, d))
+    stage = ca.Function("m4_nmpc_stage", [x, u, d], [x_next, *jacobians])
     rollout = stage.mapaccum("m4_nmpc_rollout", horizon)
     x0, us, dm = ca.MX.sym("x0", NX), ca.MX.sym("U", NU, horizon), ca.MX.sym("d", ND)
-    xs, a, b = rollout(x0, us, ca.repmat(dm, 1, horizon))
-    return ca.Function(f"m4_nmpc_lin_n{horizon}", [x0, us, dm], [ca.horzcat(x0, xs), ca.densify(a), ca.densify(b)],
-                       ["x0", "U", "d"], ["X", "A", "B"])
+    xs, *jac = rollout(x0, us, ca.repmat(dm, 1, horizon))
+    names = ["X", "A", "B", "D"][:1 + len(jac)]
+    suffix = "_d" if disturbance_jacobian else ""
+    return ca.Function(f"m4_nmpc_lin_n{horizon}{suffix}", [x0, us, dm], [ca.horzcat(x0, xs), *map(ca.densify, jac)],
+                       ["x0", "U", "d"], names)
 
 
 class Linearisation:
     """Evaluates a `linearisation` function on preallocated numpy buffers (companion.core.casadi_call).
 
     Call with (x0 (20,), us (N, 8), d (6,)); returns fresh arrays xs (N+1, 20),
-    a (N, 20, 20) and b (N, 20, 8) with a[k] = A_k, b[k] = B_k (NaN when the evaluation
-    fails: reported like a diverged rollout, the caller falls back).
+    a (N, 20, 20) and b (N, 20, 8) with a[k] = A_k, b[k] = B_k, and c (N, 20, 6) with
+    c[k] = D_k when the function has D (NaN when the evaluation fails: reported like a
+    diverged rollout, the caller falls back).
     """
 
     def __init__(self, fn: ca.Function, horizon: int):
@@ -46,11 +54,10 @@ class Linearisation:
 
     def __call__(self, x0: np.ndarray, us: np.ndarray, d: np.ndarray):
         n = self.horizon
-        xs, a, b = self._fn.evaluate(x0, us.ravel(), d)
+        xs, *jac = self._fn.evaluate(x0, us.ravel(), d)
         # Column-major outputs: X (20, N+1) is xs (N+1, 20); A (20, 20N) holds A_k^T blocks.
         return (xs.reshape(n + 1, NX).copy(),
-                a.reshape(n, NX, NX).transpose(0, 2, 1).copy(),
-                b.reshape(n, NU, NX).transpose(0, 2, 1).copy())
+                *(m.reshape(n, m.size // (n * NX), NX).transpose(0, 2, 1).copy() for m in jac))
 
 
 def sensitivities(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -64,6 +71,18 @@ def sensitivities(a: np.ndarray, b: np.ndarray) -> np.ndarray:
             gamma[rows, :k * NU] = a[k] @ gamma[prev, :k * NU]
         gamma[rows, k * NU:(k + 1) * NU] = b[k]
     return gamma
+
+
+def parameter_sensitivities(a: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """(N*20, 26): row block k is d x_{k+1} / d(x0, d), from A_k = a[k] and D_k = c[k]."""
+    horizon = a.shape[0]
+    sens = np.zeros((horizon * NX, NX + ND))
+    prev = np.hstack([np.eye(NX), np.zeros((NX, ND))])
+    for k in range(horizon):
+        block = a[k] @ prev
+        block[:, NX:] += c[k]
+        sens[k * NX:(k + 1) * NX] = prev = block
+    return sens
 
 
 class TrackingCost:
@@ -85,10 +104,22 @@ class TrackingCost:
     def gauss_newton(self, gamma: np.ndarray, xs: np.ndarray, us: np.ndarray, x_ref: np.ndarray,
                      u_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Hessian and gradient of the cost in dU, with dX = Gamma dU (x0 is fixed)."""
+        hess, grad, _ = self.gauss_newton_parts(gamma, xs, us, x_ref, u_ref)
+        return hess, grad
+
+    def gauss_newton_parts(self, gamma: np.ndarray, xs: np.ndarray, us: np.ndarray, x_ref: np.ndarray,
+                           u_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """gauss_newton's Hessian and gradient, and (2 Q Gamma)^T (N*8, N*20): the gradient's
+        change per unit of change of the states 1..N or, negated, of their reference."""
         wg = self._qw2 * gamma
         hess = gamma.T @ wg + self._r_hess
         grad = wg.T @ (xs[1:] - x_ref[1:]).ravel() + self._rw2 * (us - u_ref).ravel()
-        return hess, grad
+        return hess, grad, wg.T
+
+    @property
+    def input_gradient_scale(self) -> np.ndarray:
+        """(N*8,) the gradient's change per unit of change of the inputs (negated: of their reference)."""
+        return self._rw2
 
 
 @dataclass(frozen=True)

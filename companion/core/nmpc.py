@@ -11,6 +11,12 @@ so that a measured state just outside a bound never makes the QP infeasible.
 Fault-agnostic: each rotor's thrust upper bound is an argument of `solve`; a fault lowers a
 bound and nothing else changes. A solve never returns NaN or an input out of its bounds: on
 bad input or solver failure it returns a bounded fallback and says so (`fallback=True`).
+
+Two schemes ([nmpc] scheme): "sqp" iterates to the optimum at every solve (with a line search
+on a merit function); "rti", the real-time iteration, takes one full QP step per solve from a
+QP that `prepare` built before the state arrived (companion.core.rti), so the time between
+the state and the command is one QP. When nothing was prepared (the first solve, after a
+reset or a fallback) the feedback prepares at the arrived state itself ("rti_unprepared").
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
 from companion.core import rom
+from companion.core.casadi_call import BufferedFunction
 from companion.core.codegen_cache import compiled
 from companion.core.condensing import (
     FirstPeriodHipRows,
@@ -35,6 +42,7 @@ from companion.core.condensing import (
 from companion.core.control_types import thrust_bounds
 from companion.core.nmpc_config import NmpcConfig
 from companion.core.nmpc_targets import hover_targets
+from companion.core.rti import PreparedQp, prepare_qp
 from companion.core.rom import ND, NU, NX
 
 _BIG = 1e30                  # DAQP's "no bound"
@@ -53,7 +61,8 @@ class NmpcResult:
     u_pred: np.ndarray       # (N, 8)
     solve_ms: float
     iterations: int
-    status: str              # converged | max_iterations | time_budget | no_progress | qp_failed | invalid_input
+    status: str              # converged | max_iterations | time_budget | no_progress | rti | rti_unprepared |
+                             # qp_failed | invalid_input
     ok: bool
     cost: float
     fallback: bool
@@ -68,8 +77,16 @@ class Nmpc:
         config.validate()
         n = config.horizon
         self.rom = rom.build_rom(airframe, config.dt_s, config.rk4_substeps)
-        lin = linearisation(self.rom.step, n)
-        self._rollout = Linearisation(compiled(lin) if config.codegen else lin, n)
+        build = compiled if config.codegen else (lambda fn: fn)
+        self._rollout = Linearisation(build(linearisation(self.rom.step, n)), n)
+        self._rti_rollout = self._advance = None
+        if config.scheme == "rti":
+            self._rti_rollout = Linearisation(build(linearisation(self.rom.step, n, disturbance_jacobian=True)), n)
+            period_s = config.dt_s * config.warm_start_shift
+            self._advance = BufferedFunction(rom.rk4_step(self.rom.f, period_s, config.rk4_substeps))
+        self._prepared: PreparedQp | None = None
+        self._planned: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None   # (x0, u0, d) of the last plan
+        self.prepare_ms = 0.0            # how long the last `prepare` took
 
         fixed = config.fixed_hip_rad
         if fixed is not None and not airframe.hip_min_rad <= fixed <= airframe.hip_max_rad:
@@ -113,6 +130,8 @@ class Nmpc:
         """Drop the warm start (e.g. after a jump of the reference)."""
         self._guess = None
         self._duals = None
+        self._prepared = None
+        self._planned = None
 
     def input_bounds(self, thrust_bound_n) -> tuple[np.ndarray, np.ndarray]:
         """(lo, hi) of one stage's input; a non-finite thrust bound means the airframe's maximum."""
@@ -131,6 +150,29 @@ class Nmpc:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):   # every result is checked
             return self._solve(x0, x_ref, thrust_bound_n, disturbance)
 
+    def prepare(self, x_ref, thrust_bound_n, disturbance=None) -> None:
+        """The real-time iteration's preparation of the next solve, to call between two solves
+        (off the critical path): the QP linearised at the state the last plan predicts one
+        control period on, for the next solve's reference x_ref (N+1, 20), bounds and
+        disturbance. Nothing in the sqp scheme, or without a plan to go on (the next solve then
+        prepares at its own state)."""
+        t0 = time.perf_counter()
+        planned, self._planned, self._prepared = self._planned, None, None
+        if self.config.scheme != "rti" or planned is None:
+            return
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):   # every result is checked
+            x_ref = np.asarray(x_ref, dtype=float)
+            d = _finite_disturbance(disturbance)
+            x0 = self._advance(*planned[:2], d)[0].ravel()
+            if x_ref.shape == (self.config.horizon + 1, NX) and np.isfinite(x_ref).all() and np.isfinite(x0).all():
+                lo, hi = self.input_bounds(thrust_bound_n)
+                self._prepared = self._prepare_at(x0, x_ref, d, lo, hi)
+        self.prepare_ms = _ms_since(t0)
+
+    def unprepare(self) -> None:
+        """Drop what `prepare` built: the next solve is not the one it was prepared for."""
+        self._prepared = self._planned = None
+
     # ----------------------------------------------------------------- internals
     def _solve(self, x0, x_ref, thrust_bound_n, disturbance) -> NmpcResult:
         t0 = time.perf_counter()
@@ -141,12 +183,54 @@ class Nmpc:
         if x0.size != NX or x_ref.shape != (n + 1, NX):
             raise ValueError(f"x0 must have {NX} entries and x_ref shape ({n + 1}, {NX}); "
                              f"got {x0.size} and {x_ref.shape}")
-        d = np.zeros(ND) if disturbance is None else np.asarray(disturbance, dtype=float).reshape(ND)
-        d = np.where(np.isfinite(d), d, 0.0)
+        d = _finite_disturbance(disturbance)
         if not (np.all(np.isfinite(x0)) and np.all(np.isfinite(x_ref))):
             return self._fallback(x0, lo, hi, "invalid_input", 0, t0)
+        if self.config.scheme == "rti":
+            return self._rti(x0, x_ref, d, lo, hi, t0)
         ref, u_ref = self.targets(x0, x_ref, d)
         return self._sqp(x0, ref, u_ref, d, lo, hi, t0)
+
+    def _prepare_at(self, x0, x_ref, d, lo, hi) -> PreparedQp | None:
+        ref, u_ref = self.targets(x0, x_ref, d)
+        return prepare_qp(self._rti_rollout, self.cost, x0, self._initial_guess(u_ref, lo, hi), d, ref, u_ref,
+                          _LEVENBERG)
+
+    def _rti(self, x0, x_ref, d, lo, hi, t0) -> NmpcResult:
+        """The feedback: the prepared QP moved to (x0, x_ref, d), one QP, the full step."""
+        prep, status, self._prepared = self._prepared, "rti", None
+        if prep is None:
+            prep, status = self._prepare_at(x0, x_ref, d, lo, hi), "rti_unprepared"
+            if prep is None:
+                return self._fallback(x0, lo, hi, "qp_failed", 1, t0)
+        n = self.config.horizon
+        ref, u_ref = self.targets(x0, x_ref, d)
+        xs = prep.states(x0, d)
+        step = self._qp_step(prep.hess, prep.gradient(xs, ref, u_ref), x0, xs, prep.us, prep.gamma,
+                             np.tile(lo, n), np.tile(hi, n))
+        if step is None:
+            return self._fallback(x0, lo, hi, "qp_failed", 1, t0)
+        us = np.clip(prep.us + step, lo, hi)
+        xs[1:] += (prep.gamma @ step.ravel()).reshape(n, NX)
+        if not np.isfinite(xs).all():
+            return self._fallback(x0, lo, hi, "qp_failed", 1, t0)
+        self._guess = us.copy()
+        self._planned = (x0, us[0].copy(), d)
+        return NmpcResult(u=us[0].copy(), x_pred=xs, u_pred=us, solve_ms=_ms_since(t0), iterations=1, status=status,
+                          ok=True, cost=self.cost.value(xs, us, ref, u_ref), fallback=False)
+
+    def _qp_step(self, hess, grad, x0, xs, us, gamma, lo_all, hi_all) -> np.ndarray | None:
+        """The QP's step dU (N, 8) within the input bounds (lo_all, hi_all: every stage's) and the
+        state rows linearised at xs; None when DAQP fails. Its duals warm-start the next QP."""
+        rows, row_lo, row_hi = self._constraint_rows(x0, xs, us, gamma)
+        upper = np.concatenate([hi_all - us.ravel(), row_hi])
+        lower = np.concatenate([lo_all - us.ravel(), row_lo])
+        step, _, flag, info = daqp.solve(hess, grad, rows, upper, lower, self._sense,
+                                         dual_start=self._duals, iter_limit=_DAQP_ITER_LIMIT)
+        if flag not in _DAQP_OK or not np.isfinite(step).all():
+            return None
+        self._duals = np.asarray(info["lam"])
+        return np.asarray(step).reshape(self.config.horizon, NU)
 
     def _merit(self, x0, xs, us, ref, u_ref):
         violation = self.rows.violation(xs)
@@ -186,15 +270,9 @@ class Nmpc:
             gamma = sensitivities(a, b)
             hess, grad = self.cost.gauss_newton(gamma, xs, us, ref, u_ref)
             hess[self._diagonal] += _LEVENBERG * hess[self._diagonal].max()
-            rows, row_lo, row_hi = self._constraint_rows(x0, xs, us, gamma)
-            upper = np.concatenate([hi_all - us.ravel(), row_hi])
-            lower = np.concatenate([lo_all - us.ravel(), row_lo])
-            step, _, flag, info = daqp.solve(hess, grad, rows, upper, lower, self._sense,
-                                             dual_start=self._duals, iter_limit=_DAQP_ITER_LIMIT)
-            if flag not in _DAQP_OK or not np.isfinite(step).all():
+            step = self._qp_step(hess, grad, x0, xs, us, gamma, lo_all, hi_all)
+            if step is None:
                 return self._fallback(x0, lo, hi, "qp_failed", it, t0)
-            self._duals = np.asarray(info["lam"])
-            step = np.asarray(step).reshape(n, NU)
             decrease = float(grad @ step.ravel())
             if -decrease <= self.config.cost_tol_rel * merit:
                 status = "converged"
@@ -239,8 +317,15 @@ class Nmpc:
                 xs = rolled
         self._guess = None
         self._duals = None
+        self._prepared = self._planned = None
         return NmpcResult(u=us[0].copy(), x_pred=xs, u_pred=us, solve_ms=_ms_since(t0), iterations=iterations,
                           status=status, ok=False, cost=float("inf"), fallback=True)
+
+
+def _finite_disturbance(disturbance) -> np.ndarray:
+    """(6,) the disturbance estimate, zero where it is not finite (None: none)."""
+    d = np.zeros(ND) if disturbance is None else np.asarray(disturbance, dtype=float).reshape(ND)
+    return np.where(np.isfinite(d), d, 0.0)
 
 
 def _ms_since(t0: float) -> float:

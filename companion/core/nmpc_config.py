@@ -31,6 +31,8 @@ import numpy as np
 
 from companion.core import rom
 
+SCHEMES = ("sqp", "rti")
+
 
 @dataclass(frozen=True)
 class NmpcWeights:
@@ -77,9 +79,11 @@ class NmpcConfig:
     control_period_s: how often the controller is re-solved (None: every dt_s); the warm start
     is the previous plan shifted by control_period_s / dt_s stages, and when it is shorter than
     dt_s the hip bounds are also enforced at its end (the only stretch of a plan ever flown).
-    max_iterations=1 makes it a real-time iteration (one QP per solve). time_budget_share: the
-    share of the control period a solve may take; it stops iterating when the next iteration
-    would end past it (the plan so far is used; 0: no budget).
+    time_budget_share: the share of the control period a solve may take; it stops iterating when
+    the next iteration would end past it (the plan so far is used; 0: no budget).
+    scheme: "sqp" iterates the Gauss-Newton SQP towards the optimum at every solve; "rti" is the
+    real-time iteration (companion.core.rti): one QP per solve, prepared by `Nmpc.prepare`
+    before the state arrives (max_iterations, cost_tol_rel and the time budget are the SQP's).
     """
 
     horizon: int = 5
@@ -92,10 +96,13 @@ class NmpcConfig:
     max_iterations: int = 10
     cost_tol_rel: float = 1e-5         # converged when the QP step would lower the cost by less than this
     time_budget_share: float = 0.0     # of the control period (dt_s when none is given); 0: unbounded
+    scheme: str = "sqp"
     codegen: bool = True               # compile the linearisation to C (cached); False: CasADi's VM (the
                                        # controller's detector and disturbance estimate follow it)
 
     def validate(self) -> None:
+        if self.scheme not in SCHEMES:
+            raise ValueError(f"NmpcConfig.scheme must be one of {', '.join(map(repr, SCHEMES))}, got {self.scheme!r}")
         if self.horizon < 1:
             raise ValueError(f"NmpcConfig.horizon must be >= 1, got {self.horizon}")
         if not (math.isfinite(self.dt_s) and self.dt_s > 0):
