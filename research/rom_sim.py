@@ -128,6 +128,7 @@ def simulate(nmpc: Nmpc, x_init: np.ndarray, reference: Callable[[float], np.nda
         delivered[k] = np.clip(res.u[rom.THRUST] * sim.mismatch.thrust_scale, 0.0, thrust_limits(af, sim, t))
         u_plant[rom.THRUST] = delivered[k]
         xs[k + 1] = np.asarray(plant(xs[k], u_plant, d_true)).ravel()
+        nmpc.prepare(reference(t + period), known[k], d)          # the real-time iteration's preparation
         if kick_steps is not None and (k + 1) % kick_steps == 0:
             xs[k + 1, rom.V] += rng.uniform(-0.5, 0.5, 3)
             xs[k + 1, rom.RATES] += rng.uniform(-1.0, 1.0, 3)

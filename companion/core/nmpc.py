@@ -169,6 +169,14 @@ class Nmpc:
                 self._prepared = self._prepare_at(x0, x_ref, d, lo, hi)
         self.prepare_ms = _ms_since(t0)
 
+    def plan_cost(self, x0, x_ref, us, disturbance=None) -> float:
+        """The cost of the inputs us (N, 8) from x0 (20,) along x_ref (N+1, 20), by the model's
+        rollout (a real-time iteration's own `cost` is its linearisation's)."""
+        d = _finite_disturbance(disturbance)
+        x0 = np.asarray(x0, dtype=float).reshape(NX)
+        ref, u_ref = self.targets(x0, np.asarray(x_ref, dtype=float), d)
+        return self.cost.value(self._rollout(x0, np.asarray(us, dtype=float), d)[0], us, ref, u_ref)
+
     def unprepare(self) -> None:
         """Drop what `prepare` built: the next solve is not the one it was prepared for."""
         self._prepared = self._planned = None

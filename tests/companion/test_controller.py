@@ -315,3 +315,22 @@ def test_the_disturbance_estimate_waits_until_the_link_has_measured_the_lead(lea
         s = step(c, k * PERIOD, x, None, None, lead_s, reported)
     assert np.any(s.disturbance != 0.0) == moves, s.disturbance
     assert s.lead_s == 0.0
+
+
+def test_the_real_time_iteration_feeds_back_what_prepare_built_after_the_last_send():
+    rti = dataclasses.replace(SETTINGS, nmpc=dataclasses.replace(CONFIG.nmpc, scheme="rti"))
+    c = Controller(rti)
+    x = rom.hover_state(AF)
+    x[rom.V] += (0.2, -0.1, 0.1)
+    assert step(c, 0.0, x).nmpc.status == "rti_unprepared"        # nothing prepared before the first step
+    c.prepare()
+    prepared = step(c, PERIOD, x)
+    assert prepared.nmpc.status == "rti" and prepared.nmpc.ok
+    assert_safe(prepared.setpoint, [AF.thrust_max_n] * ROTOR_COUNT)
+    assert step(c, 2 * PERIOD, x).nmpc.status == "rti_unprepared"  # no prepare() since the last step
+    c.prepare()
+    bad = x.copy()
+    bad[rom.V.start] = np.nan
+    assert step(c, 3 * PERIOD, bad).nmpc is None                  # no solve: what was prepared is stale
+    c.prepare()
+    assert step(c, 4 * PERIOD, x).nmpc.status == "rti_unprepared"

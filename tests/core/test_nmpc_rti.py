@@ -1,0 +1,129 @@
+"""The real-time iteration: its feedback is the QP built at the arrived state, to first order;
+it reaches the SQP's optimum on a held problem; whatever comes in, a bounded command."""
+
+import numpy as np
+import pytest
+
+from m4.airframe import load_airframe
+from companion.core import rom
+from companion.core.nmpc import Nmpc
+from companion.core.nmpc_config import NmpcConfig
+
+AF = load_airframe()
+N = 5
+PERIOD_S = 0.02
+FULL = np.full(4, AF.thrust_max_n)
+ROTOR_4_OFF = np.array([AF.thrust_max_n] * 3 + [0.0])
+WIND = np.array([2.0, -1.0, 1.0, 0.02, -0.02, 0.0])
+
+
+@pytest.fixture(scope="module")
+def rti():
+    return Nmpc(AF, NmpcConfig(control_period_s=PERIOD_S, scheme="rti"))
+
+
+def hover_ref():
+    return np.tile(rom.hover_state(AF), (N + 1, 1))
+
+
+def moving_state():
+    x = rom.hover_state(AF)
+    x[rom.V] += (0.4, -0.3, 0.2)
+    x[rom.RATES] += (0.6, -0.4, 0.1)
+    return x
+
+
+def prepared(rti, x0, d):
+    """The QP the RTI prepares after a solve at x0: at x0 one control period on, along the plan shifted."""
+    rti.reset()
+    rti.solve(x0, hover_ref(), FULL, d)
+    rti.prepare(hover_ref(), FULL, d)
+    return rti._prepared
+
+
+def offset(rng, scale):
+    dx = np.zeros(rom.NX)
+    dx[rom.V] = rng.uniform(-1, 1, 3) * 0.1 * scale
+    dx[rom.EULER] = rng.uniform(-1, 1, 3) * 0.05 * scale
+    dx[rom.RATES] = rng.uniform(-1, 1, 3) * 0.2 * scale
+    return dx, rng.uniform(-1, 1, 6) * np.r_[1.0, 1.0, 1.0, 0.02, 0.02, 0.02] * scale
+
+
+def test_the_feedback_moves_the_predicted_states_to_the_arrived_state_and_disturbance_to_first_order(rti):
+    # Sign or block errors in the sensitivities to the state or the disturbance leave a
+    # first-order error; a right embedding leaves a second-order one: a 10x smaller change,
+    # about 100x less error against the model's own rollout.
+    prep = prepared(rti, moving_state(), WIND)
+    rollout = rom.rk4_step(rti.rom.f, rti.config.dt_s)
+
+    def error(scale):
+        dx, dd = offset(np.random.default_rng(0), scale)
+        moved = prep.states(prep.x0 + dx, prep.d + dd)
+        x = prep.x0 + dx
+        errors = []
+        for k in range(N):
+            x = np.asarray(rollout(x, prep.us[k], prep.d + dd)).ravel()
+            errors.append(np.abs(moved[k + 1] - x).max())
+        return max(errors)
+
+    assert error(0.1) < error(1.0) / 50
+
+
+def test_the_feedback_moves_the_gradient_exactly_with_the_targets(rti):
+    prep = prepared(rti, moving_state(), WIND)
+    ref, u_ref = rti.targets(prep.x0, hover_ref() + 0.3, prep.d + np.r_[1.0, 0.0, -2.0, 0.0, 0.0, 0.0])
+    _, expected, _ = rti.cost.gauss_newton_parts(prep.gamma, prep.xs, prep.us, ref, u_ref)
+    assert prep.gradient(prep.xs, ref, u_ref) == pytest.approx(expected, rel=1e-9, abs=1e-9)
+
+
+def test_on_a_held_problem_it_reaches_the_sqp_optimum(rti):
+    sqp = Nmpc(AF, NmpcConfig(control_period_s=PERIOD_S, max_iterations=50, cost_tol_rel=1e-10))
+    x0 = moving_state()
+    step = rom.rk4_step(rti.rom.f, PERIOD_S)
+    rti.reset()
+    x = x0
+    for _ in range(80):                     # a closed loop on the model itself, rotor 4 lost
+        res = rti.solve(x, hover_ref(), ROTOR_4_OFF)
+        assert res.ok and res.status in ("rti", "rti_unprepared")
+        x = np.asarray(step(x, res.u, np.zeros(6))).ravel()
+        rti.prepare(hover_ref(), ROTOR_4_OFF)
+    res = rti.solve(x, hover_ref(), ROTOR_4_OFF)
+    best = sqp.solve(x, hover_ref(), ROTOR_4_OFF)
+    assert res.status == "rti" and best.ok
+    assert res.u[rom.THRUST] == pytest.approx(best.u[rom.THRUST], abs=0.05)
+    assert res.cost == pytest.approx(best.cost, rel=1e-3)
+
+
+@pytest.mark.parametrize("bad", ["state", "reference", "bounds", "disturbance"])
+def test_whatever_comes_in_the_command_is_finite_and_within_the_bounds(rti, bad):
+    rng = np.random.default_rng(5)
+    rti.reset()
+    for k in range(6):
+        x0, ref, bound, d = moving_state(), hover_ref(), rng.uniform(0.0, AF.thrust_max_n, 4), WIND.copy()
+        if k % 2:
+            {"state": x0, "reference": ref[2], "bounds": bound, "disturbance": d}[bad][k % 3] = np.nan
+        rti.prepare(ref, bound, d)
+        res = rti.solve(x0, ref, bound, d)
+        lo, hi = rti.input_bounds(bound)
+        assert np.all(np.isfinite(res.u)) and np.all(res.u >= lo) and np.all(res.u <= hi)
+        assert np.all(np.isfinite(res.u_pred)) and res.fallback == (not res.ok)
+
+
+def test_a_dropped_preparation_is_not_fed_back(rti):
+    rti.reset()
+    rti.solve(moving_state(), hover_ref(), FULL)
+    rti.prepare(hover_ref(), FULL)
+    rti.unprepare()
+    assert rti.solve(moving_state(), hover_ref(), FULL).status == "rti_unprepared"
+
+
+def test_the_sqp_scheme_prepares_nothing():
+    sqp = Nmpc(AF, NmpcConfig(control_period_s=PERIOD_S))
+    sqp.solve(moving_state(), hover_ref(), FULL)
+    sqp.prepare(hover_ref(), FULL)
+    assert sqp.solve(moving_state(), hover_ref(), FULL).status == "converged"
+
+
+def test_an_unknown_scheme_is_rejected_by_name():
+    with pytest.raises(ValueError, match="scheme"):
+        NmpcConfig(scheme="fast").validate()
