@@ -84,6 +84,7 @@ def _ms(value_ms: float | None, decimals: int) -> str:
 def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.INFO, format="m4-companion: %(message)s", stream=sys.stderr)
     from companion.app import close_app, open_app
+    from companion.core.codegen_cache import CodegenError
     from companion.realtime import use_realtime
     from m4.mavlink.link import LinkError
 
@@ -91,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
         _check_ready_fd(args.ready_fd)
         config = _config(args)
         app = open_app(config)
-    except (ConfigError, LinkError) as e:
+    except (ConfigError, LinkError, CodegenError) as e:
         print(f"m4-companion: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
     for sig in (signal.SIGINT, signal.SIGTERM):

@@ -38,7 +38,7 @@ def cache_dir() -> Path:
 def _compiler() -> str:
     cc = os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc")
     if not cc:
-        raise CodegenError("no C compiler found (install gcc, or set NmpcConfig(codegen=False))")
+        raise CodegenError("no C compiler found: install gcc, or set [nmpc] codegen = false (NmpcConfig(codegen=False))")
     return cc
 
 
@@ -60,8 +60,12 @@ def compiled(fn: ca.Function) -> ca.Function:
                 raise CodegenError(f"cannot create the cache directory {lib.parent} ({e.strerror}); "
                                    f"set {CACHE_ENV} to a writable one") from None
             partial = lib.with_suffix(f".{os.getpid()}.tmp")
-            result = subprocess.run([cc, *COMPILER_FLAGS, "-o", str(partial), str(Path(tmp, src_name)), "-lm"],
-                                    capture_output=True, text=True, check=False)
+            try:
+                result = subprocess.run([cc, *COMPILER_FLAGS, "-o", str(partial), str(Path(tmp, src_name)), "-lm"],
+                                        capture_output=True, text=True, check=False)
+            except OSError as e:
+                raise CodegenError(f"cannot run the C compiler {cc} ({e.strerror}): install gcc, or set "
+                                   f"[nmpc] codegen = false") from None
             if result.returncode != 0:
                 partial.unlink(missing_ok=True)
                 raise CodegenError(f"compiling {fn.name()} failed: {result.stderr.strip()[:2000]}")

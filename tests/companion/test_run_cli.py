@@ -78,6 +78,13 @@ def test_a_mission_file_without_a_mission_is_refused(capsys, tmp_path):
     assert code == 2 and len(lines) == 1 and "[mission]" in lines[0]
 
 
+def test_no_c_compiler_for_the_nmpc_is_one_clear_line_and_exit_2(capsys, tmp_path, monkeypatch, signed):
+    monkeypatch.setenv("M4_CACHE_DIR", str(tmp_path / "cache"))        # nothing compiled yet
+    monkeypatch.setenv("CC", str(tmp_path / "no-such-cc"))
+    code, lines = run_cli(capsys, "--fc", "udpin:127.0.0.1:0", *signed)
+    assert code == 2 and len(lines) == 1 and "C compiler" in lines[0] and "codegen = false" in lines[0], lines
+
+
 def test_a_port_in_use_is_one_clear_line_and_exit_2(capsys, signed):
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as busy:
         busy.bind(("127.0.0.1", 0))
