@@ -15,7 +15,6 @@ over the whole flight, the 0.5 s after the fault and the 0.5 s after each kick.
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 
@@ -60,7 +59,7 @@ def fly(scheme: str, sim: SimConfig) -> _Recorded:
 
 def cost_gaps(rti: _Recorded, period_s: float) -> np.ndarray:
     """(K,) relative gap of each RTI plan's cost to the converged SQP's optimum of its problem."""
-    optimum = Nmpc(rti.af, NmpcConfig(control_period_s=period_s, max_iterations=50, cost_tol_rel=1e-9))
+    optimum = Nmpc(rti.af, NmpcConfig(control_period_s=period_s, max_iterations=50, cost_tol_rel=1e-9, scheme="sqp"))
     gaps = np.full(len(rti.results), np.nan)
     for k, ((x0, x_ref, bound, d), res) in enumerate(zip(rti.problems, rti.results)):
         best = optimum.solve(x0, x_ref, bound, d)

@@ -103,7 +103,7 @@ def run_bench(horizon: int = 5, dt_s: float = 0.1, solves: int = 300, seed: int 
     """control_period_s: re-solve this often (None: every dt_s)."""
     af = load_airframe()
     t0 = time.perf_counter()
-    nmpc = Nmpc(af, NmpcConfig(horizon=horizon, dt_s=dt_s, control_period_s=control_period_s))
+    nmpc = Nmpc(af, NmpcConfig(horizon=horizon, dt_s=dt_s, control_period_s=control_period_s, scheme="sqp"))
     setup_s = time.perf_counter() - t0
     log = bench_sequence(af, nmpc, solves, seed)
     ipopt = IpoptReference(nmpc)

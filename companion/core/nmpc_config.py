@@ -96,7 +96,7 @@ class NmpcConfig:
     max_iterations: int = 10
     cost_tol_rel: float = 1e-5         # converged when the QP step would lower the cost by less than this
     time_budget_share: float = 0.0     # of the control period (dt_s when none is given); 0: unbounded
-    scheme: str = "sqp"
+    scheme: str = "rti"
     codegen: bool = True               # compile the linearisation to C (cached); False: CasADi's VM (the
                                        # controller's detector and disturbance estimate follow it)
 

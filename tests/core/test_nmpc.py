@@ -1,4 +1,5 @@
-"""The NMPC against its specification: bounds, constraints, fallback, warm start, IPOPT."""
+"""The NMPC's SQP against its specification: bounds, constraints, fallback, warm start, IPOPT
+(the real-time iteration: test_nmpc_rti.py)."""
 
 import math
 
@@ -23,12 +24,12 @@ RIGHT, LEFT = AF.same_side_pairs
 
 @pytest.fixture(scope="module")
 def nmpc():
-    return Nmpc(AF, NmpcConfig())
+    return Nmpc(AF, NmpcConfig(scheme="sqp"))
 
 
 @pytest.fixture(scope="module")
 def fixed():
-    return Nmpc(AF, NmpcConfig(fixed_hip_rad=math.radians(45)))
+    return Nmpc(AF, NmpcConfig(scheme="sqp", fixed_hip_rad=math.radians(45)))
 
 
 def hover_ref():
@@ -149,7 +150,7 @@ def test_side_sum_and_hip_range_hold_in_the_predictions(nmpc):
 
 def test_roll_and_pitch_limits_hold_in_the_predictions():
     limit = math.radians(8)
-    m = Nmpc(AF, NmpcConfig(roll_pitch_max_rad=limit))
+    m = Nmpc(AF, NmpcConfig(scheme="sqp", roll_pitch_max_rad=limit))
     x0 = rom.hover_state(AF)
     x0[rom.P] += [3.0, -3.0, 0.0]                 # far away: the unconstrained plan tilts a lot more
     res = m.solve(x0, hover_ref(), FULL)
@@ -200,7 +201,7 @@ def test_converged_cost_matches_ipopt_on_the_same_problem(nmpc, fixed, case):
 
 
 def test_the_uncompiled_route_solves_the_same_problem(nmpc):
-    vm = Nmpc(AF, NmpcConfig(codegen=False))
+    vm = Nmpc(AF, NmpcConfig(scheme="sqp", codegen=False))
     x0 = perturbed(np.random.default_rng(2), 0.3)
     nmpc.reset()
     a, b = nmpc.solve(x0, hover_ref(), FULL), vm.solve(x0, hover_ref(), FULL)
@@ -238,7 +239,7 @@ def test_re_solved_faster_than_its_step_it_keeps_the_hips_in_range_between_nodes
 
     _, node_only = hip_after_first_period(nmpc)
     assert node_only < AF.hip_min_rad - 1e-3          # nodes alone let the leg pass its stop
-    m = Nmpc(AF, NmpcConfig(control_period_s=tau))
+    m = Nmpc(AF, NmpcConfig(scheme="sqp", control_period_s=tau))
     res, hip = hip_after_first_period(m)
     assert hip >= AF.hip_min_rad - 1e-6
     ref = IpoptReference(m).solve(x0, hover_ref(), ROTOR_4_OFF)
@@ -248,8 +249,8 @@ def test_re_solved_faster_than_its_step_it_keeps_the_hips_in_range_between_nodes
 def test_a_solve_stops_iterating_within_its_time_budget_and_its_plan_is_used():
     """A budget far below one iteration: one SQP iteration, then the plan so far (bounded,
     finite, better than the start) instead of the iterations a rough start needs."""
-    budgeted = Nmpc(AF, NmpcConfig(control_period_s=0.02, time_budget_share=1e-6))
-    unbounded = Nmpc(AF, NmpcConfig(control_period_s=0.02, time_budget_share=0.0))
+    budgeted = Nmpc(AF, NmpcConfig(scheme="sqp", control_period_s=0.02, time_budget_share=1e-6))
+    unbounded = Nmpc(AF, NmpcConfig(scheme="sqp", control_period_s=0.02, time_budget_share=0.0))
     x = perturbed(np.random.default_rng(3))
     full = unbounded.solve(x, hover_ref(), [AF.thrust_max_n] * 4)
     res = budgeted.solve(x, hover_ref(), [AF.thrust_max_n] * 4)

@@ -77,7 +77,7 @@ def test_the_feedback_moves_the_gradient_exactly_with_the_targets(rti):
 
 
 def test_on_a_held_problem_it_reaches_the_sqp_optimum(rti):
-    sqp = Nmpc(AF, NmpcConfig(control_period_s=PERIOD_S, max_iterations=50, cost_tol_rel=1e-10))
+    sqp = Nmpc(AF, NmpcConfig(control_period_s=PERIOD_S, max_iterations=50, cost_tol_rel=1e-10, scheme="sqp"))
     x0 = moving_state()
     step = rom.rk4_step(rti.rom.f, PERIOD_S)
     rti.reset()
@@ -118,7 +118,7 @@ def test_a_dropped_preparation_is_not_fed_back(rti):
 
 
 def test_the_sqp_scheme_prepares_nothing():
-    sqp = Nmpc(AF, NmpcConfig(control_period_s=PERIOD_S))
+    sqp = Nmpc(AF, NmpcConfig(control_period_s=PERIOD_S, scheme="sqp"))
     sqp.solve(moving_state(), hover_ref(), FULL)
     sqp.prepare(hover_ref(), FULL)
     assert sqp.solve(moving_state(), hover_ref(), FULL).status == "converged"
