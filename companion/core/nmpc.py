@@ -85,7 +85,7 @@ class Nmpc:
             period_s = config.dt_s * config.warm_start_shift
             self._advance = BufferedFunction(rom.rk4_step(self.rom.f, period_s, config.rk4_substeps))
         self._prepared: PreparedQp | None = None
-        self._planned: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None   # (x0, u0, d) of the last plan
+        self._planned: tuple[np.ndarray, np.ndarray] | None = None   # (x0, u0) of the last plan
         self.prepare_ms = 0.0            # how long the last `prepare` took
 
         fixed = config.fixed_hip_rad
@@ -163,7 +163,7 @@ class Nmpc:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):   # every result is checked
             x_ref = np.asarray(x_ref, dtype=float)
             d = _finite_disturbance(disturbance)
-            x0 = self._advance(*planned[:2], d)[0].ravel()
+            x0 = self._advance(*planned, d)[0].ravel()
             if x_ref.shape == (self.config.horizon + 1, NX) and np.isfinite(x_ref).all() and np.isfinite(x0).all():
                 lo, hi = self.input_bounds(thrust_bound_n)
                 self._prepared = self._prepare_at(x0, x_ref, d, lo, hi)
@@ -223,7 +223,7 @@ class Nmpc:
         if not np.isfinite(xs).all():
             return self._fallback(x0, lo, hi, "qp_failed", 1, t0)
         self._guess = us.copy()
-        self._planned = (x0, us[0].copy(), d)
+        self._planned = (x0.copy(), us[0].copy())
         return NmpcResult(u=us[0].copy(), x_pred=xs, u_pred=us, solve_ms=_ms_since(t0), iterations=1, status=status,
                           ok=True, cost=self.cost.value(xs, us, ref, u_ref), fallback=False)
 
