@@ -50,6 +50,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from companion.autopilot_profile import PROJECT_FC, profile_of
 from companion.config import CompanionConfig
 from companion.controller import ControllerSettings, ControlStep, Controller
 from companion.core import rom
@@ -128,6 +129,7 @@ class CompanionApp:
         self.params = ParamService(CompanionParams(config, self._retune).table, FC_SYSTEM_ID, COMPANION_COMPONENT_ID,
                                    "companion", None if config.params_path is None else ParamFile(config.params_path),
                                    log.info)
+        self.profile = PROJECT_FC                # until the FC's HEARTBEAT names its autopilot
 
     # -- the loop ----------------------------------------------------------------------------------
     def stop(self) -> None:
@@ -145,9 +147,10 @@ class CompanionApp:
         received = self.fc.receive(now)
         self.flight_log.observe(received.messages)
         self._received += len(received.messages)
+        messages = self._profiled(received.messages)          # before LOCKED asks for the profile's streams
         for event in received.events:
             self._on_event(event, now)
-        for msg in received.messages:
+        for msg in messages:
             msg_id = msg.get_msgId()
             if self.telemetry.add(msg, now) and msg_id == THRUSTER_STATUS:
                 self._frame_ms = msg.time_boot_ms
@@ -173,6 +176,17 @@ class CompanionApp:
         self.config = config
         self.controller.retune_detector(config.fault_detector)
 
+    def _profiled(self, messages: list) -> list:
+        """The messages as the profile of the FC's autopilot has them read; a HEARTBEAT naming
+        another autopilot changes the profile and the streams asked for."""
+        for msg in messages:
+            if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_HEARTBEAT and (profile := profile_of(msg)) != self.profile:
+                self.profile = profile
+                log.info("the flight controller runs %s: asking for its streams every %d ms", profile.name,
+                         self.period_ms)
+                self.fc.request_intervals(self.config.control_period_s, profile.streams)
+        return self.profile.translate(messages)
+
     def _on_kept_status(self, msg) -> None:
         """The FC's copy of the last M4_FAULT_STATUS it had from us (from before this process
         started, when we asked at lock-on): a confirmed fault becomes the detector's, the
@@ -197,7 +211,7 @@ class CompanionApp:
                 log.warning("flight controller found again at %s (it was at %s); asking for telemetry every %d ms",
                             self.fc.fc_address, self.fc.previous_address, self.period_ms)
             self.fc.request_kept_state()               # first: nothing of ours goes out before it is answered
-            self.fc.request_intervals(self.config.control_period_s)
+            self.fc.request_intervals(self.config.control_period_s, self.profile.streams)
             if not self.config.link.signing:
                 self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, "companion: MAVLink signing OFF")
         elif event is LinkEvent.REBOOTED:
@@ -349,8 +363,8 @@ class CompanionApp:
     # -- stale streams -----------------------------------------------------------------------------
     def _watch_streams(self, now: float) -> None:
         news = self.streams.update(self.telemetry.stale(self.streams.limit_s), now, self.fc.fc_time_ms)
-        if news.ask:
-            self.fc.request_intervals(self.config.control_period_s, news.ask)
+        if ask := [i for i in news.ask if i in self.profile.streams]:
+            self.fc.request_intervals(self.config.control_period_s, ask)
         if news.resumed:
             self._resume_after_gap()
         if news.report is not None:
@@ -380,7 +394,7 @@ class CompanionApp:
         log.warning("telemetry back after the FC's clock moved %d ms; control resumes", t_ms - self._last_answered_ms)
         self._resume_after_gap()
         self.fc.statustext(mavlink.MAV_SEVERITY_NOTICE, "companion: telemetry back, control resumes")
-        self.fc.request_intervals(self.config.control_period_s)
+        self.fc.request_intervals(self.config.control_period_s, self.profile.streams)
         self._publish_link(t_ms / 1000.0)
 
     def _resume_after_gap(self) -> None:

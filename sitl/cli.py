@@ -4,7 +4,7 @@
                   [--signing-key FILE] [--signing-state FILE] [--params FILE] [--companion SYS:COMP] [--seed N]
                   [--duration S] [--lockstep-timeout S] [--link-delay-ms MS] [--link-loss P]
     m4-sitl physics --autopilot ardupilot [--scenario SCENARIO] [--port N] [--truth-log PATH] [--seed N] [--duration S]
-    m4-sitl fly-ardupilot SCENARIO [--out DIR] [--speedup N] [--instance I]
+    m4-sitl fly-ardupilot SCENARIO [--out DIR] [--speedup N] [--instance I] [--companion]
     m4-sitl list
     m4-sitl fly SCENARIO [--out DIR] [--controller nmpc|fixed-posture] [--seed N] [--port N] [--rate-hz HZ]
                 [--realtime] [--viewer] [--link-delay-ms MS] [--link-loss P]
@@ -155,6 +155,9 @@ def _add_fly_ardupilot(sub) -> None:
                    help="arducopter --speedup: how much faster than real time it may run (default 10)")
     p.add_argument("--instance", type=int, choices=range(10), default=0, metavar="I",
                    help="arducopter -I: MAVLink on tcp 5760 + 10 I, physics on udp 9002 + 10 I (default 0)")
+    p.add_argument("--companion", action="store_true",
+                   help="the companion flies through the M4 Lua applet once the robot holds its start point "
+                        "(real time from then on)")
     p.set_defaults(func=_fly_ardupilot)
 
 
@@ -166,7 +169,8 @@ def _fly_ardupilot(args) -> int:
     out = args.out or Path("out") / "ardupilot" / scenario.name
     try:
         metrics = fly_ardupilot(ArduFlightOptions(scenario=scenario, out_dir=out, speedup=args.speedup,
-                                                  instance=args.instance), log=log)
+                                                  instance=args.instance, companion=args.companion,
+                                                  scenario_file=scenarios.scenario_path(args.scenario)), log=log)
     except (FlightError, OSError) as e:
         raise BadInput(str(e)) from None
     print(summary_line(metrics))

@@ -1,5 +1,4 @@
-"""A flight through the real ArduCopter SITL flown by ArduCopter's own controller (no companion):
-`m4-sitl fly-ardupilot SCENARIO`.
+"""A flight through the real ArduCopter SITL: `m4-sitl fly-ardupilot SCENARIO [--companion]`.
 
 The physics (sitl/ardupilot/physics.py) runs in this process; `arducopter` runs in a working
 folder under the output folder with ArduPilot's SITL defaults and deploy/ardupilot/m4.parm.
@@ -9,16 +8,26 @@ height, and lets the scenario run from when the robot holds its start point (the
 starts the scenario's clock then, and its faults with it) to its duration. Then it stops
 both, and writes truth.npz, statustext.txt (what ArduPilot said, on the physics' clock),
 metrics.json and flight.png. The binary: ARDUPILOT_SITL, else ../shared/ardupilot/arducopter
-beside the repository.
+beside the repository. The M4 applet (deploy/ardupilot/scripts/m4_fc.lua) is in the working
+folder's scripts/ and idles until M4_ENABLE is set.
+
+With the companion (`companion=True`) the companion starts first (sitl/ardupilot/companion_process.py)
+and arducopter's SERIAL1 connects to it. Boot and takeoff go as above; once the robot holds
+its start point, SIM_SPEEDUP goes to 1 (the companion runs on the wall clock), M4_ENABLE to 1,
+and the scenario's clock starts when the applet says it flies the companion's setpoints.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import shutil
 import subprocess
+import socket
 import threading
 import time
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,21 +35,21 @@ import numpy as np
 
 from m4.mavlink import mavlink, mavutil
 from m4.scenario import Scenario
+from sitl.ardupilot.companion_process import start_companion
 from sitl.ardupilot.physics import DEFAULT_PORT, PhysicsOptions, PhysicsServer
+from sitl.flights.flight_run import FlightError, free_port
 from sitl.plant.truth import Truth, load_truth
 
 REPO = Path(__file__).resolve().parents[2]
 DEFAULT_BINARY = REPO.parent / "shared" / "ardupilot" / "arducopter"
 PARAMS = REPO / "deploy" / "ardupilot" / "m4.parm"
+APPLET = REPO / "deploy" / "ardupilot" / "scripts" / "m4_fc.lua"
 GCS_IDS = (255, 190)
 GUIDED = 4                          # ArduCopter's custom mode number
 EKF_READY_TEXT = "EKF3 IMU0 is using GPS"
+APPLET_FLYING_TEXT = "m4: flying companion setpoints"
 CONNECT_TIMEOUT_S = 30.0
 AFTER_DISARM_MS = 2000           # the flight ends this long after ArduPilot disarms (a crash)
-
-
-class FlightError(RuntimeError):
-    """The flight could not be flown (no binary, SITL would not boot, arm or take off)."""
 
 
 def sitl_binary() -> Path:
@@ -55,6 +64,8 @@ class ArduFlightOptions:
     speedup: float = 10.0
     instance: int = 0               # arducopter -I: MAVLink on 5760 + 10 I, physics on 9002 + 10 I
     timeout_s: float = 600.0        # wall clock for the whole flight
+    companion: bool = False         # the companion flies through the M4 applet
+    scenario_file: Path | None = None   # the scenario's file: the companion's mission (with companion)
 
 
 def fly_ardupilot(options: ArduFlightOptions, log=print) -> dict:
@@ -63,30 +74,41 @@ def fly_ardupilot(options: ArduFlightOptions, log=print) -> dict:
         raise FlightError(f"no ArduCopter SITL at {binary} (set ARDUPILOT_SITL)")
     out = options.out_dir
     work = out / "arducopter"
-    work.mkdir(parents=True, exist_ok=True)
-    server = PhysicsServer(PhysicsOptions(scenario=options.scenario, port=DEFAULT_PORT + 10 * options.instance,
-                                          truth_log_path=out / "truth.npz"), log=log)
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    defaults = f"{binary.parent / 'copter.parm'},{PARAMS}"
-    with open(work / "arducopter.log", "w") as sitl_log:
-        sitl = subprocess.Popen([str(binary), "--model", "JSON:127.0.0.1", "--speedup", f"{options.speedup:g}",
-                                 "--defaults", defaults, f"-I{options.instance}", "-w"],
-                                cwd=work, stdout=sitl_log, stderr=subprocess.STDOUT)
+    (work / "scripts").mkdir(parents=True, exist_ok=True)
+    shutil.copy(APPLET, work / "scripts")
     texts: list[tuple[float, str]] = []
-    try:
-        _fly(options, server, sitl, texts, log)
-    finally:
-        sitl.kill()
-        sitl.wait()
-        server.stop()
-        thread.join(10.0)
-        server.close()
-        (out / "statustext.txt").write_text("".join(f"{t:9.3f} {text}\n" for t, text in texts))
+    with contextlib.ExitStack() as stack:
+        command = [str(binary), "--model", "JSON:127.0.0.1", "--speedup", f"{options.speedup:g}",
+                   "--defaults", f"{binary.parent / 'copter.parm'},{PARAMS}", f"-I{options.instance}", "-w"]
+        if options.companion:
+            if options.scenario_file is None:
+                raise FlightError("a flight with the companion needs the scenario's file (its mission)")
+            text = options.scenario_file.read_text()
+            (out / "scenario.toml").write_text(text)
+            port = free_port(socket.SOCK_STREAM)
+            start_companion(stack, out, port, out / "scenario.toml", "mission" in tomllib.loads(text))
+            command += ["--serial1", f"tcpclient:127.0.0.1:{port}"]
+        server = PhysicsServer(PhysicsOptions(scenario=options.scenario, port=DEFAULT_PORT + 10 * options.instance,
+                                              truth_log_path=out / "truth.npz", start_on_hold=not options.companion),
+                               log=log)
+        thread = threading.Thread(target=server.run, daemon=True)
+        thread.start()
+        with open(work / "arducopter.log", "w") as sitl_log:
+            sitl = subprocess.Popen(command, cwd=work, stdout=sitl_log, stderr=subprocess.STDOUT)
+        try:
+            _fly(options, server, sitl, texts, log)
+        finally:
+            sitl.kill()
+            sitl.wait()
+            server.stop()
+            thread.join(10.0)
+            server.close()
+            (out / "statustext.txt").write_text("".join(f"{t:9.3f} {text}\n" for t, text in texts))
     t0_ms = server.physics.scenario_t0_ms
     metrics = flight_metrics(load_truth(out / "truth.npz"), options.scenario, t0_ms / 1000.0, texts)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
-    flight_figure(load_truth(out / "truth.npz"), options.scenario, t0_ms / 1000.0, out / "flight.png")
+    who = "the companion through the M4 applet" if options.companion else "ArduCopter 4.6.3's own controller"
+    flight_figure(load_truth(out / "truth.npz"), options.scenario, t0_ms / 1000.0, out / "flight.png", who)
     return metrics
 
 
@@ -130,6 +152,13 @@ def _fly(options: ArduFlightOptions, server: PhysicsServer, sitl: subprocess.Pop
         height_m = -options.scenario.start.ned_m[2]
         link.mav.command_long_send(target, 1, mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 0, height_m)
         log(f"t={physics.now_ms / 1000:.3f} s: armed in GUIDED, taking off to {height_m:g} m")
+        if options.companion:
+            pump(lambda: physics.start_held_ms is not None)
+            for name, value in (("SIM_SPEEDUP", 1.0), ("M4_ENABLE", 1.0)):
+                link.mav.param_set_send(target, 1, name.encode(), value, mavlink.MAV_PARAM_TYPE_REAL32)
+            log(f"t={physics.now_ms / 1000:.3f} s: real time, the applet engaged (M4_ENABLE 1)")
+            pump(lambda: any(text == APPLET_FLYING_TEXT for _, text in texts))
+            physics.start_scenario()
         pump(lambda: physics.scenario_t0_ms is not None)
         end_ms = physics.scenario_t0_ms + round(options.scenario.duration_s * 1000)
         pump(lambda: physics.now_ms >= end_ms or (state["disarmed_ms"] is not None
@@ -182,7 +211,7 @@ def flight_metrics(truth: Truth, scenario: Scenario, t0_s: float, texts: list[tu
     return metrics
 
 
-def flight_figure(truth: Truth, scenario: Scenario, t0_s: float, path: Path) -> None:
+def flight_figure(truth: Truth, scenario: Scenario, t0_s: float, path: Path, who: str) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -198,7 +227,7 @@ def flight_figure(truth: Truth, scenario: Scenario, t0_s: float, path: Path) -> 
     for f in scenario.faults:
         for ax in axes:
             ax.axvline(f.at_s, color="red", ls="--", lw=0.8)
-    axes[0].set_title(f"ArduCopter 4.6.3's own controller, {scenario.name}: rotor faults at the dashed lines")
+    axes[0].set_title(f"{who}, {scenario.name}: faults at the dashed lines", fontsize=10)
     axes[-1].set_xlabel("scenario time (s); before 0: takeoff and the start hold")
     for ax in axes:
         ax.legend(loc="upper left", fontsize=8)

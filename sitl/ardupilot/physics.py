@@ -14,8 +14,10 @@ The robot starts on the floor below the scenario's start point, disarmed, hips a
 nominal posture. The scenario's clock (its faults' at_s) starts when the robot first holds
 the scenario's start point in the air (within START_RADIUS_M, slower than START_SPEED_M_S,
 for START_HOLD_S): the autopilot's boot, EKF alignment, arming and takeoff take tens of
-seconds that the scenario knows nothing of. The truth log (truth.npz) runs on the physics'
-clock from boot.
+seconds that the scenario knows nothing of. With `start_on_hold` off the hold is only noted
+(`start_held_ms`) and the clock starts when `start_scenario()` is called (a flight with the
+companion starts it when the companion takes control). The truth log (truth.npz) runs on the
+physics' clock from boot.
 """
 
 from __future__ import annotations
@@ -56,6 +58,7 @@ class PhysicsOptions:
     seed: int = 0
     duration_s: float | None = None            # None: until stopped
     truth_log_path: Path | None = None
+    start_on_hold: bool = True                 # False: the scenario's clock waits for start_scenario()
 
 
 @dataclass
@@ -73,8 +76,9 @@ class PhysicsCounters:
 class JsonPhysics:
     """The plant behind the JSON interface, without sockets: `answer(packet)` steps and replies."""
 
-    def __init__(self, scenario: Scenario, airframe: Airframe, seed: int = 0, log=print):
+    def __init__(self, scenario: Scenario, airframe: Airframe, seed: int = 0, log=print, start_on_hold: bool = True):
         self.scenario, self.airframe, self._log = scenario, airframe, log
+        self.start_on_hold = start_on_hold
         north, east, _ = scenario.start.ned_m
         rest_down_m = -0.5 * airframe.body_box_size_m[2]        # the hull's belly on the floor
         self.plant = Plant(airframe, scenario.plant, start_ned_m=(north, east, rest_down_m),
@@ -82,6 +86,8 @@ class JsonPhysics:
         self.plant.command_throttle([0.0] * ROTOR_COUNT)
         self.now_ms = 0
         self.scenario_t0_ms: int | None = None     # when the scenario's clock started (physics time)
+        self.start_held_ms: int | None = None      # when the robot first held the start point
+        self._start_asked = False
         self._held_since_ms: int | None = None
         self._faults = FaultSchedule(scenario.faults)
         self._hip_goals = [float("nan")] * ROTOR_COUNT
@@ -115,9 +121,16 @@ class JsonPhysics:
             self._hip_goals = goals
             self.plant.command_hips(goals)
 
+    def start_scenario(self) -> None:
+        """Start the scenario's clock at the next instant (from another thread too)."""
+        self._start_asked = True
+
     def _at_instant(self) -> None:
+        if self.scenario_t0_ms is None and self._start_asked:
+            self._start_clock("started on request")
         if self.scenario_t0_ms is None:
-            self._watch_start()
+            if self.start_held_ms is None:
+                self._watch_start()
         else:
             for fault, ends in self._faults.due(self.now_ms - self.scenario_t0_ms):
                 self.plant.set_rotor_loss(fault.rotor, 0.0 if ends else fault.loss, fault.kind)
@@ -135,9 +148,14 @@ class JsonPhysics:
         elif self._held_since_ms is None:
             self._held_since_ms = self.now_ms
         elif self.now_ms - self._held_since_ms >= round(START_HOLD_S * 1000):
-            self.scenario_t0_ms = self.now_ms
-            self._log(f"t={self.now_ms / 1000:.3f} s: the robot holds the scenario's start point: "
-                      f"scenario {self.scenario.name!r} t=0")
+            self.start_held_ms = self.now_ms
+            self._log(f"t={self.now_ms / 1000:.3f} s: the robot holds the scenario's start point")
+            if self.start_on_hold:
+                self._start_clock("started on the hold")
+
+    def _start_clock(self, why: str) -> None:
+        self.scenario_t0_ms = self.now_ms
+        self._log(f"t={self.now_ms / 1000:.3f} s: scenario {self.scenario.name!r} t=0 ({why})")
 
     def _sensor_line(self) -> bytes:
         p = self.plant
@@ -151,7 +169,8 @@ class PhysicsServer:
 
     def __init__(self, options: PhysicsOptions, airframe: Airframe | None = None, log=print):
         self.options, self._log = options, log
-        self.physics = JsonPhysics(options.scenario, airframe or load_airframe(), options.seed, log)
+        self.physics = JsonPhysics(options.scenario, airframe or load_airframe(), options.seed, log,
+                                   options.start_on_hold)
         self.truth = TruthRecorder() if options.truth_log_path else None
         if self.truth is not None:
             self.physics.observers.append(self.truth.observe)

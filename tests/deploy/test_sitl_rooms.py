@@ -22,7 +22,7 @@ ALLOWED = {
     "sitl.plant": (),
     "sitl.fc": ("sitl.plant.state",),
     "sitl.links": (),
-    "sitl.ardupilot": ("sitl.plant",),
+    "sitl.ardupilot": ("sitl.plant", "sitl.flights"),
     "sitl.flights": (*SCENARIOS, "sitl.plant", "sitl.links"),
     "sitl.campaigns": (*SCENARIOS, "sitl.plant", "sitl.links", "sitl.flights"),
     **{top: ("sitl",) for top in TOP},

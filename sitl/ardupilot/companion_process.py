@@ -1,0 +1,48 @@
+"""The companion as a process beside ArduCopter SITL (`m4-sitl fly-ardupilot --companion`).
+
+It listens on tcp 127.0.0.1:PORT and arducopter connects its SERIAL1 to it (`--serial1
+tcpclient:...`), so the companion starts first and has built its NMPC before SITL boots. Its
+configuration (companion.toml in the flight's folder) is the one for ArduPilot with the M4
+applet: signing off (the applet cannot check signatures: docs/ardupilot.md), and neither
+fast loop asked for (the applet flies thrust_n alone).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from sitl.flights.flight_run import COMPANION_LOG_DIR, _await_ready, _start
+
+
+def companion_config_text(port: int) -> str:
+    return "\n".join([
+        "# The companion's configuration for a flight through ArduCopter (written by m4-sitl fly-ardupilot).",
+        "[control]",
+        "# the M4 applet on ArduPilot runs neither fast loop",
+        "rate_feedback_bandwidth_rad_s = 0.0", "shortfall_cover = false", "",
+        "[link]", f'fc_url = "tcpin:127.0.0.1:{port}"',
+        "# the applet receives M4_SETPOINT through ArduPilot's bad-CRC path, where no signature is checked",
+        "signing = false", "",
+        "[log]", f'dir = "{COMPANION_LOG_DIR}"', ""])
+
+
+def start_companion(stack: contextlib.ExitStack, out_dir: Path, port: int, scenario_path: Path,
+                    has_mission: bool) -> subprocess.Popen:
+    """The companion started and ready (NMPC built, listening); stopped when `stack` closes."""
+    config = out_dir / "companion.toml"
+    config.write_text(companion_config_text(port))
+    cmd = [sys.executable, "-m", "companion.cli", "run", "--config", str(config)]
+    if has_mission:
+        cmd += ["--mission", str(scenario_path)]
+    ready_r, ready_w = os.pipe()
+    stack.callback(os.close, ready_r)
+    try:
+        companion = _start(stack, [*cmd, "--ready-fd", str(ready_w)], out_dir / "companion.log", pass_fds=(ready_w,))
+    finally:
+        os.close(ready_w)
+    _await_ready(companion, ready_r, out_dir / "companion.log")
+    return companion
