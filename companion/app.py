@@ -184,6 +184,7 @@ class CompanionApp:
                 self.profile = profile
                 log.info("the flight controller runs %s: asking for its streams every %d ms", profile.name,
                          self.period_ms)
+                self.fc.stop_streams(profile.stopped)
                 self.fc.request_intervals(self.config.control_period_s, profile.streams)
         return self.profile.translate(messages)
 

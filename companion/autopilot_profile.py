@@ -12,7 +12,10 @@ ends a frame). Its data, by index: hip angles 0..3 (rad: what the applet command
 the servos' rate limit: ArduPilot has no hip feedback), hip rates 4..7 (rad/s), thrusts
 commanded 8..11 (N: the motors' outputs through the thrust model), thrust limits 12..15 (N).
 Streams asked for: ESC_TELEMETRY_1_TO_4 alone (ArduPilot sends it with bidirectional DShot);
-the applet sends the rest at its own rate.
+the applet sends the rest at its own rate. ArduPilot's own ATTITUDE, ATTITUDE_QUATERNION and
+LOCAL_POSITION_NED on the companion's port are stopped: the applet's frames alone say that
+telemetry flows (they come only while the applet is engaged), and no sample off the frame's
+instant comes between them.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ from dataclasses import dataclass
 
 from m4.airframe import ROTOR_COUNT
 from m4.mavlink import mavlink
-from companion.telemetry import ESC_TELEMETRY, REQUESTED
+from companion.telemetry import ATTITUDE, ATTITUDE_QUATERNION, ESC_TELEMETRY, LOCAL_POSITION, REQUESTED
 
 APPLET_FRAME_NAME = "M4FC"
 _HIP, _HIP_RATE, _THRUST_CMD, _THRUST_LIMIT = (slice(i * ROTOR_COUNT, (i + 1) * ROTOR_COUNT) for i in range(4))
@@ -31,6 +34,7 @@ _HIP, _HIP_RATE, _THRUST_CMD, _THRUST_LIMIT = (slice(i * ROTOR_COUNT, (i + 1) * 
 class AutopilotProfile:
     name: str
     streams: tuple[int, ...]          # the message ids whose intervals the companion asks for
+    stopped: tuple[int, ...]          # the message ids the FC is asked not to stream
     applet_frames: bool               # telemetry frames come as the ArduPilot applet's
 
     def translate(self, messages: list) -> list:
@@ -46,8 +50,9 @@ class AutopilotProfile:
         return out
 
 
-PROJECT_FC = AutopilotProfile("the project's flight controller", REQUESTED, applet_frames=False)
-ARDUPILOT = AutopilotProfile("ArduPilot with the M4 applet", (ESC_TELEMETRY,), applet_frames=True)
+PROJECT_FC = AutopilotProfile("the project's flight controller", REQUESTED, (), applet_frames=False)
+ARDUPILOT = AutopilotProfile("ArduPilot with the M4 applet", (ESC_TELEMETRY,),
+                             (ATTITUDE, ATTITUDE_QUATERNION, LOCAL_POSITION), applet_frames=True)
 
 
 def profile_of(heartbeat) -> AutopilotProfile:

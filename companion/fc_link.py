@@ -281,6 +281,10 @@ class FcLink:
         interval_us = float(round(period_s * 1e6))
         self.commands.replace([Command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(i), interval_us)) for i in ids])
 
+    def stop_streams(self, ids) -> None:
+        """Ask the FC to stop streaming `ids` (MAV_CMD_SET_MESSAGE_INTERVAL -1)."""
+        self.commands.replace([Command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(i), -1.0)) for i in ids])
+
     def request_kept_state(self) -> None:
         """Ask for the M4_FAULT_STATUS the FC keeps of its companion (a restarted companion's
         memory of a confirmed fault and of its mission; an ack says when there is none), then
