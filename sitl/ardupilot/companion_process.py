@@ -3,8 +3,8 @@
 It listens on tcp 127.0.0.1:PORT and arducopter connects its SERIAL1 to it (`--serial1
 tcpclient:...`), so the companion starts first and has built its NMPC before SITL boots. Its
 configuration (companion.toml in the flight's folder) is the one for ArduPilot with the M4
-applet: signing off (the applet cannot check signatures: docs/ardupilot.md), and neither
-fast loop asked for (the applet flies thrust_n alone).
+applet: signing off (the applet cannot check signatures: docs/ardupilot.md), and no
+shortfall cover asked for (the applet runs the rate feedback alone).
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ def companion_config_text(port: int) -> str:
     return "\n".join([
         "# The companion's configuration for a flight through ArduCopter (written by m4-sitl fly-ardupilot).",
         "[control]",
-        "# the M4 applet on ArduPilot runs neither fast loop",
-        "rate_feedback_bandwidth_rad_s = 0.0", "shortfall_cover = false", "",
+        "# the M4 applet on ArduPilot runs the rate feedback, not the shortfall cover",
+        "shortfall_cover = false", "",
         "[link]", f'fc_url = "tcpin:127.0.0.1:{port}"',
         "# the applet receives M4_SETPOINT through ArduPilot's bad-CRC path, where no signature is checked",
         "signing = false", "",

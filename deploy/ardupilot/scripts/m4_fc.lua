@@ -11,7 +11,8 @@
 -- use, has a period outside 1..1000 ms, a value that is not finite, or comes while disarmed or
 -- not engaged. It is fresh until t + max(3 P, 300 ms): the overrides end then by their own
 -- timeout and ArduCopter's mode flies (the HOLD of the contract); after 2 s of stale setpoints
--- the script switches to LAND. The fast loops (rate feedback, shortfall cover) are not run.
+-- the script switches to LAND. The rate feedback of the contract runs at every run of the
+-- script (thrust_n + rate_gain x (planned rates - gyro)); the shortfall cover does not.
 -- Engage: parameter M4_ENABLE = 1 (the pilot or ground station sets it once airborne).
 
 local SETPOINT_ID, SETPOINT_CRC_EXTRA = 48000, 204
@@ -19,6 +20,7 @@ local HEARTBEAT_ID = 0
 local COMPANION_SYS, COMPANION_COMP = 1, 191
 local ATTITUDE_ID, LOCAL_POSITION_NED_ID, DEBUG_FLOAT_ARRAY_ID = 30, 32, 350
 local SETPOINT_PAYLOAD_MAX = 225
+local RATE_GAIN_MAX_N_PER_RAD_S = 50.0
 local RUN_MS = 5
 local MAX_AGE_MIN_MS, MAX_AGE_PERIODS = 150, 2
 local STALE_MIN_MS, STALE_PERIODS = 300, 3
@@ -50,7 +52,7 @@ mavlink:register_rx_msgid(SETPOINT_ID)
 mavlink:register_rx_msgid(HEARTBEAT_ID)
 
 local chan = nil                     -- the companion's MAVLink channel (from its HEARTBEAT)
-local sp = nil                       -- the setpoint in use: {t, period, thrust{}, hip{}, cut}
+local sp = nil                       -- the setpoint in use: {t, period, thrust{}, hip{}, cut, applied, fb}
 local stale_since = nil
 local landed_by_us = false
 local hip_est = {HIP_NOMINAL_RAD, HIP_NOMINAL_RAD, HIP_NOMINAL_RAD, HIP_NOMINAL_RAD}
@@ -123,6 +125,33 @@ local function refuse(reason)
   end
 end
 
+-- The rate feedback a setpoint asks for ({ref[3], change[3], gain[12]}, gain rotor by rotor, x y z
+-- each); nil when it asks for none (all gains zero) or cannot be used (not finite, a gain beyond
+-- RATE_GAIN_MAX_N_PER_RAD_S).
+local function rate_feedback(fields)
+  local any = false
+  for i = 1, 18 do
+    if not finite(fields[i]) then return nil end
+    if i > 6 then
+      if math.abs(fields[i]) > RATE_GAIN_MAX_N_PER_RAD_S then return nil end
+      any = any or fields[i] ~= 0.0
+    end
+  end
+  if not any then return nil end
+  return fields
+end
+
+-- Rotor i's thrust change from the rate feedback, the setpoint in force for in_force_ms.
+local function feedback_n(fb, i, in_force_ms, period_ms, gyro)
+  local held_s = math.min(math.max(in_force_ms, 0), period_ms) / 1000.0
+  local rates = {gyro:x(), gyro:y(), gyro:z()}
+  local change = 0.0
+  for j = 1, 3 do
+    change = change + fb[6 + 3 * (i - 1) + j] * (fb[j] + fb[3 + j] * held_s - rates[j])
+  end
+  return change
+end
+
 local function setpoint_fault(t, period, values, now)
   if period < 1 or period > 1000 then return "period" end
   if t > now then return "future" end
@@ -147,7 +176,7 @@ local function on_setpoint(msg, now)
     return
   end
   local payload = msg:sub(13, 12 + len) .. string.rep("\0", SETPOINT_PAYLOAD_MAX - len)
-  local v = {string.unpack("<I4ffffffffffffI2BBB", payload)}
+  local v = {string.unpack("<I4ffffffffffffI2BBB" .. string.rep("f", 18), payload)}
   local t, period, flags = v[1], v[14], v[17]
   local values = {table.unpack(v, 2, 13)}
   if v[15] ~= 1 or v[16] ~= 1 then
@@ -167,7 +196,8 @@ local function on_setpoint(msg, now)
   if sp == nil or stale_since ~= nil then
     say(MAV_SEVERITY_INFO, "flying companion setpoints")
   end
-  sp = {t = t, period = period, thrust = thrust, hip = hip, cut = (flags & 1) ~= 0}
+  sp = {t = t, period = period, thrust = thrust, hip = hip, cut = (flags & 1) ~= 0, applied = now,
+        fb = rate_feedback({table.unpack(v, 18, 35)})}
   stale_since, last_refusal = nil, ""
   counts.applied = counts.applied + 1
 end
@@ -218,9 +248,13 @@ local function drive(now)
     end
     return
   end
-  local volts = pack_voltage()
+  local volts, gyro = pack_voltage(), ahrs:get_gyro()
   for i = 1, 4 do
-    local pwm = PWM_MIN + math.floor(throttle_for(sp.thrust[i], volts) * (PWM_MAX - PWM_MIN) + 0.5)
+    local thrust = sp.thrust[i]
+    if sp.fb ~= nil and gyro ~= nil then
+      thrust = clamp(thrust + feedback_n(sp.fb, i, now - sp.applied, sp.period, gyro), THRUST_MIN_N, THRUST_MAX_N)
+    end
+    local pwm = PWM_MIN + math.floor(throttle_for(thrust, volts) * (PWM_MAX - PWM_MIN) + 0.5)
     SRV_Channels:set_output_pwm_chan_timeout(MOTOR_OUT + i - 1, pwm, fresh_ms)
     local hip_pwm = PWM_MIN + math.floor((sp.hip[i] - HIP_MIN_RAD) / (HIP_MAX_RAD - HIP_MIN_RAD)
                                          * (PWM_MAX - PWM_MIN) + 0.5)

@@ -90,8 +90,16 @@ class Applet:
         return [(s[1], s[2], s[3].encode("latin-1")) for s in self.g.SENT.values()]
 
 
-def setpoint(t_ms: int, thrust_n=(14.7,) * 4, hip_rad=(0.7,) * 4, period_ms: int = 20, flags: int = 0):
-    return mavlink.MAVLink_m4_setpoint_message(1, 1, t_ms, period_ms, list(thrust_n), list(hip_rad), [0.0] * 4, flags)
+def setpoint(t_ms: int, thrust_n=(14.7,) * 4, hip_rad=(0.7,) * 4, period_ms: int = 20, flags: int = 0, **feedback):
+    return mavlink.MAVLink_m4_setpoint_message(1, 1, t_ms, period_ms, list(thrust_n), list(hip_rad), [0.0] * 4, flags,
+                                               **feedback)
+
+
+def thrusts_driven_n(applet) -> list[float]:
+    """What the plant's rotors give on the throttles the applet drives (at VOLTAGE_V)."""
+    rotors = Thrusters(AF, AF.hover_thrust_per_rotor_n, VOLTAGE_V)
+    rotors.command_duty([(applet.override(c)[0] - 1000) / 1000 for c in range(4)])
+    return rotors.duty_thrust_n(VOLTAGE_V)
 
 
 def pwm_us(fraction: float) -> int:
@@ -109,13 +117,25 @@ def test_a_fresh_setpoint_drives_motors_and_hips_until_it_goes_stale(applet):
     thrusts, hips = (10.0, 14.7, 20.0, 0.0), (0.2, 0.7853981633974483, 1.2, 1.5)
     applet.run(1010, raw_message(setpoint(1005, thrusts, hips)))
     fresh_ms = 1005 + 300 - 1010
-    rotors = Thrusters(AF, AF.hover_thrust_per_rotor_n, VOLTAGE_V)
-    rotors.command_duty([(applet.override(c)[0] - 1000) / 1000 for c in range(4)])
-    np.testing.assert_allclose(rotors.duty_thrust_n(VOLTAGE_V), thrusts, atol=0.05)   # the plant's own thrust
+    np.testing.assert_allclose(thrusts_driven_n(applet), thrusts, atol=0.05)      # the plant's own thrust
     for c in range(4):
         assert applet.override(c)[1] == fresh_ms
         assert applet.override(8 + c) == (pwm_us(hips[c] / (math.pi / 2)), fresh_ms)
     assert "m4: flying companion setpoints" in applet.texts()
+
+
+def test_the_rate_feedback_adds_gain_x_planned_less_measured_rates_at_every_run(applet):
+    """Gyro (0.1, 0.2, 0.3) rad/s; planned (0, 0.5, 0) changing by (1, 0, 0) per s, held after
+    the 20 ms period: 15 ms in force, planned x is 0.015."""
+    gain = np.zeros((4, 3))
+    gain[0] = (10.0, 0.0, 0.0)
+    gain[1] = (0.0, -4.0, 0.0)
+    gain[2] = (0.0, 0.0, 2.0)
+    applet.run(1010, raw_message(setpoint(1005, thrust_n=(15.0,) * 4, rates_ref_frd_rad_s=[0.0, 0.5, 0.0],
+                                          rates_ref_change_frd_rad_s2=[1.0, 0.0, 0.0], rate_gain=gain.ravel().tolist())))
+    applet.run(1025)
+    expected = 15.0 + gain @ (np.array([0.015, 0.5, 0.0]) - [0.1, 0.2, 0.3])
+    np.testing.assert_allclose(thrusts_driven_n(applet), expected, atol=0.05)
 
 
 def test_a_frame_whose_crc_fails_is_dropped(applet):
