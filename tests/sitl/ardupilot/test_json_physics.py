@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from m4.airframe import load_airframe
-from m4.scenario import Scenario
+from m4.scenario import Scenario, parse_scenario
 from sitl.ardupilot.json_protocol import (
     MAGIC_16,
     BadPacket,
@@ -20,9 +20,9 @@ from sitl.ardupilot.json_protocol import (
     parse_servo_packet,
     servo_packet,
 )
-from sitl.ardupilot.physics import PhysicsOptions, PhysicsServer
+from sitl.ardupilot.physics import JsonPhysics, PhysicsOptions, PhysicsServer
 from sitl.cli import main as sitl_main
-from sitl.plant.thrusters import Thrusters
+from sitl.plant.thrusters import HEALTHY, Thrusters
 from sitl.plant.truth import load_truth
 
 AF = load_airframe()
@@ -187,3 +187,25 @@ def test_a_port_in_use_is_one_line(capsys):
         assert sitl_main(["physics", "--autopilot", "ardupilot", "--port", str(port)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1] == f"m4-sitl: error: cannot listen on udp 127.0.0.1:{port}: Address already in use", err
+
+
+def test_without_start_on_hold_the_scenarios_clock_and_its_faults_wait_for_start_scenario():
+    """A flight with the companion starts the scenario when the companion takes control."""
+    scenario = parse_scenario({"name": "t", "duration_s": 1.0, "start": {"ned_m": [0.0, 0.0, -2.0]},
+                               "fault": [{"at_s": 0.01, "rotor": 3, "loss": 1.0}]}, "test")
+    ph = JsonPhysics(scenario, AF, log=lambda _: None, start_on_hold=False)
+    count = iter(range(10**6))
+
+    def step(n: int) -> None:
+        for _ in range(n):
+            ph.answer(parse_servo_packet(servo_packet(RATE_HZ, next(count), _pwm(MOTORS_OFF))))
+
+    step(50)
+    assert ph.scenario_t0_ms is None and ph.plant.thrusters.kind[2] == HEALTHY
+    ph.start_scenario()
+    step(1)
+    assert ph.scenario_t0_ms == 51
+    step(9)
+    assert ph.plant.thrusters.kind[2] == HEALTHY
+    step(1)
+    assert ph.plant.thrusters.kind[2] != HEALTHY                # rotor 3 failed at scenario t = 0.01 s
