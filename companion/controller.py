@@ -145,7 +145,7 @@ class Flight:
     touchdown: TouchdownDetector
     upset: UpsetDetector
     fault_announced: bool = False
-    paused_s: float = 0.0         # the FC's clock less the mission's: time the FC's failsafe flew
+    paused_s: float = 0.0         # the FC's clock less the mission's: when the mission began, and time the FC's failsafe flew
 
     def mission_time_s(self, time_s: float) -> float:
         return time_s - self.paused_s
@@ -195,15 +195,15 @@ class Controller:
         x = np.asarray(x_measured, dtype=float).reshape(rom.NX)
         if not plausible_state(self.af, x):
             return False
-        if kept is None:
-            reference = self._new_reference(time_s, x[rom.P])
+        if kept is None:                 # the mission's clock starts here, whatever the FC's reads (ArduPilot's: since boot)
+            reference = self._new_reference(0.0, x[rom.P])
         else:
             reference = self._new_reference(kept.plan.start_time_s, kept.plan.start_ned_m)
             reference.restore(kept.plan)
         ground_z = reference.ground_com_z_ned_m
         self.flight = Flight(reference, TouchdownDetector(ground_z, self.settings.touchdown),
                              UpsetDetector(ground_z, self.settings.upset),
-                             paused_s=0.0 if kept is None else time_s - kept.time_s)
+                             paused_s=time_s if kept is None else time_s - kept.time_s)
         return True
 
     def mission_progress(self, time_s: float) -> MissionProgress | None:

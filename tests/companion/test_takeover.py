@@ -15,7 +15,7 @@ from companion.core import rom
 from companion.core.nmpc import Nmpc
 from companion.core.takeover import SLEW_N_S, TakeoverRamp
 from m4.airframe import load_airframe
-from m4.mission import Mission, Waypoint
+from m4.mission import Landing, Mission, Waypoint
 from m4.mission_plan import MissionProgress, PlanProgress, PlanState
 
 AF = load_airframe()
@@ -128,3 +128,15 @@ def test_a_restart_during_a_landing_goes_on_down_from_where_the_fcs_landing_brou
     out = c.step(12.6, at(-1.5), fc_landing=True)
     assert out.reference[0, rom.P][2] == pytest.approx(-1.5, abs=0.01)
     assert np.all(np.diff(out.reference[:, rom.P][:, 2]) >= -1e-9)           # down only
+
+
+def test_the_mission_clock_starts_at_the_first_setpoint_whatever_the_fcs_clock_reads():
+    """ArduPilot's clock runs from its boot: a flight begun 54 s after it neither starts landing
+    at once (land at 22 s of the mission) nor finds its waypoints 54 s along."""
+    c = controller(Mission(waypoints=(Waypoint((10.0, 0.0, -2.0), 1.0, 0.0),), land=Landing(22.0, 0.5)))
+    x = at(-2.0)
+    assert c.start(54.0, x)
+    out = c.step(54.0, x)
+    assert c.mission_progress(54.0).time_s == 0.0
+    assert not c.flight.reference.landing_started(c.flight.mission_time_s(54.02))
+    assert out.reference[0, rom.P][0] == pytest.approx(0.0, abs=0.05)
