@@ -34,7 +34,7 @@ def test_the_companion_flies_the_hover_rotor_loss_through_arducopter_and_the_m4_
     """One command end to end: the companion, arducopter with the applet, the physics; the
     companion takes over in the air, names the lost rotor, and the robot holds the air."""
     scenario = scenarios.resolve("hover-rotor-loss")
-    metrics = fly_ardupilot(ArduFlightOptions(scenario=scenario, out_dir=tmp_path, speedup=50.0, instance=5,
+    metrics = fly_ardupilot(ArduFlightOptions(scenario=scenario, out_dir=tmp_path, speedup=10.0, instance=5,
                                               timeout_s=400.0, companion=True,
                                               scenario_file=scenarios.scenario_path("hover-rotor-loss")),
                             log=lambda _: None)
