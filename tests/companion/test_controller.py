@@ -266,7 +266,8 @@ def test_the_injected_reference_and_detector_are_the_ones_flown_and_a_restart_bu
     x = rom.hover_state(AF, p_ned_m=(0.0, 0.0, -2.0))
     assert c.start(3.0, x)
     out = c.step(3.0 + PERIOD, x)
-    assert anchors == [(3.0, (0.0, 0.0, -2.0))] and c.detector is detectors[0]
+    assert anchors == [(0.0, (0.0, 0.0, -2.0))] and c.detector is detectors[0]   # the mission's clock starts at the start
+    assert c.flight.mission_time_s(3.0 + PERIOD) == pytest.approx(PERIOD)
     assert out.reference[-1, rom.P.start] > 0.0          # heading for the waypoint
     c.restart()
     assert not c.started and len(detectors) == 2 and c.detector is detectors[1]
