@@ -3,7 +3,7 @@
 Every builder takes a `Snapshot` (the FC's clock, its view of the plant, its mode) and
 returns one message; the stream schedule (sitl/fc/streams.py) decides when. Positions are the
 hull centre (the IMU), local NED around a fixed home; GLOBAL_POSITION_INT and HOME_POSITION
-place that local frame on the WGS-84 ellipsoid with a flat-earth approximation.
+place that local frame on the WGS-84 ellipsoid (m4.home).
 """
 
 from __future__ import annotations
@@ -14,12 +14,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from m4.airframe import Airframe
+from m4.home import Home
 from m4.mavlink import mavlink
 from sitl.fc import modes
 from sitl.fc.esc_telemetry import EscReport
 from sitl.plant.state import PlantState
 
-EARTH_RADIUS_M = 6378137.0
 _SENSORS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
             | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
             | mavlink.MAV_SYS_STATUS_SENSOR_GPS | mavlink.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
@@ -28,19 +28,6 @@ _SENSORS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSO
 _CAPABILITIES = (mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
                  | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST)
 FLIGHT_SW_VERSION = 0x000100FF      # major, minor, patch, type: 0.1.0, FIRMWARE_VERSION_TYPE_OFFICIAL
-
-
-@dataclass(frozen=True)
-class Home:
-    lat_deg: float = 47.397742          # PX4's default SITL home (Zurich)
-    lon_deg: float = 8.545594
-    alt_amsl_m: float = 488.0
-
-    def geodetic(self, ned_m) -> tuple[float, float, float]:
-        """(lat_deg, lon_deg, alt_amsl_m) of a local NED point."""
-        lat = self.lat_deg + math.degrees(ned_m[0] / EARTH_RADIUS_M)
-        lon = self.lon_deg + math.degrees(ned_m[1] / (EARTH_RADIUS_M * math.cos(math.radians(self.lat_deg))))
-        return lat, lon, self.alt_amsl_m - ned_m[2]
 
 
 @dataclass(frozen=True)
