@@ -15,6 +15,8 @@ from m4.toml_fields import ConfigError, Table
 ON_FAULT_CHOICES = ("hold", "continue")
 MAX_SPEED_M_S = 15.0
 MAX_ALTITUDE_M = 500.0
+MAX_HOLD_S = 3600.0
+MAX_DISTANCE_M = 1e5          # north or east of the origin
 
 
 @dataclass(frozen=True)
@@ -24,10 +26,14 @@ class Waypoint:
     hold_s: float             # time to stay at it before the next one
 
 
+DEFAULT_SPEED_M_S = 1.0
+DEFAULT_DESCENT_SPEED_M_S = 0.5
+
+
 @dataclass(frozen=True)
 class Landing:
-    at_s: float               # from here the reference descends to the ground
-    descent_speed_m_s: float
+    at_s: float | None        # from here the reference descends to the ground (None: once the last
+    descent_speed_m_s: float  # waypoint's hold ends, as planned: a mission from a ground station)
 
 
 @dataclass(frozen=True)
@@ -44,7 +50,8 @@ def parse_mission(t: Table) -> Mission:
     if t.has("land"):
         lt = t.table("land")
         land = Landing(at_s=lt.number("at_s", lo=0.0),
-                       descent_speed_m_s=lt.number("descent_speed_m_s", 0.5, lo=0.05, lo_open=False, hi=3.0))
+                       descent_speed_m_s=lt.number("descent_speed_m_s", DEFAULT_DESCENT_SPEED_M_S, lo=0.05,
+                                                   lo_open=False, hi=3.0))
         lt.finish()
     t.finish()
     return Mission(on_fault=on_fault, waypoints=waypoints, land=land)
@@ -52,7 +59,7 @@ def parse_mission(t: Table) -> Mission:
 
 def ned_position(t: Table, key: str, default=None) -> tuple[float, float, float]:
     """A local NED position (m) at or above the ground and below MAX_ALTITUDE_M."""
-    ned = t.vector(key, 3, default, lo=-1e5, hi=1e5)
+    ned = t.vector(key, 3, default, lo=-MAX_DISTANCE_M, hi=MAX_DISTANCE_M)
     if ned[2] > 0.0:
         raise ConfigError(f"{t.where} {key}: z must be <= 0 (NED, up is negative), got {ned[2]:g}")
     if -ned[2] > MAX_ALTITUDE_M:
@@ -62,7 +69,7 @@ def ned_position(t: Table, key: str, default=None) -> tuple[float, float, float]
 
 def _parse_waypoint(t: Table) -> Waypoint:
     w = Waypoint(ned_m=ned_position(t, "ned_m"),
-                 speed_m_s=t.number("speed_m_s", 1.0, lo=0.0, lo_open=True, hi=MAX_SPEED_M_S),
-                 hold_s=t.number("hold_s", 0.0, lo=0.0, hi=3600.0))
+                 speed_m_s=t.number("speed_m_s", DEFAULT_SPEED_M_S, lo=0.0, lo_open=True, hi=MAX_SPEED_M_S),
+                 hold_s=t.number("hold_s", 0.0, lo=0.0, hi=MAX_HOLD_S))
     t.finish()
     return w

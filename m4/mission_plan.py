@@ -11,8 +11,11 @@ giving position and velocity (local NED, centre of mass) as a function of time.
 - A fault with on_fault = "hold" replaces the rest of the plan by a brake from the measured
   position along the reference velocity at accel_max_m_s2 (no instant stop) and a hold where
   the brake ends. "continue" changes nothing. A fault during the landing changes nothing.
-- From land.at_s the plan brakes (when it is moving) and descends at descent_speed_m_s to the
-  ground, where the centre of mass sits ground_com_height_m above z = 0.
+- From land.at_s (without one: when the last waypoint's hold ends, as first planned) the plan
+  brakes (when it is moving) and descends at descent_speed_m_s to the ground, where the centre
+  of mass sits ground_com_height_m above z = 0.
+- `item` says which waypoint (or the landing) the plan is on: the progress a mission from a
+  ground station reports (m4.mission_items).
 - `land_from`: the flight controller's failsafe is landing when the companion takes over (a
   restart, a return after a loss): from then the plan descends from where the robot is, at
   the mission's descent speed (the FC's own 0.5 m/s without a [mission.land]), whatever it
@@ -155,7 +158,11 @@ class MissionPlan:
                  accel_max_m_s2: float = DEFAULT_ACCEL_MAX_M_S2, t0_s: float = 0.0):
         self._mission, self._a = mission, accel_max_m_s2
         self.ground_com_z_ned_m = -ground_com_height_m(af)
+        self._waypoint_done_s: list[float] = []     # when each waypoint's hold ends, as planned
         self._base = _Plan(self._mission_pieces(np.asarray(start_ned_m, dtype=float), t0_s))
+        self._planned_end_s = self._waypoint_done_s[-1] if self._waypoint_done_s else t0_s
+        self.land_at_s = None if mission.land is None else (
+            self._planned_end_s if mission.land.at_s is None else mission.land.at_s)   # None: no landing
         self._plan = self._with_landing(self._base)
         self.fault_hold_s: float | None = None      # when a fault turned the plan into a hold
         self.landing_from_s: float | None = None    # when the plan joined the FC's landing
@@ -169,6 +176,7 @@ class MissionPlan:
             here = np.array(wp.ned_m, dtype=float)
             pieces += [move, _Hold(move.end_s, here)]
             t_s = move.end_s + wp.hold_s
+            self._waypoint_done_s.append(t_s)
         pieces.append(_Hold(t_s, here))
         return pieces
 
@@ -177,14 +185,14 @@ class MissionPlan:
         return [brake, _Hold(brake.end_s, brake.state(brake.end_s)[0])]
 
     def _with_landing(self, base: _Plan) -> _Plan:
-        land = self._mission.land
+        land, at_s = self._mission.land, self.land_at_s
         if land is None:
             return base
-        stop = self._stop(land.at_s, *base.state(land.at_s))
+        stop = self._stop(at_s, *base.state(at_s))
         above = stop[-1].state(stop[-1].t0_s)[0]
         ground = np.array([above[0], above[1], max(above[2], self.ground_com_z_ned_m)])
         descent = _Move(stop[-1].t0_s, above, ground, land.descent_speed_m_s, self._a)
-        return base.replaced_from(land.at_s, stop[:-1] + [descent, _Hold(descent.end_s, ground)])
+        return base.replaced_from(at_s, stop[:-1] + [descent, _Hold(descent.end_s, ground)])
 
     def state(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
         """(p_ned_m (3,), v_ned_m_s (3,)) of the reference at t_s."""
@@ -227,7 +235,17 @@ class MissionPlan:
     def landing_started(self, t_s: float) -> bool:
         if self.landing_from_s is not None and t_s >= self.landing_from_s:
             return True
-        return self._mission.land is not None and t_s >= self._mission.land.at_s
+        return self.land_at_s is not None and t_s >= self.land_at_s
+
+    def item(self, t_s: float) -> int:
+        """The mission's item flown at t_s: the index of the waypoint it flies to or holds at,
+        len(waypoints) once every waypoint's hold is over or the landing started (the landing,
+        if there is one). After a fault hold it stays the one the fault met."""
+        if self.landing_started(t_s):
+            return len(self._mission.waypoints)
+        if self.fault_hold_s is not None:
+            t_s = min(t_s, self.fault_hold_s)
+        return bisect.bisect_right(self._waypoint_done_s, t_s)
 
 
 def _ned(values) -> tuple[float, float, float]:
