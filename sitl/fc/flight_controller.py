@@ -26,6 +26,10 @@ Parameters (PARAM_* protocol, `params`: m4/mavlink/param_service.py over sitl/fc
 answered to the companion and ground stations alike (with `require_signed`, signed only); their
 values live here (`stale_min_ms`, the fast loops' switches) and in the failsafe and rotor watch.
 
+It keeps the mission a ground station uploads (sitl/fc/mission_store.py: the mission protocol,
+from the companion and ground stations alike, with `require_signed` signed only) for the
+companion to fly, and reports its progress.
+
 It keeps the last M4_FAULT_STATUS of its companion until it is armed again (a restarted
 companion asks for it with MAV_CMD_REQUEST_MESSAGE: the fault and the mission's progress) and
 answers TIMESYNC requests (tc1 = 0) with its clock in ns.
@@ -57,6 +61,7 @@ from sitl.fc.esc_telemetry import EscTelemetry
 from sitl.fc.estimator import Estimator
 from sitl.fc.failsafe import Failsafe
 from sitl.fc.gyro_shortfall import GyroShortfallMeter
+from sitl.fc.mission_store import MISSION_IDS, MissionStore
 from sitl.fc.modes import FcMode, current_mode
 from sitl.fc.rotor_watch import RotorWatch
 from sitl.fc.shortfall import ShortfallMeter
@@ -151,6 +156,8 @@ class FlightController:
         self.esc = esc                          # None: no ESC telemetry (many FCs have none)
         self.estimator = estimator              # None: the plant's measured state as it is ("ideal")
         self.telemetry_builder = Telemetry(airframe, home, esc_telemetry=esc is not None)
+        self.mission = MissionStore(self.telemetry_builder.home, log)
+        self.telemetry_builder.add(mavlink.MAVLINK_MSG_ID_MISSION_CURRENT, lambda snap: self.mission.current_message())
         self.schedule = StreamSchedule(DEFAULT_INTERVALS_MS if esc is None else ESC_TELEMETRY_INTERVALS_MS)
         self.failsafe = Failsafe(airframe)
         self.counters = FcCounters()
@@ -232,6 +239,8 @@ class FlightController:
             self.setpoint = None
             if armed:
                 self.fault_status = None        # a new flight: the last one's fault and mission stay behind
+            else:
+                self._outbox += self.mission.landed()
 
     def _watch_rotors(self, now_ms: int, thrust_cmd_n, rpm) -> None:
         """The FC's own lost-rotor check on the speeds its ESCs report (sitl/fc/rotor_watch.py)
@@ -245,6 +254,7 @@ class FlightController:
     def tick(self, now_ms: int) -> None:
         """Choose who flies (companion or failsafe) and command the plant accordingly; the ESCs
         answer this output frame."""
+        self._outbox += self.mission.tick(now_ms)
         self._measure(now_ms)
         if not self.armed:
             self._set_mode(FcMode.LANDED)
@@ -340,6 +350,10 @@ class FlightController:
         if msg_id in PARAM_IDS and self.params is not None:
             # from the companion and ground stations alike; with signing, only signed
             return [] if self.require_signed and not msg.get_signed() else (self.params.handle(msg) or [])
+        if msg_id in MISSION_IDS:           # from the companion and ground stations alike; with signing, only signed
+            if (self.require_signed and not msg.get_signed()) or not self.addressed_to_me(msg):
+                return []
+            return self.mission.handle(msg, now_ms, self.from_companion(msg))
         if msg_id not in _CONTROL_IDS or (msg_id != mavlink.MAVLINK_MSG_ID_M4_FAULT_STATUS
                                           and not self.addressed_to_me(msg)):
             return []

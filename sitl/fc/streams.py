@@ -18,6 +18,7 @@ DEFAULT_INTERVALS_MS = {
     m.MAVLINK_MSG_ID_CURRENT_MODE: 2000,          # and on every mode change (sitl/fc/modes.py)
     m.MAVLINK_MSG_ID_SYS_STATUS: 500,
     m.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1000,
+    m.MAVLINK_MSG_ID_MISSION_CURRENT: 1000,       # and on every change (sitl/fc/mission_store.py)
     m.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 50,
     m.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS: 50,
     m.MAVLINK_MSG_ID_ATTITUDE: 10,

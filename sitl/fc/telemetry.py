@@ -26,7 +26,8 @@ _SENSORS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSO
             | mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION | mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS)
 # parameters as ArduPilot sends them: values cast to float (m4/mavlink/param_service.py)
 _CAPABILITIES = (mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
-                 | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST)
+                 | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
+                 | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT)
 FLIGHT_SW_VERSION = 0x000100FF      # major, minor, patch, type: 0.1.0, FIRMWARE_VERSION_TYPE_OFFICIAL
 
 
@@ -67,6 +68,10 @@ class Telemetry:
         }
         if esc_telemetry:
             self._builders[m.MAVLINK_MSG_ID_ESC_TELEMETRY_1_TO_4] = self.esc_telemetry_1_to_4
+
+    def add(self, msg_id: int, build) -> None:
+        """A stream built elsewhere (e.g. MISSION_CURRENT, from the FC's mission): build(snapshot)."""
+        self._builders[msg_id] = build
 
     def can_build(self, msg_id: int) -> bool:
         return msg_id in self._builders
