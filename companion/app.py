@@ -57,6 +57,7 @@ from companion.core import rom
 from companion.core.control_types import FaultState
 from companion.core.esc_evidence import PropellerModel
 from companion.fc_link import FcLink, LinkEvent, mission_progress
+from companion.fc_mission import FcMission
 from companion.feed_publisher import Feed, open_feed
 from companion.loop_timing import LoopTiming
 from companion.params import CompanionParams
@@ -130,6 +131,10 @@ class CompanionApp:
                                    "companion", None if config.params_path is None else ParamFile(config.params_path),
                                    log.info)
         self.profile = PROJECT_FC                # until the FC's HEARTBEAT names its autopilot
+        # No mission file: the FC's mission, when it has one (companion.fc_mission).
+        self.fc_mission = None if config.mission_path is not None else \
+            FcMission(fc, (FC_SYSTEM_ID, COMPANION_COMPONENT_ID), config.fc_mission_on_fault)
+        self._new_mission = None                 # a mission from the FC not flown yet
 
     # -- the loop ----------------------------------------------------------------------------------
     def stop(self) -> None:
@@ -158,14 +163,18 @@ class CompanionApp:
                 self._on_kept_status(msg)
             elif msg_id == mavlink.MAVLINK_MSG_ID_CURRENT_MODE:
                 self._fc_landing = msg.standard_mode == mavlink.MAV_STANDARD_MODE_LAND
+            if self.fc_mission is not None and (flown := self.fc_mission.on_message(msg, now)) is not None:
+                self._new_mission = flown.mission
         for msg in received.param_requests:
             if replies := self.params.handle(msg):
                 self.fc.link.send_all(replies)
         self._watch_streams(now)
-        if self._frame_ms is not None and self._due(self._frame_ms) and not self.fc.kept_state_pending():
+        if self._frame_ms is not None and self._due(self._frame_ms) and not self._joining():
             self._answer(self._frame_ms, now)
         while self.flight_log.notices:             # a gap in the flight log (it has no link of its own)
             self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, self.flight_log.notices.popleft())
+        if self.fc_mission is not None and (flown := self.fc_mission.tick(now)) is not None:
+            self._new_mission = flown.mission
         self.fc.tick(now)
         if self.signing_state is not None:
             self.signing_state.save()
@@ -187,6 +196,10 @@ class CompanionApp:
                 self.fc.stop_streams(profile.stopped)
                 self.fc.request_intervals(self.config.control_period_s, profile.streams)
         return self.profile.translate(messages)
+
+    def _joining(self) -> bool:
+        """Still waiting for what the FC kept, or for its mission (the first download)?"""
+        return self.fc.kept_state_pending() or (self.fc_mission is not None and self.fc_mission.pending())
 
     def _on_kept_status(self, msg) -> None:
         """The FC's copy of the last M4_FAULT_STATUS it had from us (from before this process
@@ -213,6 +226,8 @@ class CompanionApp:
                             self.fc.fc_address, self.fc.previous_address, self.period_ms)
             self.fc.request_kept_state()               # first: nothing of ours goes out before it is answered
             self.fc.request_intervals(self.config.control_period_s, self.profile.streams)
+            if self.fc_mission is not None:
+                self.fc_mission.on_locked(now)
             if not self.config.link.signing:
                 self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, "companion: MAVLink signing OFF")
         elif event is LinkEvent.REBOOTED:
@@ -244,6 +259,9 @@ class CompanionApp:
         t_s, x = t_ms / 1000.0, rom_state(snap, self.config.airframe)
         esc = None if ESC_TELEMETRY in self.streams.stale else snap.esc
         try:
+            if self._new_mission is not None:
+                self.controller.fly(self._new_mission, t_s, x)
+                self._new_mission = None
             if not self.controller.started and self.controller.start(t_s, x, self._kept_mission):
                 self._say_started(t_s, x)
             step = self.controller.step(t_s, x, esc, snap.thrust_limit_n, lead_s=self.fc.delay.lead_s,
@@ -262,6 +280,8 @@ class CompanionApp:
             log.warning("t=%.3f s: %s", t_s, report.text)
             self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, report.statustext)
         self.flight_log.decision(t_ms, step, sent_s - read_s)
+        if self.fc_mission is not None and (item := self.controller.mission_item(t_s)) is not None:
+            self.fc_mission.report(item)
         self._last_answered_ms = t_ms
         self.counters.answered += 1
         if step.nmpc is not None:

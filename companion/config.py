@@ -36,7 +36,7 @@ from companion.core.touchdown import TouchdownConfig
 from companion.core.upset import UpsetConfig
 from companion.realtime import PRIORITY_MAX
 from m4.feed.settings import FeedSettings, parse_feed_settings
-from m4.mission import Mission
+from m4.mission import ON_FAULT_CHOICES, Mission
 from m4.scenario import load_mission
 from m4.toml_fields import ConfigError, Table, load_toml
 
@@ -210,8 +210,9 @@ class CompanionConfig:
     feed: FeedSettings = field(default_factory=lambda: FeedSettings(enabled=False))   # the Zenoh feed
     log: LogSettings = field(default_factory=LogSettings)
     airframe_path: Path | None = None       # None: the bundled reference airframe
-    mission_path: Path | None = None        # None: no mission (hold where the flight starts)
+    mission_path: Path | None = None        # None: the FC's mission if it has one (companion.fc_mission), else hold
     params_path: Path | None = None         # parameters set over MAVLink (companion/params.py); None: for the run
+    fc_mission_on_fault: str = "hold"       # the fault policy of a mission from the FC (m4.mission ON_FAULT_CHOICES)
     airframe: Airframe = field(default_factory=load_airframe)
     mission: Mission = field(default_factory=Mission)
 
@@ -236,6 +237,7 @@ def parse_config(data: dict, where: str, base_dir: Path | None = None) -> Compan
     airframe_path = top.path("airframe_file", base_dir, must_exist=True)
     mission_path = top.path("mission_file", base_dir, must_exist=True)
     params_path = top.path("params_file", base_dir)
+    fc_mission_on_fault = top.string("fc_mission_on_fault", "hold", choices=ON_FAULT_CHOICES)
     airframe = load_airframe(airframe_path)
     bounds = setting_bounds(airframe)
     control = top.table("control")
@@ -265,6 +267,7 @@ def parse_config(data: dict, where: str, base_dir: Path | None = None) -> Compan
         airframe_path=airframe_path,
         mission_path=mission_path,
         params_path=params_path,
+        fc_mission_on_fault=fc_mission_on_fault,
         airframe=airframe,
         mission=Mission() if mission_path is None else load_mission(mission_path),
     )

@@ -169,8 +169,9 @@ class Controller:
         codegen = s.nmpc.codegen              # every model evaluated each step: compiled, or none of them
         self._new_detector = new_detector or (
             lambda: FaultDetector(af, self.settings.fault_detector, propeller, codegen))
+        self.mission = s.mission          # what the next start() (or fly()) plans
         self._new_reference = new_reference or (
-            lambda t0_s, start_ned_m: MissionReference(s.mission, start_ned_m, af, s.reference, t0_s=t0_s))
+            lambda t0_s, start_ned_m: MissionReference(self.mission, start_ned_m, af, s.reference, t0_s=t0_s))
         self.disturbance = DisturbanceEstimator(af, self.period_s, s.disturbance_gain, codegen=codegen)
         self.predictor = Predictor(af, self.nmpc.rom.f, self.period_s)
         self.rate_feedback = RateFeedbackDesign(af, s.rate_feedback_bandwidth_rad_s, s.shortfall_cover)
@@ -205,6 +206,22 @@ class Controller:
                              UpsetDetector(ground_z, self.settings.upset),
                              paused_s=time_s if kept is None else time_s - kept.time_s)
         return True
+
+    def fly(self, mission: Mission, time_s: float, x_measured) -> None:
+        """From time_s the flight flies `mission` (one from the flight controller), anchored where
+        the centre of mass is; before the flight starts, start() anchors it. The detector, the
+        touchdown and upset watches go on."""
+        self.mission = mission
+        if self.flight is not None:
+            start_ned_m = np.asarray(x_measured, dtype=float).reshape(rom.NX)[rom.P]
+            self.flight.reference = self._new_reference(self.flight.mission_time_s(time_s), start_ned_m)
+
+    def mission_item(self, time_s: float) -> int | None:
+        """The mission's item flown at time_s (m4.mission_plan.MissionPlan.item; None before the
+        flight started)."""
+        if self.flight is None:
+            return None
+        return self.flight.reference.item(self.flight.mission_time_s(time_s))
 
     def mission_progress(self, time_s: float) -> MissionProgress | None:
         """The mission at time_s, for the FC to keep (None before the flight started)."""
