@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import socket
 import subprocess
 import sys
 import threading
@@ -21,6 +20,7 @@ import pytest
 from companion.app import close_app, open_app
 from companion.config import parse_config
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, mavutil
+from support.loopback import free_udp_port, tlog_messages
 from support.missions import GCS, MISSION
 
 pytestmark = pytest.mark.flight
@@ -37,12 +37,6 @@ at_s = {FAULT_AT_S}
 rotor = 4
 loss = 1.0
 """
-
-
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _upload(gcs, items) -> int:
@@ -67,7 +61,7 @@ def flight(tmp_path_factory):
     config = parse_config({"link": {"fc_url": "udpin:127.0.0.1:0", "signing": False},
                            "log": {"dir": str(tmp / "logs")}}, "test")
     app = open_app(config)
-    gcs_port = _free_udp_port()
+    gcs_port = free_udp_port()
     gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{gcs_port}", dialect="m4", source_system=GCS[0],
                                      source_component=GCS[1])
     server = subprocess.Popen([sys.executable, "-m", "sitl.cli", "serve", "--scenario", str(scenario), "--duration",
@@ -90,18 +84,10 @@ def flight(tmp_path_factory):
     return result, tlog
 
 
-def _messages(tlog):
-    conn = mavutil.mavlink_connection(str(tlog), dialect="m4")
-    out = []
-    while (msg := conn.recv_match()) is not None:
-        out.append(msg)
-    return out
-
-
 def test_an_uploaded_mission_is_flown_through_a_rotor_loss_and_lands_with_its_progress_reported(flight):
     result, tlog = flight
     assert result == m.MAV_MISSION_ACCEPTED
-    msgs = _messages(tlog)
+    msgs = tlog_messages(tlog)
     fc = [x for x in msgs if x.get_srcComponent() == FC_COMPONENT_ID]
     ours = [x for x in msgs if x.get_srcComponent() == COMPANION_COMPONENT_ID]
     assert any(x.get_type() == "MISSION_REQUEST_LIST" for x in ours), "the companion never downloaded the mission"

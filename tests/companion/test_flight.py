@@ -22,8 +22,9 @@ from m4.airframe import load_airframe
 from companion.app import close_app, open_app
 from companion.config import parse_config
 from companion.feed_publisher import Feed
-from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, mavlink, mavutil
+from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, mavlink
 from sitl import scenarios
+from support.loopback import tlog_messages
 
 pytestmark = pytest.mark.flight
 
@@ -60,14 +61,6 @@ def _fly(tmp_path):
     return app, tlog, done.stderr, published
 
 
-def _messages(tlog):
-    conn = mavutil.mavlink_connection(str(tlog), dialect="m4")
-    out = []
-    while (msg := conn.recv_match()) is not None:
-        out.append(msg)
-    return out
-
-
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory):
     return _fly(tmp_path_factory.mktemp("flight"))
@@ -75,7 +68,7 @@ def flight(tmp_path_factory):
 
 def test_rotor_loss_in_hover_is_announced_and_the_robot_stays_in_the_air(flight):
     app, tlog, sitl_log, _ = flight
-    msgs = _messages(tlog)
+    msgs = tlog_messages(tlog)
     fc = [m for m in msgs if m.get_srcComponent() == FC_COMPONENT_ID]
     ours = [m for m in msgs if m.get_srcComponent() == COMPANION_COMPONENT_ID]
     fault_ms = 1000
@@ -122,7 +115,7 @@ def test_the_feed_says_what_the_statustext_says_and_carries_every_topic(flight):
 def test_the_companion_logs_what_the_link_carried_and_what_it_decided(flight):
     app, tlog, _, _ = flight
     [companion_log] = app.flight_log.files
-    ours, sitl = _messages(companion_log), _messages(tlog)
+    ours, sitl = tlog_messages(companion_log), tlog_messages(tlog)
 
     def count(msgs, kind):
         return sum(m.get_type() == kind for m in msgs)

@@ -4,27 +4,19 @@ attitude, position around home, and a motor failure injected with the standard c
 from __future__ import annotations
 
 import asyncio
-import socket
 import subprocess
 import sys
 
 import pytest
-from mavsdk.asyncio import Configuration, Mavsdk
 from mavsdk.asyncio.plugins.failure import FailureAsync
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
-from mavsdk.component_type import ComponentType
 from mavsdk.plugins.failure import FailureType, FailureUnit
 
 from m4.mavlink import mavutil
 from sitl.fc.telemetry import Home
+from support.loopback import free_udp_port, mavsdk_ground_station
 
 pytestmark = pytest.mark.flight
-
-
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 async def _first(subscription, timeout_s=10.0):
@@ -35,10 +27,7 @@ async def _first(subscription, timeout_s=10.0):
 
 
 async def _fly_with_mavsdk(port: int):
-    async with Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION)) as mavsdk:
-        await mavsdk.add_any_connection(f"udpin://127.0.0.1:{port}")
-        system = await mavsdk.first_autopilot(timeout_s=15.0)
-        assert system is not None, "MAVSDK saw no autopilot"
+    async with mavsdk_ground_station(port, timeout_s=15.0) as system:
         telemetry = TelemetryAsync(system)
         attitude = await _first(telemetry.subscribe_attitude_euler())
         position = await _first(telemetry.subscribe_position())
@@ -49,7 +38,7 @@ async def _fly_with_mavsdk(port: int):
 
 
 def test_mavsdk_sees_an_autopilot_and_injects_a_motor_failure(tmp_path):
-    port = _free_udp_port()
+    port = free_udp_port()
     tlog = tmp_path / "mavsdk.tlog"
     server = subprocess.Popen([sys.executable, "-m", "sitl.cli", "serve", "--realtime", "--duration", "30",
                                "--mavlink", f"udpout:127.0.0.1:{port}", "--tlog", str(tlog),
