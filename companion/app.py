@@ -169,7 +169,7 @@ class CompanionApp:
             if replies := self.params.handle(msg):
                 self.fc.link.send_all(replies)
         self._watch_streams(now)
-        if self._frame_ms is not None and self._due(self._frame_ms) and not self._joining():
+        if self._frame_ms is not None and self._due(self._frame_ms) and not self._joining(now):
             self._answer(self._frame_ms, now)
         while self.flight_log.notices:             # a gap in the flight log (it has no link of its own)
             self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, self.flight_log.notices.popleft())
@@ -197,9 +197,9 @@ class CompanionApp:
                 self.fc.request_intervals(self.config.control_period_s, profile.streams)
         return self.profile.translate(messages)
 
-    def _joining(self) -> bool:
+    def _joining(self, now: float) -> bool:
         """Still waiting for what the FC kept, or for its mission (the first download)?"""
-        return self.fc.kept_state_pending() or (self.fc_mission is not None and self.fc_mission.pending())
+        return self.fc.kept_state_pending() or (self.fc_mission is not None and self.fc_mission.pending(now))
 
     def _on_kept_status(self, msg) -> None:
         """The FC's copy of the last M4_FAULT_STATUS it had from us (from before this process

@@ -13,9 +13,9 @@ precedence): then a mission a ground station uploaded to the FC is what the comp
   flies yet: one just uploaded). pymavlink's common.xml (2.4.50) has no MISSION_CURRENT.mission_id
   nor opaque_id, so the mission's state says what changed. Items in a global frame need the FC's
   home: HOME_POSITION is asked for (MAV_CMD_REQUEST_MESSAGE) when they come. Until the first
-  download has ended (home included) the companion sends no setpoint: it starts on the FC's
-  mission (and a restarted companion resumes it where the FC kept its progress), not on a hold
-  it would leave a moment later.
+  download has ended (home included), for FIRST_WAIT_S at most, the companion sends no
+  setpoint: it starts on the FC's mission (and a restarted companion resumes it where the FC
+  kept its progress), not on a hold it would leave a moment later.
 - What is flown: `m4.mission_items.to_mission`, with the fault policy `on_fault` from the
   configuration (`fc_mission_on_fault`). The same items downloaded again change nothing; other
   items become the mission flown from where the robot is (`Controller.fly`).
@@ -38,6 +38,10 @@ from companion.fc_link import KEPT_STATE_RETRY_S, FcLink
 m = mavlink
 TIMEOUT_S = 1.5                   # the mission protocol's default timeout ...
 RETRIES = 5                       # ... and retries
+# The first setpoint waits for the first download at most this long (wall clock), as it waits
+# for what the FC kept (companion.fc_link: 5 requests 0.2 s apart): a lockstep FC behind an
+# emulated delay holds our requests until its clock moves, and it moves only with a setpoint.
+FIRST_WAIT_S = 1.0
 log = logging.getLogger("m4-companion")
 
 
@@ -115,17 +119,18 @@ class FcMission:
         self.home: Home | None = None
         self.flown: FlownMission | None = None
         self._items: tuple[MissionItem, ...] | None = None     # what `flown` was made of
-        self._first = True                                     # the first download since lock-on is running
+        self._first_until_s: float | None = None               # the first setpoint waits for the download till then
         self._reported: int | None = None
 
     def on_locked(self, now_s: float) -> None:
-        self._first = True
+        self._first_until_s = now_s + FIRST_WAIT_S
         self.home = None
         self._start(now_s)
 
-    def pending(self) -> bool:
-        """The first download since lock-on (and the home its items need) is still awaited."""
-        return self._first and self.download is not None
+    def pending(self, now_s: float) -> bool:
+        """The first download since lock-on (and the home its items need) is still awaited, and
+        for less than FIRST_WAIT_S."""
+        return self.download is not None and self._first_until_s is not None and now_s < self._first_until_s
 
     def _start(self, now_s: float) -> None:
         self.download = MissionDownload(self.own_ids, self.fc.fc_ids, now_s)
@@ -174,15 +179,15 @@ class FcMission:
             return None
         if d.failed:
             log.error("the flight controller's mission could not be downloaded: %s; flying on as before", d.failed)
-            self.download, self._first = None, False
+            self.download, self._first_until_s = None, None
             return None
         if self.home is None and any(item.frame in GLOBAL_FRAMES for item in d.items[1:]):
             if not self._ask_home(d, now_s):
                 return None
             log.error("the flight controller sent no HOME_POSITION: its mission cannot be placed; flying on as before")
-            self.download, self._first = None, False
+            self.download, self._first_until_s = None, None
             return None
-        self.download, self._first = None, False
+        self.download, self._first_until_s = None, None
         items = tuple(d.items)
         if items == self._items:
             self._report_again()

@@ -6,7 +6,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 from companion.fc_commands import CommandQueue
-from companion.fc_mission import RETRIES, TIMEOUT_S, FcMission, MissionDownload
+from companion.fc_mission import FIRST_WAIT_S, RETRIES, TIMEOUT_S, FcMission, MissionDownload
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from sitl.fc.mission_store import MissionStore
 from support.fc_answers import ack
@@ -84,9 +84,9 @@ def test_the_fcs_mission_is_flown_once_and_a_new_upload_again():
     fc = Fc(store)
     mission = FcMission(fc, OWN, "hold")
     mission.on_locked(0.0)
-    assert mission.pending()
+    assert mission.pending(0.0) and not mission.pending(FIRST_WAIT_S)
     (flown,) = fc.run(mission)
-    assert not mission.pending() and flown.seqs == (1, 3, 4) and flown.mission.on_fault == "hold"
+    assert not mission.pending(0.0) and flown.seqs == (1, 3, 4) and flown.mission.on_fault == "hold"
     mission.report(0)
     mission.report(0)
     mission.report(2)
