@@ -10,7 +10,7 @@ FC's fixed home (ArduPilot's convention: an uploaded item 0 is taken in its plac
   item of another seq is answered by asking again for the one expected; without an item for
   TIMEOUT_MS the request is sent again, RETRIES times, then the upload is cancelled
   (MAV_MISSION_OPERATION_CANCELLED). A second ground station's MISSION_COUNT during an upload
-  is DENIED. MISSION_COUNT 0 clears.
+  is DENIED; more than MAX_ITEMS items, MAV_MISSION_NO_SPACE. MISSION_COUNT 0 clears.
 - Download: MISSION_REQUEST_LIST -> MISSION_COUNT (home included) -> MISSION_REQUEST_INT ->
   MISSION_ITEM_INT; served without state, so the downloader's retries are all it takes.
 - MISSION_CLEAR_ALL: the mission is gone, MISSION_ACK ACCEPTED.
@@ -40,6 +40,7 @@ m = mavlink
 TIMEOUT_MS = 1500                 # the mission protocol's default timeout ...
 RETRIES = 5                       # ... and retries
 NO_MISSION_TOTAL = 0xFFFF
+MAX_ITEMS = 500                   # home included; more: MAV_MISSION_NO_SPACE
 _NAV = (m.MAV_CMD_NAV_WAYPOINT, m.MAV_CMD_NAV_LAND)
 MISSION_IDS = frozenset({m.MAVLINK_MSG_ID_MISSION_COUNT, m.MAVLINK_MSG_ID_MISSION_ITEM_INT,
                          m.MAVLINK_MSG_ID_MISSION_REQUEST_LIST, m.MAVLINK_MSG_ID_MISSION_REQUEST_INT,
@@ -102,6 +103,9 @@ class MissionStore:
         if msg.count == 0:
             self._upload = None
             return self._clear(msg)
+        if msg.count > MAX_ITEMS:
+            self.log(f"mission upload from {partner[0]}/{partner[1]} refused: {msg.count} items, at most {MAX_ITEMS}")
+            return [self._ack(partner, m.MAV_MISSION_NO_SPACE)]
         self._upload = _Upload(partner, msg.count, requested_ms=now_ms)
         return [self._request(self._upload)]
 

@@ -7,7 +7,7 @@ import pytest
 
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from m4.mission_items import MissionItem
-from sitl.fc.mission_store import RETRIES, TIMEOUT_MS, MissionStore
+from sitl.fc.mission_store import MAX_ITEMS, RETRIES, TIMEOUT_MS, MissionStore
 from support.missions import GCS, HOME, MISSION, REL, global_item, sent_by, speed_item, upload
 
 m = mavlink
@@ -81,6 +81,12 @@ def test_a_second_ground_station_is_denied_during_an_upload():
     store.handle(sent_by(GCS, m.MAVLink_mission_count_message(1, 1, 3, 0)), 0, False)
     replies = store.handle(sent_by(OTHER_GCS, m.MAVLink_mission_count_message(1, 1, 2, 0)), 0, False)
     assert acks(replies) == [m.MAV_MISSION_DENIED] and replies[0].target_system == OTHER_GCS[0]
+
+
+def test_a_mission_too_long_is_refused_for_space():
+    store = MissionStore(HOME)
+    count = m.MAVLink_mission_count_message(1, 1, MAX_ITEMS + 1, 0)
+    assert acks(store.handle(sent_by(GCS, count), 0, False)) == [m.MAV_MISSION_NO_SPACE]
 
 
 def test_clear_all_leaves_home_alone():
