@@ -134,6 +134,11 @@ class CompanionApp:
         # No mission file: the FC's mission, when it has one (companion.fc_mission).
         self.fc_mission = None if config.mission_path is not None else \
             FcMission(fc, (FC_SYSTEM_ID, COMPANION_COMPONENT_ID), config.fc_mission_on_fault)
+        if config.mission_path is not None:
+            log.info("flying the mission file %s (it takes precedence over the flight controller's)",
+                     config.mission_path)
+        else:
+            log.info("no mission file: flying the flight controller's mission when it has one")
         self._new_mission = None                 # a mission from the FC not flown yet
 
     # -- the loop ----------------------------------------------------------------------------------

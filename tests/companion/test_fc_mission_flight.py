@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import logging
 import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -108,11 +110,12 @@ def test_an_uploaded_mission_is_flown_through_a_rotor_loss_and_lands_with_its_pr
     print(f"\nuploaded mission: the fault at {FAULT_AT_S} s, landed; items reached {sorted(set(reached))}")
 
 
-def test_a_mission_file_takes_precedence_over_the_fcs():
+def test_a_mission_file_takes_precedence_over_the_fcs_and_the_log_says_which_is_flown(caplog):
+    caplog.set_level(logging.INFO, "m4-companion")
     config = parse_config({"link": {"fc_url": "udpin:127.0.0.1:0", "signing": False}}, "test")
-    with_file = dataclasses.replace(config, mission_path=__file__)
-    app = open_app(with_file)
+    app = open_app(dataclasses.replace(config, mission_path=Path("my_mission.toml")))
     try:
         assert app.fc_mission is None
     finally:
         close_app(app)
+    assert "flying the mission file my_mission.toml (it takes precedence over the flight controller's)" in caplog.text
