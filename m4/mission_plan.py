@@ -160,9 +160,9 @@ class MissionPlan:
         self.ground_com_z_ned_m = -ground_com_height_m(af)
         self._waypoint_done_s: list[float] = []     # when each waypoint's hold ends, as planned
         self._base = _Plan(self._mission_pieces(np.asarray(start_ned_m, dtype=float), t0_s))
-        self._planned_end_s = self._waypoint_done_s[-1] if self._waypoint_done_s else t0_s
+        planned_end_s = self._waypoint_done_s[-1] if self._waypoint_done_s else t0_s
         self.land_at_s = None if mission.land is None else (
-            self._planned_end_s if mission.land.at_s is None else mission.land.at_s)   # None: no landing
+            planned_end_s if mission.land.at_s is None else mission.land.at_s)   # None: no landing
         self._plan = self._with_landing(self._base)
         self.fault_hold_s: float | None = None      # when a fault turned the plan into a hold
         self.landing_from_s: float | None = None    # when the plan joined the FC's landing
