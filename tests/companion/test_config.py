@@ -141,6 +141,7 @@ def test_relative_mission_and_airframe_files_are_found_beside_the_config(tmp_pat
     ("[feed]\nmode = \"router\"", "mode"),
     ("mission_file = \"missing.toml\"", "mission_file"),
     ("airframe_file = \"missing.toml\"", "airframe_file"),
+    ("fc_mission_on_fault = \"land\"", "fc_mission_on_fault"),
 ])
 def test_each_bad_key_or_value_is_rejected_with_its_name(tmp_path, text, names):
     with pytest.raises(ConfigError, match=names.replace("[", r"\[").replace("(", r"\(").replace(")", r"\)")):
