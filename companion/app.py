@@ -30,7 +30,8 @@ than a couple of periods meanwhile, the controller drops its warm start and the 
 previous state first.
 
 Signing (docs/authority.md): with a key, the signing timestamps are kept across restarts
-(m4.mavlink.signing.StreamTimestamps), so a restarted companion refuses a captured packet;
+(m4.mavlink.signing.StreamTimestamps: saved on a thread of its own, never on the loop, and
+once more at exit), so a restarted companion refuses a captured packet;
 without (`[link] signing = false`) it says so at start and, as STATUSTEXT WARNING, at every
 lock-on.
 
@@ -181,8 +182,6 @@ class CompanionApp:
         if self.fc_mission is not None and (flown := self.fc_mission.tick(now)) is not None:
             self._new_mission = flown.mission
         self.fc.tick(now)
-        if self.signing_state is not None:
-            self.signing_state.save()
 
     def _retune(self, config: CompanionConfig) -> None:
         """A parameter was set (companion/params.py): the settable ones are read from here each step,
@@ -449,7 +448,7 @@ def open_app(config: CompanionConfig) -> CompanionApp:
     link = open_link(config.link.fc_url, FC_SYSTEM_ID, COMPANION_COMPONENT_ID, key=key)
     feed = None
     try:
-        signing_state = StreamTimestamps([link.mav], signing[1]) if signing is not None else None
+        signing_state = StreamTimestamps([link.mav], signing[1]).keep_saving() if signing is not None else None
         feed = open_feed(config.feed)
         controller = Controller(ControllerSettings.of(config))
     except BaseException:
@@ -466,7 +465,7 @@ def open_app(config: CompanionConfig) -> CompanionApp:
 
 def close_app(app: CompanionApp) -> None:
     if app.signing_state is not None:
-        app.signing_state.save(force=True)
+        app.signing_state.close()
     app.fc.link.close()
     app.feed.close()
     app.flight_log.close()

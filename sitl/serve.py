@@ -126,7 +126,8 @@ class Server:
                 self.links[-1].peer_filter = self.vehicle.fc.from_companion
                 self.links[-1].on_refused = partial(self._refused, i)
             if options.signing_key is not None and options.signing_state_path is not None:
-                self.timestamps = StreamTimestamps([link.mav for link in self.links], options.signing_state_path)
+                self.timestamps = StreamTimestamps([link.mav for link in self.links],
+                                                   options.signing_state_path).keep_saving()
         except Exception:
             self.close()
             raise
@@ -154,8 +155,6 @@ class Server:
         """Handle everything that has arrived, at the current simulated instant."""
         for i, link in enumerate(self.links):
             self._handle(i, link.receive_from(POLL_DATAGRAMS))
-        if self.timestamps is not None:
-            self.timestamps.save()
 
     def _where(self, i: int, sender) -> str:
         return address_text(sender) + (f" on link {i}" if len(self.links) > 1 else "")
@@ -319,7 +318,7 @@ class Server:
 
     def close(self) -> None:
         if self.timestamps is not None:
-            self.timestamps.save(force=True)
+            self.timestamps.close()
             self.timestamps = None
         for link in self.links:
             link.close()

@@ -18,9 +18,11 @@ as our packets take to count past them.
 Replay across a restart: pymavlink accepts a new stream (link id, system, component) whose
 timestamp is at most a minute behind its own clock, so a packet captured before a restart
 would pass again. `StreamTimestamps` keeps the last timestamp of each stream, and our own, in
-a file (the spec asks for our own), saved every `SAVE_PERIOD_S` and on close; on load each
-is advanced by that period (what may have been accepted or sent after the last save), so no
-packet signed before the restart is accepted after it, and none of ours is signed twice.
+a file (the spec asks for our own), saved on a thread of its own (`keep_saving`: off the
+loop that signs and checks the packets, twice every `SAVE_PERIOD_S`) and once more on
+`close`; on load each is advanced by that period (what may have been accepted or sent after
+the last save), so no packet signed before the restart is accepted after it, and none of
+ours is signed twice.
 
 Keys: `write_new_key` makes one (32 random bytes, or the SHA-256 of a passphrase, as MAVProxy's
 `signing setup PASSPHRASE` does, so a ground station given the passphrase puts the same key
@@ -37,6 +39,7 @@ import json
 import logging
 import os
 import secrets
+import threading
 import time
 from functools import partial
 from dataclasses import dataclass
@@ -197,18 +200,40 @@ class StreamTimestamps:
             for stream, timestamp in streams.items():
                 mav.signing.stream_timestamps[stream] = timestamp + ahead
             mav.signing.timestamp = max([mav.signing.timestamp, own + ahead, *mav.signing.stream_timestamps.values()])
-        self._saved_at = 0.0
-        self.save(force=True)
+        self._stop_saving = threading.Event()
+        self._saver: threading.Thread | None = None
+        self.save()
 
-    def save(self, force: bool = False) -> None:
-        """Write the timestamps (at most every SAVE_PERIOD_S unless `force`), atomically."""
-        now = time.monotonic()
-        if not force and now - self._saved_at < SAVE_PERIOD_S:
-            return
-        self._saved_at = now
+    def keep_saving(self) -> StreamTimestamps:
+        """Save every SAVE_PERIOD_S / 2 on a thread of its own until close(), so the loop that
+        signs and checks packets never waits on the file. A save that fails is logged (rate
+        limited) and tried again."""
+        self._saver = threading.Thread(target=self._save_periodically, name="signing-timestamps", daemon=True)
+        self._saver.start()
+        return self
+
+    def _save_periodically(self) -> None:
+        while not self._stop_saving.wait(SAVE_PERIOD_S / 2):
+            try:
+                self.save()
+            except ConfigError as e:
+                log.warning("%s; a restart may accept a replay of what came since the last save", e)
+
+    def close(self) -> None:
+        """Stop the saving thread, then save once more: the newest timestamps, at exit.
+        ConfigError if that save fails."""
+        self._stop_saving.set()
+        if self._saver is not None:
+            self._saver.join()
+            self._saver = None
+        self.save()
+
+    def save(self) -> None:
+        """Write the timestamps now, atomically. The dictionaries are copied first (one C call
+        each), so the saving thread may read them while the loop's thread adds to them."""
         streams: dict[str, int] = {}
         for mav in self.mavs:
-            for stream, timestamp in mav.signing.stream_timestamps.items():
+            for stream, timestamp in list(mav.signing.stream_timestamps.items()):
                 key = ",".join(map(str, stream))
                 streams[key] = max(streams.get(key, 0), timestamp)
         own = max(mav.signing.timestamp for mav in self.mavs)

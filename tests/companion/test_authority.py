@@ -5,8 +5,10 @@ controller's ids is counted and reported (on a socket-free transport)."""
 
 from __future__ import annotations
 
+import json
 import logging
 import socket
+import threading
 import time
 
 import pytest
@@ -161,3 +163,34 @@ def test_with_signing_an_unsigned_heartbeat_with_the_fc_ids_is_reported():
     transport.deliver(FC_ADDRESS, _fc_frame(0)[0], mav=new_mav(None, FC_SYSTEM_ID, FC_COMPONENT_ID))
     fc_link.receive(10.01)
     assert fc_link.health().second_sender == 1 and _warnings(transport) == ["companion: second sender as 1/1 (unsigned)"]
+
+
+def test_the_signing_timestamps_are_saved_off_the_control_loop_and_once_more_at_exit(tmp_path, monkeypatch):
+    """The loop that answers the FC never writes the timestamps file; a thread of its own does,
+    and close_app saves the newest timestamps."""
+    monkeypatch.setattr(signing, "SAVE_PERIOD_S", 0.05)
+    saved_by: list[str] = []
+    save = signing.StreamTimestamps.save
+
+    def spy(self, *args, **kwargs):
+        saved_by.append(threading.current_thread().name)
+        save(self, *args, **kwargs)
+
+    monkeypatch.setattr(signing.StreamTimestamps, "save", spy)
+    config = _signed_config(tmp_path)
+    key = load_key(tmp_path / "mavlink.key")
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as fc:
+        app = open_app(config)
+        try:
+            del saved_by[:]                                   # the save on load
+            _send(fc, packed(_fc_frame(5000), FC_SYSTEM_ID, FC_COMPONENT_ID, key), app)
+            assert app.fc.locked
+            loop = threading.current_thread().name
+            assert saved_by and loop not in saved_by
+            own_before_exit = app.fc.link.mav.signing.timestamp
+        finally:
+            close_app(app)
+    assert saved_by[-1] == loop
+    kept = json.loads((tmp_path / "mavlink.key.companion-timestamps").read_text())
+    assert kept["own"] >= own_before_exit
+    assert list(kept["streams"]) == [f"0,{FC_SYSTEM_ID},{FC_COMPONENT_ID}"]

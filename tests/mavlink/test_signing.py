@@ -136,7 +136,7 @@ def test_our_own_timestamp_survives_a_restart_whose_clock_is_behind(tmp_path, mo
     setup_signing(before, KEY)
     state = signing.StreamTimestamps([before], tmp_path / "ts")
     before.send(_heartbeat())
-    state.save(force=True)
+    state.save()
     last = _timestamp(sink.packets[-1])
     monkeypatch.setattr(signing, "_wall_timestamp", lambda: last - 3600 * 100_000)    # an hour behind
     after = new_mav(sink, 1, 191)
