@@ -355,22 +355,27 @@ class CompanionApp:
             self.fc.statustext(mavlink.MAV_SEVERITY_NOTICE, f"companion: link delay back to {1e3 * lead:.0f} ms")
 
     def _publish(self, step: ControlStep, snap: VehicleSnapshot, x) -> None:
-        t, f, sp = step.time_s, step.fault, step.setpoint
-        self.feed.state(t, pos_ned_m=x[rom.P], vel_ned_m_s=x[rom.V], euler_rad=x[rom.EULER],
-                        rates_frd_rad_s=x[rom.RATES], hip_rad=snap.hip_rad, thrust_n=self._esc_thrust_n(snap))
-        self.feed.setpoint(t, thrust_n=sp.thrust_n, hip_rad=sp.hip_rad, hip_rate_rad_s=sp.hip_rate_rad_s,
-                           thrust_cut=sp.thrust_cut)
-        self.feed.fault(t, state=int(f.state), rotor=f.rotor, thrust_max_estimate_n=f.thrust_max_estimate_n,
-                        message=f.message, detected_at_s=f.detected_at_s)
-        if step.nmpc is not None:
+        """The feed, after the send: each topic's fields are gathered only when it will go out."""
+        t, f, sp, feed = step.time_s, step.fault, step.setpoint, self.feed
+        if feed.wants("state"):
+            feed.state(t, pos_ned_m=x[rom.P], vel_ned_m_s=x[rom.V], euler_rad=x[rom.EULER],
+                       rates_frd_rad_s=x[rom.RATES], hip_rad=snap.hip_rad, thrust_n=self._esc_thrust_n(snap))
+        if feed.wants("setpoint"):
+            feed.setpoint(t, thrust_n=sp.thrust_n, hip_rad=sp.hip_rad, hip_rate_rad_s=sp.hip_rate_rad_s,
+                          thrust_cut=sp.thrust_cut)
+        feed.fault(t, state=int(f.state), rotor=f.rotor, thrust_max_estimate_n=f.thrust_max_estimate_n,
+                   message=f.message, detected_at_s=f.detected_at_s)
+        if step.nmpc is not None and feed.wants("nmpc"):
             r = step.nmpc
-            self.feed.nmpc(t, solve_ms=r.solve_ms, iterations=r.iterations, status=r.status, cost=r.cost, ok=r.ok,
-                           fallback=r.fallback, dt_s=self.config.nmpc.dt_s,
-                           predicted_p_ned_m=r.x_pred[:, rom.P], lead_s=step.lead_s,
-                           overruns=self.timing.overruns, rate_hz=self.timing.rate_hz(self.clock()))
+            feed.nmpc(t, solve_ms=r.solve_ms, iterations=r.iterations, status=r.status, cost=r.cost, ok=r.ok,
+                      fallback=r.fallback, dt_s=self.config.nmpc.dt_s,
+                      predicted_p_ned_m=r.x_pred[:, rom.P], lead_s=step.lead_s,
+                      overruns=self.timing.overruns, rate_hz=self.timing.rate_hz(self.clock()))
         self._publish_link(t)
 
     def _publish_link(self, t_s: float | None) -> None:
+        if not self.feed.wants("link"):
+            return
         h, now = self.fc.health(), self.clock()
         last = self.telemetry.last_received_s()
         mark = self._rate_mark

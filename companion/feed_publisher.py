@@ -10,9 +10,12 @@ mode with no router reachable, a Zenoh config file missing or broken) that is sa
 line and tried again every RETRY_S on a thread of its own; until it opens, every call returns
 at once and nothing is published.
 
-Each topic is published at most `max_rate_hz` times a second (wall clock); a call in
-between returns at once without building anything. The fault topic also goes out at once
-whenever its state or rotor changes. A payload that cannot be built or sent is counted
+Each topic is published at most as often as a viewer needs it (TOPIC_RATE_HZ: the state and
+the setpoint 20 times a second, the NMPC 10, the fault and the link's health 2; wall clock),
+and never more than `max_rate_hz` (0: every call, every topic, as `m4-sitl fly` records
+them); a call in between returns at once without building anything, and `wants(topic)`
+lets the caller skip gathering a payload's fields too. The fault topic also goes out at
+once whenever its state or rotor changes. A payload that cannot be built or sent is counted
 (`errors`, reported in the link topic as feed_errors) and logged once per kind, never
 raised: the feed must not stop the control loop.
 """
@@ -32,6 +35,8 @@ from m4.toml_fields import ConfigError
 log = logging.getLogger(__name__)
 
 RETRY_S = 5.0                   # a feed that could not be set up is tried again this often
+# What a viewer (m4-companion watch, the dashboard's 20 s plots) needs of each topic, at most.
+TOPIC_RATE_HZ = {"state": 20.0, "setpoint": 20.0, "nmpc": 10.0, "fault": 2.0, "link": 2.0}
 
 
 class Sink(Protocol):
@@ -44,7 +49,8 @@ class Feed:
                  clock: Callable[[], float] = time.monotonic,
                  wall_clock: Callable[[], float] = time.time):
         self._sink = sink
-        self._min_interval_s = 1.0 / max_rate_hz if max_rate_hz > 0 else 0.0
+        self._min_interval_s = {topic: 1.0 / min(rate_hz, max_rate_hz) if max_rate_hz > 0 else 0.0
+                                for topic, rate_hz in TOPIC_RATE_HZ.items()}
         self._clock = clock
         self._wall_clock = wall_clock
         self._last_sent_s: dict[str, float] = {}
@@ -99,6 +105,15 @@ class Feed:
                 log.info("feed up: publishing (%s)", what)
             return
 
+    def wants(self, topic: str) -> bool:
+        """A call for `topic` now would publish (its sink is up and its interval has passed);
+        the fault topic's changes go out whatever this says."""
+        return self._sink is not None and self._due(topic, self._clock())
+
+    def _due(self, topic: str, now_s: float) -> bool:
+        last_s = self._last_sent_s.get(topic)
+        return last_s is None or now_s - last_s >= self._min_interval_s[topic]
+
     def state(self, t_s: float | None, **fields) -> None:
         self._publish("state", payloads.state_payload, t_s, fields)
 
@@ -132,13 +147,9 @@ class Feed:
     def _publish(self, topic: str, build: Callable[..., dict], t_s: float | None,
                  fields: dict[str, Any], urgent: bool = False) -> bool:
         """True when the payload went out."""
-        if self._sink is None:
+        sink, now_s = self._sink, self._clock()
+        if sink is None or not (urgent or self._due(topic, now_s)):
             return False
-        now_s = self._clock()
-        last_s = self._last_sent_s.get(topic)
-        if not urgent and last_s is not None and now_s - last_s < self._min_interval_s:
-            return False
-        sink = self._sink
         if not self._guarded(topic, lambda: sink.put(topic, build(t_s, self._wall_clock(), **fields))):
             return False
         self._last_sent_s[topic] = now_s

@@ -9,7 +9,7 @@ In the companion's TOML configuration (all keys optional):
     mode = "peer"                                    # "peer" or "client", with
     connect = "tcp/127.0.0.1:7447"                   # an endpoint to connect to, and/or
     listen = "tcp/127.0.0.1:7448"                    # one to listen on (peer only)
-    max_rate_hz = 20.0                               # per topic; 0 publishes every call
+    max_rate_hz = 20.0                               # per topic, over each topic's own rate; 0: every call
 
 A Zenoh config file is used as written (scouting, interfaces, several endpoints,
 everything). With explicit endpoints, scouting is off and the session listens only where `listen` says, so nothing

@@ -130,6 +130,30 @@ def test_each_topic_is_published_at_most_at_the_rate_limit(topic_fields):
     assert [p["t_s"] for _, p in sink.sent] == [1.0, 1.1]
 
 
+def test_each_topic_goes_out_at_what_a_viewer_needs_under_the_rate_limit(publish_all):
+    """State and setpoint 20 Hz, the NMPC 10, the fault and the link's health 2: three seconds of
+    calls at 100 Hz."""
+    sink, clock = RecordingSink(), FakeClock()
+    feed = Feed(sink, max_rate_hz=20.0, clock=clock)
+    for k in range(300):
+        clock.now_s = 100.0 + k / 100.0
+        publish_all(feed)
+    counts = {topic: sum(1 for sent, _ in sink.sent if sent == topic) for topic in TOPICS}
+    assert counts == pytest.approx({"state": 60, "setpoint": 60, "nmpc": 30, "fault": 6, "link": 6}, rel=0.2)
+
+
+def test_a_topic_not_due_is_not_wanted_so_its_fields_need_not_be_gathered(topic_fields):
+    sink, clock = RecordingSink(), FakeClock()
+    feed = Feed(sink, max_rate_hz=20.0, clock=clock)
+    assert feed.wants("link")
+    feed.link(1.0, **topic_fields["link"])
+    clock.now_s += 0.1
+    assert not feed.wants("link") and feed.wants("state")
+    clock.now_s += 0.5
+    assert feed.wants("link")
+    assert not Feed.disabled().wants("state")
+
+
 def test_fault_change_goes_out_at_once_despite_the_rate_limit(topic_fields):
     sink, clock = RecordingSink(), FakeClock()
     feed = Feed(sink, max_rate_hz=1.0, clock=clock)
