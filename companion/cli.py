@@ -27,11 +27,21 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
 
 
 def _run_bench(args: argparse.Namespace) -> int:
-    from research.nmpc_bench import run_bench  # CasADi and the solver load only when needed
+    # CasADi, the solver and the research code load only when needed
+    from companion.config import CompanionConfig
+    from companion.core.nmpc import Nmpc
+    from companion.headroom import control_step_ms, headroom_lines, summary
+    from research.nmpc_bench import bench_sequence, run_bench
 
     report = run_bench(horizon=args.horizon, dt_s=args.dt, solves=args.solves, seed=args.seed,
                        control_period_s=args.period)
-    print(json.dumps(report.as_dict()) if args.json else report.table())
+    config = CompanionConfig()                   # the whole control step, at the default rate
+    states = bench_sequence(config.airframe, Nmpc(config.airframe, config.nmpc), args.solves, args.seed)
+    step_ms = control_step_ms(config, states.x_measured, states.thrust_max_known_n)
+    if args.json:
+        print(json.dumps({**report.as_dict(), **summary(step_ms)}))
+    else:
+        print("\n".join([report.table(), *headroom_lines(step_ms)]))
     return 0
 
 
