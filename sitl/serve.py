@@ -6,6 +6,12 @@ period_ms sets the next instant. Before the first setpoint the simulation waits 
 sending the frame again every `RESEND_S` so a companion that starts late still gets it. A
 companion silent for `lockstep_timeout_s` is logged and the simulation goes on without
 waiting, in the FC's failsafe, until a setpoint comes again.
+What the FC says between two frames (the streams of the instants in between, its own
+STATUSTEXTs) goes out with the next frame, in the same order, packed into as few datagrams as
+fit: nobody can act on it sooner (the companion answers frames), and the companion wakes once
+a control period instead of at every instant. Replies to what arrives (TIMESYNC, command
+acknowledgements, the mode change a setpoint brings) go out at once; with link emulation (below) every instant's datagram goes
+out at its instant, as the emulation draws its losses per datagram.
 
 Link delay and loss (`link`, sitl/links/emulation.py): the companion's link (the first URL)
 is impaired in simulated time, in lockstep and in real time alike. With delay D each way and
@@ -281,6 +287,8 @@ class Server:
     def _run_lockstep(self) -> None:
         v, fc = self.vehicle, self.vehicle.fc
         v.start(self.send)
+        held: list = []                          # what the FC says between two frames
+        send = self.send if self.emulated is not None else held.extend
         waiting = True
         while not self._ended():
             if waiting:
@@ -295,7 +303,9 @@ class Server:
                 self.poll()
                 waiting = self._answers() > answers
             period_ms = fc.setpoint.period_ms if fc.setpoint is not None else IDLE_PERIOD_MS
-            v.advance_to(v.now_ms + period_ms, self.send, frame=True)
+            v.advance_to(v.now_ms + period_ms, send, frame=True)
+            self.send(held)
+            held.clear()
             self._sync_viewer()
 
     def _await_setpoint(self, t_ms: int) -> bool:

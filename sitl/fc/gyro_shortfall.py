@@ -106,7 +106,8 @@ class GyroShortfallMeter:
         expected = np.asarray(planned_accel_frd_rad_s2, dtype=float)
         if effectiveness is not None:
             expected = expected + effectiveness @ np.subtract(self._commanded.thrust_n, self._planned.thrust_n)
-        value, derivative = self._filter.update(np.r_[np.asarray(rates_frd_rad_s, dtype=float)[:2], expected])
+        value, derivative = self._filter.update(np.concatenate((np.asarray(rates_frd_rad_s, dtype=float)[:2],
+                                                                 expected)))
         self.lacking_rad_s2 = value[2:] - derivative[:2]
         if effectiveness is None:
             return None

@@ -146,3 +146,23 @@ def test_a_ground_station_on_a_second_link_gets_what_the_companion_says_and_vice
     from_gcs = [m for m in companion.received if m.get_srcSystem() == 255]
     assert {m.get_type() for m in from_gcs} == {"HEARTBEAT", "COMMAND_LONG"}
     assert [m.target_component for m in from_gcs if m.get_type() == "COMMAND_LONG"] == [191]
+
+
+def test_in_lockstep_what_the_fc_says_between_frames_goes_out_with_the_next_frame():
+    """One datagram a control period: the companion wakes once, not at every instant a stream
+    is due (ATTITUDE at 100 Hz, GLOBAL_POSITION_INT at 20 Hz)."""
+    companion = StandInCompanion()
+    datagrams = []
+    ingest = companion.link.ingest
+
+    def recording(data, sender):
+        msgs = ingest(data, sender)
+        datagrams.append([m.get_type() for m in msgs if m.get_srcComponent() == 1])
+        return msgs
+
+    companion.link.ingest = recording
+    _fly(0.5, companion)
+    streams = [d for d in datagrams if "ATTITUDE" in d]         # the FC's own replies (STATUSTEXT) go at once
+    assert len(streams) > 20
+    assert all("M4_THRUSTER_STATUS" in d for d in streams)
+    assert sum(d.count("ATTITUDE") for d in streams) > 1.5 * len(streams)      # the instants between, kept
