@@ -1,6 +1,6 @@
 """Speed of the whole loop (plant and companion, lockstep): simulated seconds per wall second.
 
-    python -m benchmarks.fly [--scenario NAME] [--rate-hz HZ]... [--priority P] [--keep DIR]
+    python -m benchmarks.fly [--scenario NAME] [--rate-hz HZ]... [--priority P] [--feed-rate-hz HZ] [--keep DIR]
 
 flies the scenario once per control rate (default 50 Hz) without figures and prints, per rate:
 - the real-time factor of the whole loop (wall clock: noisy on a shared machine);
@@ -17,6 +17,9 @@ the SITL's step + the companion's answer + two hand-offs, and the target, at lea
 time at 50 Hz, needs them under 2 ms per 20 ms step. On a shared machine, `--priority P`
 runs both processes in SCHED_FIFO at P (the right to do so is needed: root, or LimitRTPRIO): the
 others' work then no longer stretches the wall-clock figure, which comes near an idle machine's.
+The companion's feed records every topic at every step, as `m4-sitl fly` does; `--feed-rate-hz 20`
+gives it the robot's default instead (each topic at what a viewer needs: fewer puts per step; the
+NMPC figures then come from the solves the feed published).
 """
 
 from __future__ import annotations
@@ -59,15 +62,17 @@ def _last_match(pattern: re.Pattern, path: Path) -> float | None:
     return float(found[-1]) if found else None
 
 
-def bench_line(scenario: str, rate_hz: float, out_dir: Path, priority: int = 0) -> str:
-    """Fly once at `rate_hz` into `out_dir` (both processes in SCHED_FIFO `priority`, 0: normal);
-    the figures in one paragraph."""
-    options = FlightOptions(rate_hz=rate_hz, companion_priority=priority, sitl_priority=priority)
+def bench_line(scenario: str, rate_hz: float, out_dir: Path, priority: int = 0, feed_rate_hz: float = 0.0) -> str:
+    """Fly once at `rate_hz` into `out_dir` (both processes in SCHED_FIFO `priority`, 0: normal;
+    the companion's feed at most `feed_rate_hz` per topic, 0: every step); the figures in one paragraph."""
+    options = FlightOptions(rate_hz=rate_hz, companion_priority=priority, sitl_priority=priority,
+                            feed_rate_hz=feed_rate_hz)
     m = fly(scenario, out_dir, options, figures=False, progress=False)
     costs = loop_costs(FlightFiles(out_dir))
     period_ms, factor, n = 1e3 / rate_hz, m["realtime_factor"], m["nmpc"]
     lines = [f"{m['scenario']} at {rate_hz:g} Hz ({m['duration_s']:g} s simulated, lockstep"
-             f"{f', SCHED_FIFO {priority}' if priority else ''}): "
+             f"{f', SCHED_FIFO {priority}' if priority else ''}"
+             f"{f', feed at most {feed_rate_hz:g} Hz a topic' if feed_rate_hz else ''}): "
              f"{factor:.1f}x real time; survived: {m['survived']}; "
              f"NMPC solve median {n['solve_ms_median']:.2f} ms, p99 {n['solve_ms_p99']:.1f} ms"]
     if costs is None:
@@ -90,16 +95,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rate-hz", type=float, action="append", help="control rate; repeat (default 50)")
     parser.add_argument("--priority", type=int, default=0, metavar="P",
                         help="both processes in SCHED_FIFO at P, 1..99 (default 0: normal priority)")
+    parser.add_argument("--feed-rate-hz", type=float, default=0.0, metavar="HZ",
+                        help="the companion's [feed] max_rate_hz (default 0: every topic every step, as m4-sitl fly "
+                             "records; 20: the robot's default)")
     parser.add_argument("--keep", type=Path, metavar="DIR", help="keep the flights' folders in DIR (default: "
                                                                  "a temporary folder)")
     args = parser.parse_args(argv)
     if not 0 <= args.priority <= 99:
         parser.error("--priority must be 0..99")
+    if not 0 <= args.feed_rate_hz <= 100:
+        parser.error("--feed-rate-hz must be 0..100")
     with tempfile.TemporaryDirectory() as tmp:
         root = args.keep or Path(tmp)
         for rate in args.rate_hz or (50.0,):
             try:
-                print(bench_line(args.scenario, rate, root / f"{rate:g}hz", args.priority), flush=True)
+                print(bench_line(args.scenario, rate, root / f"{rate:g}hz", args.priority, args.feed_rate_hz), flush=True)
             except (ConfigError, FlightError) as e:
                 print(f"python -m benchmarks.fly: error: {e}", file=sys.stderr)
                 return 2

@@ -71,6 +71,8 @@ class FlightOptions:
     link: LinkEmulation | None = None     # delay and loss between the SITL and the companion
     companion_priority: int = 0           # the companion's [control] realtime_priority (SCHED_FIFO; 0: normal)
     sitl_priority: int = 0                # the SITL's SCHED_FIFO priority (0: normal), the FC's own hardware standing in
+    feed_rate_hz: float = 0.0             # the companion's [feed] max_rate_hz: 0 records every topic at every step
+                                          # (the metrics' NMPC figures need every solve); 20: the robot's default
 
     def link_conditions(self) -> dict:
         """The link's impairment and how it was made: "lockstep" (emulated in simulated time by
@@ -146,7 +148,7 @@ def companion_config_text(options: FlightOptions, mavlink_port: int, feed_port: 
         lines += ["[nmpc]", *nmpc, ""]
     if feed_port is not None:
         lines += ["[feed]", f'vehicle = "{VEHICLE}"', 'mode = "peer"', f'connect = "tcp/127.0.0.1:{feed_port}"',
-                  "max_rate_hz = 0.0", ""]
+                  f"max_rate_hz = {options.feed_rate_hz:g}", ""]
     return "\n".join(lines)
 
 
