@@ -6,12 +6,14 @@ period_ms sets the next instant. Before the first setpoint the simulation waits 
 sending the frame again every `RESEND_S` so a companion that starts late still gets it. A
 companion silent for `lockstep_timeout_s` is logged and the simulation goes on without
 waiting, in the FC's failsafe, until a setpoint comes again.
-What the FC says between two frames (the streams of the instants in between, its own
-STATUSTEXTs) goes out with the next frame, in the same order, packed into as few datagrams as
-fit: nobody can act on it sooner (the companion answers frames), and the companion wakes once
-a control period instead of at every instant. Replies to what arrives (TIMESYNC, command
-acknowledgements, the mode change a setpoint brings) go out at once; with link emulation (below) every instant's datagram goes
-out at its instant, as the emulation draws its losses per datagram.
+
+In lockstep, what the FC says between two frames (the streams of the instants in between,
+its own STATUSTEXTs) goes out with the next frame, in the same order, packed into as few
+datagrams as fit: nobody can act on it sooner (the companion answers frames), and the
+companion wakes once a control period instead of at every instant. Replies to what arrives
+(TIMESYNC, command acknowledgements, the mode change a setpoint brings) go out at once; with
+link emulation (below) every instant's datagram goes out at its instant, as the emulation
+draws its losses per datagram.
 
 Link delay and loss (`link`, sitl/links/emulation.py): the companion's link (the first URL)
 is impaired in simulated time, in lockstep and in real time alike. With delay D each way and
