@@ -49,10 +49,10 @@ def headroom_lines(step_ms: np.ndarray) -> list[str]:
     """The step's median and p99, then per rate: the p99 step and what is left, in control periods."""
     s = summary(step_ms)
     median, p99 = s["control_step_ms_median"], s["control_step_ms_p99"]
-    lines = [f"control step (detector, estimate, NMPC, setpoint), {len(step_ms)} steps: median {median:.2f} ms, "
-             f"p99 {p99:.2f} ms, max {float(step_ms.max()):.2f} ms",
-             f"headroom in control periods (held: the p99 step within {HELD_SHARE:.0%} of the period, the rest "
-             "for the link, the feed and the system):"]
+    lines = [(f"control step (detector, estimate, NMPC, setpoint), {len(step_ms)} steps: median {median:.2f} ms, "
+              f"p99 {p99:.2f} ms, max {float(step_ms.max()):.2f} ms"),
+             (f"headroom in control periods (held: the p99 step within {HELD_SHARE:.0%} of the period, the rest "
+              "for the link, the feed and the system):")]
     for rate_hz in RATES_HZ:
         period_ms = 1e3 / rate_hz
         share = p99 / period_ms
