@@ -185,6 +185,9 @@ def test_the_signing_timestamps_are_saved_off_the_control_loop_and_once_more_at_
             del saved_by[:]                                   # the save on load
             _send(fc, packed(_fc_frame(5000), FC_SYSTEM_ID, FC_COMPONENT_ID, key), app)
             assert app.fc.locked
+            deadline = time.monotonic() + 5.0                 # a busy machine may hold the thread back
+            while not saved_by and time.monotonic() < deadline:
+                time.sleep(0.01)
             loop = threading.current_thread().name
             assert saved_by and loop not in saved_by
             own_before_exit = app.fc.link.mav.signing.timestamp
