@@ -11,6 +11,8 @@
     m4-sitl compare [--out DIR] [--jobs N] [--rate-hz HZ] [--link-delay-ms MS] [--link-loss P]
     m4-sitl campaign [--out DIR] [--samples N | --grid] [--loss X]... [--seed N] [--jobs N] [--rate-hz HZ]
                      [--engine local|dask] [--scheduler ADDRESS] [--link-delay-ms MS] [--link-loss P]
+                     [--kind K,... [--esc on,off] [--speed V,...] [--false-alarm-minutes MIN] [--wind M/S]
+                      [--turbulence LEVEL,...] [--profile P,...] [--sweep SETTING=V,...]]
 
 A subcommand is one `add_<name>(subparsers)` function that sets `func`, registered through
 `SUBCOMMANDS` (the flight subcommands live in sitl/flight_cli.py, the shared argument

@@ -9,11 +9,13 @@ run they say which and why in one line and exit with 1.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
 from sitl import scenarios
 from m4.arguments import number, positive_number, seed_number
+from m4.scenario import SENSOR_PROFILES, TURBULENCE_LEVELS, WIND_SPEED_MAX_M_S
 from sitl.cli_args import BadInput, add_link_arguments, link_of
 from sitl.flights.flight_run import CONTROLLERS, FlightError, FlightOptions, make_output_dir
 
@@ -130,6 +132,16 @@ def add_campaign(sub) -> None:
                    help="detection campaign: speeds at the fault in m/s (default 0,3)")
     p.add_argument("--false-alarm-minutes", type=float, default=0.0, metavar="MIN",
                    help="detection campaign: minutes of fault-free agile flight on a sagging battery (default 0)")
+    p.add_argument("--wind", type=_wind_speed, default=0.0, metavar="M/S",
+                   help="detection campaign: mean wind speed, from a bearing drawn per flight (default 0)")
+    p.add_argument("--turbulence", type=_choices(TURBULENCE_LEVELS), default=("none",), metavar="LEVEL,...",
+                   help=f"detection campaign: Dryden levels ({','.join(TURBULENCE_LEVELS)}; default none); the "
+                        "fault-free flights meet a gust every 10 s when the air moves")
+    p.add_argument("--profile", type=_choices(SENSOR_PROFILES), default=("ideal",), metavar="P,...",
+                   help=f"detection campaign: the FC's sensor profiles ({','.join(SENSOR_PROFILES)}; default ideal)")
+    p.add_argument("--sweep", type=_sweep, default=(), metavar="SETTING=V,...",
+                   help="detection campaign: fly every flight at each value of this [fault_detector] setting "
+                        "(e.g. chi2_min=10,25,50): the latency / false-alarm trade-off, tradeoff.png")
     add_link_arguments(p, "the same for every flight")
     p.set_defaults(func=_campaign)
 
@@ -144,6 +156,24 @@ def _choices(allowed):
     return parse
 
 
+def _wind_speed(text: str) -> float:
+    value = number(text)
+    if not 0.0 <= value <= WIND_SPEED_MAX_M_S:
+        raise argparse.ArgumentTypeError(f"must be within 0..{WIND_SPEED_MAX_M_S:g} m/s, got {text}")
+    return value
+
+
+def _sweep(text: str) -> tuple[tuple[str, float], ...]:
+    name, _, values = text.partition("=")
+    try:
+        numbers = tuple(float(v) for v in values.split(","))
+    except ValueError:
+        numbers = ()
+    if not name.strip().isidentifier() or not numbers or not all(math.isfinite(v) and v >= 0 for v in numbers):
+        raise argparse.ArgumentTypeError(f"expected SETTING=V,... with numbers >= 0, e.g. chi2_min=10,25,50, got {text!r}")
+    return tuple((name.strip(), v) for v in numbers)
+
+
 def _speeds(text: str) -> tuple[float, ...]:
     try:
         speeds = tuple(float(t) for t in text.split(","))
@@ -156,7 +186,7 @@ def _speeds(text: str) -> tuple[float, ...]:
 
 def _campaign(args) -> int:
     from sitl.campaigns.campaign import DEFAULT_OUT, LOSS_LEVELS, run_campaign
-    from sitl.campaigns.detection_campaign import DEFAULT_OUT as DETECTION_OUT, run_detection_campaign
+    from sitl.campaigns.detection_campaign import DEFAULT_OUT as DETECTION_OUT, WeatherGrid, run_detection_campaign
 
     losses = tuple(args.loss) if args.loss else LOSS_LEVELS
     out = args.out or (DETECTION_OUT if args.kind else DEFAULT_OUT)
@@ -165,7 +195,8 @@ def _campaign(args) -> int:
         if args.kind:
             result = run_detection_campaign(out, args.kind, args.speed, tuple(e == "on" for e in args.esc), args.seed,
                                             args.false_alarm_minutes, args.jobs, args.rate_hz, args.engine,
-                                            args.scheduler, link_of(args))
+                                            args.scheduler, link_of(args),
+                                            WeatherGrid(args.wind, args.turbulence, args.profile), args.sweep)
         else:
             result = run_campaign(out, args.samples, args.seed, args.grid, args.jobs, args.rate_hz, losses,
                                   args.engine, args.scheduler, link_of(args))

@@ -3,8 +3,9 @@
 `run_flight` writes into the flight's folder:
 - scenario.toml: the scenario file flown, byte for byte;
 - companion.toml: the companion's configuration for this flight (controller variant, link,
-  feed; in lockstep no wall-clock time budget for the NMPC, so that the flight does not depend
-  on the machine's load); the companion reads the scenario's [mission] from scenario.toml;
+  feed, the fault detector's settings the flight asks for; in lockstep no wall-clock time
+  budget for the NMPC, so that the flight does not depend on the machine's load); the
+  companion reads the scenario's [mission] from scenario.toml;
 - mavlink.key: the flight's own signing key, new for each flight: both ends sign and check
   everything, as on the robot (docs/authority.md); their signing timestamps beside it;
 - flight.tlog (every packet both ways), truth.npz (the plant's true state, sitl.plant.truth),
@@ -73,6 +74,7 @@ class FlightOptions:
     sitl_priority: int = 0                # the SITL's SCHED_FIFO priority (0: normal), the FC's own hardware standing in
     feed_rate_hz: float = 0.0             # the companion's [feed] max_rate_hz: 0 records every topic at every step
                                           # (the metrics' NMPC figures need every solve); 20: the robot's default
+    fault_detector: tuple[tuple[str, float], ...] = ()   # the companion's [fault_detector] settings (name, value)
 
     def link_conditions(self) -> dict:
         """The link's impairment and how it was made: "lockstep" (emulated in simulated time by
@@ -146,6 +148,8 @@ def companion_config_text(options: FlightOptions, mavlink_port: int, feed_port: 
         nmpc += ["# the fixed-posture variant: every hip pinned at the nominal angle", f"fixed_hip_deg = {nominal_deg:.12g}"]
     if nmpc:
         lines += ["[nmpc]", *nmpc, ""]
+    if options.fault_detector:
+        lines += ["[fault_detector]", *(f"{name} = {value!r}" for name, value in options.fault_detector), ""]
     if feed_port is not None:
         lines += ["[feed]", f'vehicle = "{VEHICLE}"', 'mode = "peer"', f'connect = "tcp/127.0.0.1:{feed_port}"',
                   f"max_rate_hz = {options.feed_rate_hz:g}", ""]
