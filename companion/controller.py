@@ -371,6 +371,9 @@ class Controller:
         """The detector's status after this frame; True at each new confirmation in a flight."""
         if not usable or in_force is None:
             return self.detector.status, False
+        if self._on_ground_in_landing(time_s, x):
+            self.detector.hold()
+            return self.detector.status, False
         cap = self.af.thrust_max_n
         if limit_n is not None and np.isfinite(limit_n).any():          # already a (4,) array (_thrust_telemetry)
             cap = float(np.clip(np.nanmax(limit_n), self.af.thrust_min_n, self.af.thrust_max_n))
@@ -400,6 +403,13 @@ class Controller:
         u = in_force.input.copy()
         u[rom.THRUST] = np.minimum(u[rom.THRUST], thrust_bounds(self.af, thrust_bound_n))
         return self.disturbance.update(self.sent.newest.state, u, x, gain_scale=self.period_s / (self.period_s + lead_s))
+
+    def _on_ground_in_landing(self, time_s: float, x: np.ndarray) -> bool:
+        """Landing with the centre of mass at ground height: the ground may carry the robot (a
+        crosswind at touchdown looked like a lost rotor to the fault detector)."""
+        flight = self.flight
+        return (flight is not None and flight.reference.landing_started(flight.mission_time_s(time_s))
+                and flight.touchdown.at_ground_height(float(x[rom.P][2])))
 
     def _touched_down(self, time_s: float, x: np.ndarray) -> bool:
         if not self.flight.reference.landing_started(self.flight.mission_time_s(time_s)):

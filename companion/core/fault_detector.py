@@ -195,6 +195,16 @@ class FaultDetector:
         config.validate()
         self._c = config
 
+    def hold(self) -> None:
+        """The robot touches the ground: forces the model does not have (the ground's support,
+        its friction against the air's push) move it, so this frame is no evidence. A suspicion
+        is dropped and the evidence restarts at the next frame in free flight; a confirmed fault
+        stays as it is."""
+        self._prev, self._run = None, None
+        if self._state is FaultState.SUSPECT:
+            self._clear()
+        self._window.clear()
+
     def restore(self, rotor: int, thrust_max_estimate_n: float, detected_at_s: float) -> None:
         """Start from a fault confirmed before this detector existed (a restarted companion:
         the FC kept its M4_FAULT_STATUS): rotor 1..4, its ceiling, when it was confirmed."""

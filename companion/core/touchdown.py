@@ -33,12 +33,18 @@ class TouchdownDetector:
         self._still_since_s: float | None = None
         self.touchdown_s: float | None = None
 
+    def at_ground_height(self, z_ned_m: float) -> bool:
+        """The centre of mass within height_tolerance_m of its standing height (or below it): the
+        wheels may be on the ground, which then carries part of the weight and holds the robot
+        against the air."""
+        return z_ned_m >= self._ground_z - self._config.height_tolerance_m
+
     def update(self, time_s: float, z_ned_m: float, v_z_ned_m_s: float) -> bool:
         """True from the first instant the conditions have held for dwell_s on."""
         if self.touchdown_s is not None:
             return True
         c = self._config
-        resting = z_ned_m >= self._ground_z - c.height_tolerance_m and abs(v_z_ned_m_s) <= c.vertical_speed_max_m_s
+        resting = self.at_ground_height(z_ned_m) and abs(v_z_ned_m_s) <= c.vertical_speed_max_m_s
         if not resting:
             self._still_since_s = None
             return False

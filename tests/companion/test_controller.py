@@ -198,6 +198,19 @@ def test_thrust_is_cut_after_touchdown_during_the_landing():
     assert np.all(outs[-1].setpoint.thrust_n == 0.0)
 
 
+def test_a_robot_the_ground_holds_during_the_landing_is_no_evidence_of_a_lost_rotor():
+    """At ground height in the landing, the FC reports rotor 4 at full thrust while the robot
+    stays still (the ground's support and friction hold it): in free flight a rotor 4 short
+    of 15 N; on the ground, forces the model does not have. No suspicion, no alarm."""
+    c = controller(mission=Mission(land=Landing(at_s=0.0, descent_speed_m_s=0.5)))
+    step(c, 0.0, rom.hover_state(AF, p_ned_m=(0.0, 0.0, -1.0)))
+    ground = rom.hover_state(AF, p_ned_m=(0.0, 0.0, c.flight.reference.ground_com_z_ned_m))
+    lopsided = [HOVER_N, HOVER_N, HOVER_N, AF.thrust_max_n]
+    outs = [c.step(k * PERIOD, ground, None, None, 0.0, lopsided) for k in range(1, 15)]
+    assert all(o.fault.state is FaultState.HEALTHY for o in outs)
+    assert not outs[-1].setpoint.thrust_cut          # still before the touchdown's dwell
+
+
 def test_resume_restarts_the_hip_goal_at_the_measured_joints():
     c = controller()
     x = rom.hover_state(AF)

@@ -37,10 +37,11 @@ def test_rotor_loss_in_a_gusty_crosswind_is_found_on_its_rotor_and_survived(tmp_
     assert fault["detected_rotor"] == fault["rotor"] and 0.0 < fault["latency_s"] <= 0.1
 
 
-def test_agile_flight_through_turbulence_and_a_gust_raises_no_alarm_while_airborne(tmp_path):
+def test_agile_flight_through_turbulence_and_a_gust_raises_no_alarm_in_the_air_nor_at_touchdown(tmp_path):
+    """The crosswind touchdown (the ground holding the robot against the air) once confirmed a
+    lost rotor 0.2 s after the wheels met the ground."""
     m, truth = _flown("gusty-fault-free", tmp_path)
     assert m["survived"], m["checks"]
     status = read_fault_status(flight_tlog(FlightFiles(tmp_path)))
-    touchdown_s = truth.time_s[np.flatnonzero(truth.on_ground)[0]]
-    airborne = status.time_s < touchdown_s
-    assert not np.any(status.state[airborne] == CONFIRMED)
+    assert truth.on_ground[-1] and status.time_s[-1] > truth.time_s[np.flatnonzero(truth.on_ground)[0]]
+    assert not np.any(status.state == CONFIRMED)
