@@ -114,7 +114,7 @@ def add_campaign(sub) -> None:
 
     p = sub.add_parser("campaign", help="many faulted flights in parallel: survival, altitude loss, detection")
     p.add_argument("--out", type=Path, metavar="DIR",
-                   help=f"output folder (default {DEFAULT_OUT}; with --kind {DETECTION_OUT})")
+                   help=f"output folder (default {DEFAULT_OUT}; with --kind or --false-alarm-minutes {DETECTION_OUT})")
     p.add_argument("--samples", type=int, default=20, metavar="N", help="random flights (default 20)")
     p.add_argument("--grid", action="store_true", help="the full grid of rotors, losses, speeds, fault times instead")
     p.add_argument("--loss", type=_loss, action="append", metavar="X",
@@ -130,8 +130,9 @@ def add_campaign(sub) -> None:
                    help="detection campaign: with and/or without ESC telemetry (default on,off)")
     p.add_argument("--speed", type=_speeds, default=(0.0, 3.0), metavar="V,...",
                    help="detection campaign: speeds at the fault in m/s (default 0,3)")
-    p.add_argument("--false-alarm-minutes", type=float, default=0.0, metavar="MIN",
-                   help="detection campaign: minutes of fault-free agile flight on a sagging battery (default 0)")
+    p.add_argument("--false-alarm-minutes", type=positive_number, default=0.0, metavar="MIN",
+                   help="detection campaign: minutes of fault-free agile flight on a sagging battery (default 0); "
+                        "without --kind only these")
     p.add_argument("--wind", type=_wind_speed, default=0.0, metavar="M/S",
                    help="detection campaign: mean wind speed, from a bearing drawn per flight (default 0)")
     p.add_argument("--turbulence", type=_choices(TURBULENCE_LEVELS), default=("none",), metavar="LEVEL,...",
@@ -189,11 +190,12 @@ def _campaign(args) -> int:
     from sitl.campaigns.detection_campaign import DEFAULT_OUT as DETECTION_OUT, WeatherGrid, run_detection_campaign
 
     losses = tuple(args.loss) if args.loss else LOSS_LEVELS
-    out = args.out or (DETECTION_OUT if args.kind else DEFAULT_OUT)
+    detection = bool(args.kind or args.false_alarm_minutes)
+    out = args.out or (DETECTION_OUT if detection else DEFAULT_OUT)
     try:
         make_output_dir(out)
-        if args.kind:
-            result = run_detection_campaign(out, args.kind, args.speed, tuple(e == "on" for e in args.esc), args.seed,
+        if detection:
+            result = run_detection_campaign(out, args.kind or (), args.speed, tuple(e == "on" for e in args.esc), args.seed,
                                             args.false_alarm_minutes, args.jobs, args.rate_hz, args.engine,
                                             args.scheduler, link_of(args),
                                             WeatherGrid(args.wind, args.turbulence, args.profile), args.sweep)
