@@ -226,7 +226,9 @@ def result_row(case: DetectionCase, metrics: dict, status: FaultStatusLog, truth
     wrong = confirmed & ((status.time_s < at_s) | (status.rotor != case.rotor))
     detection = metrics["faults"][0] if case.kind else {"detected_at_s": None}
     detected_s = detection["detected_at_s"]
+    checks = metrics.get("checks", {})
     row.update(survived=bool(metrics["survived"]), false_alarm=bool(np.any(wrong)),
+               completed=bool(checks.get("completed") and checks.get("no_ground_contact_before_landing")),
                alarms_before_fault=confirmations_before(status, at_s), flown_before_fault_s=case.fault_at_s,
                detected=detected_s is not None, latency_s=None, rotor_isolated=False, estimate_error_pct=None, error="")
     if detected_s is not None:
@@ -292,13 +294,13 @@ def summary_markdown(rows: list[dict]) -> str:
     free = [r for r in rows if not r["kind"]]
     if free:
         lines += ["", "| fault-free (agile loop, sagging battery, gusts in moving air) | turbulence | profile | detector | "
-                      "flights | minutes | completed | false alarms | per hour |", "|---|---|---|---|---|---|---|---|---|"]
+                      "flights | minutes | completed aloft | false alarms | per hour |", "|---|---|---|---|---|---|---|---|---|"]
         for (turbulence, profile), g0 in _groups(free, ("turbulence", "profile")):
             for setting in dict.fromkeys(map(_setting, g0)):
                 g = [r for r in g0 if _setting(r) == setting]
                 minutes = sum(r["duration_s"] for r in g if not r.get("error")) / 60.0
                 lines.append(f"| 3 m/s, ESC on/off | {turbulence} | {profile} | {setting} | {len(g)} | {minutes:.0f} | "
-                             f"{sum(r['survived'] for r in g)}/{len(g)} | {sum(r.get('alarms_before_fault', 0) for r in g)} | "
+                             f"{sum(r.get('completed', False) for r in g)}/{len(g)} | {sum(r.get('alarms_before_fault', 0) for r in g)} | "
                              f"{alarms_per_hour(g):.1f} |")
     return head + "\n".join(lines) + "\n\n" + "\n".join(_verdicts(rows)) + "\n"
 

@@ -5,10 +5,13 @@ from __future__ import annotations
 import tomllib
 
 import numpy as np
+import pytest
 
+from companion.config import parse_config
 from m4.airframe import ROTOR_COUNT, load_airframe
 from m4.scenario import parse_scenario
-from sitl.campaigns import campaign, detection_campaign
+from sitl.campaigns import campaign, detection_campaign, tradeoff
+from sitl.flights.flight_run import FlightOptions, companion_config_text
 from sitl.flights import metrics
 from sitl.flights.records import FaultStatusLog
 from sitl.campaigns.compare import markdown_table
@@ -101,3 +104,60 @@ def test_the_detection_campaign_takes_each_flights_detection_from_its_metrics():
     assert row["false_alarm"]
     alone = FaultStatusLog(t[:2], status.rotor[:2], status.state[:2], estimate[:2], t[:2], status.kind[:2])
     assert not detection_campaign.result_row(case, flight, alone, None, AF.hover_thrust_per_rotor_n)["false_alarm"]
+
+
+def test_weather_cases_are_valid_scenarios_in_the_wind_level_and_profile_asked():
+    """5 m/s from a bearing drawn per flight, moderate Dryden, the gps profile; a gust every
+    10 s on the fault-free flights only; still air draws as before the weather existed."""
+    grid = detection_campaign.WeatherGrid(5.0, ("light", "moderate"), ("gps", "mocap"))
+    cases = detection_campaign.detection_cases(("motor",), (0.0,), (True,), 0, 1.0, grid)
+    assert len(cases) == 2 * 2 * (ROTOR_COUNT + 1) and len({c.name for c in cases}) == len(cases)
+    bearings = set()
+    for case in cases:
+        scenario = parse_scenario(tomllib.loads(case.scenario_toml()), f"{case.name}.toml")
+        assert np.hypot(*scenario.wind.mean_ned_m_s[:2]) == pytest.approx(5.0, abs=1e-3)
+        assert (scenario.wind.turbulence, scenario.sensors.profile) == (case.weather.turbulence, case.weather.profile)
+        assert len(scenario.wind.gusts) == (0 if case.kind else 6)
+        bearings.add(case.weather.wind_from_deg)
+    assert len(bearings) == len(cases)
+    still = detection_campaign.detection_cases(("motor",), (0.0,), (True,), 0, 1.0)
+    assert [c.mass_scale for c in still] == [c.mass_scale for c in detection_campaign.detection_cases(
+        ("motor",), (0.0,), (True,), 0, 1.0, detection_campaign.WeatherGrid())]
+    assert all(parse_scenario(tomllib.loads(c.scenario_toml()), "s.toml").wind is None for c in still)
+
+
+def test_a_sweep_flies_every_case_at_each_value_and_hands_the_setting_to_the_companion():
+    sweep = (("deficit_min_n", 1.0), ("deficit_min_n", 4.0))
+    cases = detection_campaign.detection_cases(("motor",), (0.0,), (False,), 0, 1.0, sweep=sweep)
+    assert [c.detector_setting for c in cases] == [sweep[0]] * 5 + [sweep[1]] * 5
+    text = companion_config_text(FlightOptions(fault_detector=(sweep[1],)), 14550, None)
+    assert parse_config(tomllib.loads(text), "flight").fault_detector.deficit_min_n == 4.0
+
+
+def _status(rows):
+    t = np.array([r[0] for r in rows])
+    return FaultStatusLog(t, np.array([r[1] for r in rows]), np.array([r[2] for r in rows]),
+                          np.full((len(rows), ROTOR_COUNT), AF.thrust_max_n), t, np.zeros(len(rows), int))
+
+
+def test_false_alarms_are_counted_per_confirmation_and_per_hour_flown_before_the_fault():
+    """A fault-free minute confirmed twice (healthy again between) is 2 alarms: 120 per hour."""
+    case = detection_campaign.DetectionCase("free", "", 0, 3.0, True, 1.0, 1.0, 60.0)
+    status = _status([(10.0, 2, 1), (10.1, 2, 2), (10.2, 2, 2), (11.0, 0, 0), (30.0, 3, 2)])
+    row = detection_campaign.result_row(case, {"survived": False, "checks": {"completed": True,
+                                        "no_ground_contact_before_landing": True}}, status, None, 14.7)
+    assert (row["alarms_before_fault"], row["flown_before_fault_s"], row["completed"]) == (2, 60.0, True)
+    assert detection_campaign.alarms_per_hour([row]) == pytest.approx(120.0)
+
+
+def test_the_tradeoff_has_one_point_per_value_with_its_latency_and_alarm_rate(tmp_path):
+    def row(value, kind, latency, alarms, flown_s):
+        return {"setting": "chi2_min", "setting_value": value, "kind": kind, "latency_s": latency,
+                "detected": latency is not None, "alarms_before_fault": alarms, "flown_before_fault_s": flown_s}
+    rows = [row(10.0, "motor", 0.04, 1, 2.0), row(10.0, "motor", 0.06, 0, 2.0), row(10.0, "", None, 3, 3596.0),
+            row(50.0, "motor", 0.1, 0, 2.0), row(50.0, "motor", None, 0, 2.0), row(50.0, "", None, 0, 3596.0)]
+    low, high = tradeoff.draw_tradeoff(rows, tmp_path / "tradeoff.png")
+    assert (low.value, low.latency_median_s, low.latency_worst_s, low.missed) == (10.0, 0.05, 0.06, 0)
+    assert low.alarms_per_hour == pytest.approx(4.0) and high.alarms_per_hour == 0.0 and high.missed == 1
+    assert (tmp_path / "tradeoff.png").stat().st_size > 0
+    assert "| chi2_min = 50 | 0.10 / 0.10 | 1 | 0.0 | 1.00 |" in tradeoff.tradeoff_markdown([low, high])
