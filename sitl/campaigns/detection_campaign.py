@@ -20,7 +20,7 @@ M4_FAULT_STATUS after the fault whose estimate reflects the fault's kind and los
 rotor), and from the companion's M4_FAULT_STATUS in the tlog the ceiling estimate of that
 rotor SIZING_AFTER_S later against the truth (truth.npz: what the rotor settles at on the
 largest command then, fault and pack voltage applied; as % of hover thrust), survival
-(sitl.flights.metrics), a false alarm (any confirmation before the fault or naming another
+(sitl.flights.metrics) and, for turbulence, held aloft (HELD_CHECKS), a false alarm (any confirmation before the fault or naming another
 rotor), and the confirmations before the fault with the time flown before it (false alarms per
 hour of flight). Outputs: detection.csv and detection.md in the folder, and with several
 values of a sweep tradeoff.png.
@@ -61,6 +61,9 @@ GUST_LENGTH_S = (1.0, 3.0)
 TARGETS_S = {("motor", True): 0.05, ("propeller", True): 0.10, ("motor", False): 0.15, ("propeller", False): 0.15}
 TURBULENT_TARGETS_S = {("motor", True): 0.08, ("propeller", True): 0.12, ("motor", False): 0.20,
                        ("propeller", False): 0.20}
+# Survival but the still-air "tilt back within 10 deg": in moderate turbulence a healthy robot
+# holding against 11 m/s of air tilts beyond it (27 deg in the fault-free flights).
+HELD_CHECKS = ("completed", "no_ground_contact_before_landing", "altitude_loss_within_0.5_m")
 FREE_MINUTES_TARGET = {"none": 5.0, "light": 30.0, "moderate": 30.0, "severe": 30.0}
 SIZING_TARGET_PCT = 10.0
 DEFAULT_OUT = Path("runs") / "detection"
@@ -228,7 +231,7 @@ def result_row(case: DetectionCase, metrics: dict, status: FaultStatusLog, truth
     detected_s = detection["detected_at_s"]
     checks = metrics.get("checks", {})
     row.update(survived=bool(metrics["survived"]), false_alarm=bool(np.any(wrong)),
-               completed=bool(checks.get("completed") and checks.get("no_ground_contact_before_landing")),
+               held=all(bool(checks.get(k)) for k in HELD_CHECKS),
                alarms_before_fault=confirmations_before(status, at_s), flown_before_fault_s=case.fault_at_s,
                detected=detected_s is not None, latency_s=None, rotor_isolated=False, estimate_error_pct=None, error="")
     if detected_s is not None:
@@ -271,7 +274,7 @@ def alarms_per_hour(rows: list[dict]) -> float:
 def summary_markdown(rows: list[dict]) -> str:
     head = ("| kind | speed (m/s) | ESC telemetry | turbulence | profile | detector | flights | detected | "
             "latency median / max (s) | rotor isolated | ceiling error median / worst (% hover) | survived | "
-            "false alarms |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+            "held aloft | false alarms |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
     lines = []
     faulted = [r for r in rows if r["kind"]]
     for (turbulence, profile, kind), g0 in _groups(faulted, ("turbulence", "profile", "kind")):
@@ -290,17 +293,18 @@ def summary_markdown(rows: list[dict]) -> str:
                         f"{sum(r.get('rotor_isolated', False) for r in g)}/{len(g)} | "
                         f"{_stat(err, lambda v: np.median(np.abs(v)), '.1f')} / "
                         f"{_stat(err, lambda v: np.max(np.abs(v)), '.1f')} | "
-                        f"{sum(r['survived'] for r in g)}/{len(g)} | {sum(r.get('false_alarm', False) for r in g)} |")
+                        f"{sum(r['survived'] for r in g)}/{len(g)} | {sum(r.get('held', False) for r in g)}/{len(g)} | "
+                        f"{sum(r.get('false_alarm', False) for r in g)} |")
     free = [r for r in rows if not r["kind"]]
     if free:
         lines += ["", "| fault-free (agile loop, sagging battery, gusts in moving air) | turbulence | profile | detector | "
-                      "flights | minutes | completed aloft | false alarms | per hour |", "|---|---|---|---|---|---|---|---|---|"]
+                      "flights | minutes | held aloft | false alarms | per hour |", "|---|---|---|---|---|---|---|---|---|"]
         for (turbulence, profile), g0 in _groups(free, ("turbulence", "profile")):
             for setting in dict.fromkeys(map(_setting, g0)):
                 g = [r for r in g0 if _setting(r) == setting]
                 minutes = sum(r["duration_s"] for r in g if not r.get("error")) / 60.0
                 lines.append(f"| 3 m/s, ESC on/off | {turbulence} | {profile} | {setting} | {len(g)} | {minutes:.0f} | "
-                             f"{sum(r.get('completed', False) for r in g)}/{len(g)} | {sum(r.get('alarms_before_fault', 0) for r in g)} | "
+                             f"{sum(r.get('held', False) for r in g)}/{len(g)} | {sum(r.get('alarms_before_fault', 0) for r in g)} | "
                              f"{alarms_per_hour(g):.1f} |")
     return head + "\n".join(lines) + "\n\n" + "\n".join(_verdicts(rows)) + "\n"
 
@@ -326,8 +330,9 @@ def _verdicts(rows: list[dict]) -> list[str]:
                        f"{worst:.1f} %: {'met' if met else 'NOT met'}")
         total = [r for r in level if r["kind"] in ("motor", "propeller")]
         if total:
-            survived = sum(r["survived"] for r in total)
-            out.append(f"- survival of total single-rotor loss{where}: {survived}/{len(total)}: "
+            survived = sum(r["survived"] if turbulence == "none" else r.get("held", False) for r in total)
+            how = "" if turbulence == "none" else " (held aloft: no tilt check in turbulence)"
+            out.append(f"- survival of total single-rotor loss{where}{how}: {survived}/{len(total)}: "
                        f"{'met' if survived == len(total) else 'NOT met'}")
         free = [r for r in level if not r["kind"]]
         if free:

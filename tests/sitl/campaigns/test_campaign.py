@@ -144,9 +144,10 @@ def test_false_alarms_are_counted_per_confirmation_and_per_hour_flown_before_the
     """A fault-free minute confirmed twice (healthy again between) is 2 alarms: 120 per hour."""
     case = detection_campaign.DetectionCase("free", "", 0, 3.0, True, 1.0, 1.0, 60.0)
     status = _status([(10.0, 2, 1), (10.1, 2, 2), (10.2, 2, 2), (11.0, 0, 0), (30.0, 3, 2)])
-    row = detection_campaign.result_row(case, {"survived": False, "checks": {"completed": True,
-                                        "no_ground_contact_before_landing": True}}, status, None, 14.7)
-    assert (row["alarms_before_fault"], row["flown_before_fault_s"], row["completed"]) == (2, 60.0, True)
+    checks = {"completed": True, "no_ground_contact_before_landing": True, "altitude_loss_within_0.5_m": True,
+              "tilt_back_within_10_deg": False}
+    row = detection_campaign.result_row(case, {"survived": False, "checks": checks}, status, None, 14.7)
+    assert (row["alarms_before_fault"], row["flown_before_fault_s"], row["held"]) == (2, 60.0, True)
     assert detection_campaign.alarms_per_hour([row]) == pytest.approx(120.0)
 
 
