@@ -28,12 +28,6 @@ from sitl.fc.modes import available_modes
 
 m = mavlink
 FORCE_DISARM = 21196
-_FAILURE_TEXT = {
-    FaultKind.DEGRADED: lambda loss: f"loss {100.0 * loss:.0f}%",
-    FaultKind.MOTOR: lambda loss: "motor stop",
-    FaultKind.PROPELLER: lambda loss: "propeller loss",
-    FaultKind.DAMAGE: lambda loss: f"propeller damage {100.0 * loss:.0f}%",
-}
 
 
 def _rotor(value: float) -> int | None:
@@ -68,9 +62,6 @@ class CommandHandler:
 
     def _apply_loss(self, rotor: int, loss: float, kind: FaultKind):
         self.fc.set_rotor_loss(rotor, loss, kind)
-        which = "all rotors" if rotor == 0 else f"rotor {rotor}"
-        text = f"{which} restored" if loss == 0.0 else f"{which} {_FAILURE_TEXT[kind](loss)} injected"
-        self.fc.announce(m.MAV_SEVERITY_INFO, text)
         return m.MAV_RESULT_ACCEPTED, []
 
     def _inject_failure(self, params, now_ms):

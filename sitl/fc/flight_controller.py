@@ -3,7 +3,8 @@
 It implements the contract of docs/flight-controller.md, where each rule (setpoint age and
 staleness, authority, arming, failsafe, the fast loops) is stated once. It owns the plant's
 actuator commands: the companion's M4_SETPOINT while setpoints are fresh, its own failsafe
-(sitl/fc/failsafe.py) otherwise. STATUSTEXT announces each mode change. Commands (sitl/fc/commands.py) are
+(sitl/fc/failsafe.py) otherwise. STATUSTEXT announces each mode change and each rotor fault applied
+(a command's or the scenario's: m4/fault_text.py). Commands (sitl/fc/commands.py) are
 acknowledged; telemetry streams (sitl/fc/streams.py) are built from the measured plant state:
 with an `estimator` (sitl/fc/estimator.py: a scenario's [sensors] profile "mocap" or "gps"),
 its attitude, rates, position and velocity come from the estimator's raw sensors, never the
@@ -50,6 +51,7 @@ import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
 from m4.fault_kind import FaultKind
+from m4.fault_text import fault_text
 from m4.log_limit import RepeatLimiter
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from m4.mavlink.param_service import PARAM_IDS, ParamService
@@ -217,10 +219,13 @@ class FlightController:
         self._measured = None
 
     def set_rotor_loss(self, rotor: int, loss: float, kind: FaultKind = FaultKind.DEGRADED) -> None:
-        """Rotor 1..4 (0: all) fails as `kind` (sitl/plant/thrusters.py); loss 0 restores it."""
+        """Rotor 1..4 (0: all) fails as `kind` (sitl/plant/thrusters.py); loss 0 restores it.
+        Said as STATUSTEXT INFO (m4.fault_text), whoever asked (a command, the scenario): the
+        flight's logs carry the fault."""
         for r in range(1, ROTOR_COUNT + 1) if rotor == 0 else (rotor,):
             self.plant.set_rotor_loss(r, loss, kind)
         self._measured = None
+        self.announce(mavlink.MAV_SEVERITY_INFO, fault_text(rotor, loss, kind))
 
     # -- modes -------------------------------------------------------------------------------
     def _set_mode(self, mode: FcMode) -> None:
