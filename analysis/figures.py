@@ -1,16 +1,20 @@
 """The paper's flight figures from a tlog (analysis.tlog_reader), with matplotlib's Agg backend.
 
-- trajectory: position (north, east, altitude; the companion's reference dashed when its log
-  has one), roll and pitch, yaw (unwrapped, on a panel of its own: a spinning robot's yaw
-  would flatten the others);
+- trajectory: north and east, altitude (each on an axis of its own, so a 3 cm sag shows; the
+  companion's reference dashed when its log has one), roll, pitch and tilt, yaw (unwrapped,
+  on a panel of its own: a spinning robot's yaw would flatten the others); below, the
+  altitude and tilt over ZOOM_BEFORE_S + ZOOM_AFTER_S around the first fault, where a
+  detection 40 ms after it stands apart;
 - velocities_rates: body-frame velocities (the measured NED velocity rotated by the attitude)
   and body rates;
 - actuators: per rotor the thrust the companion commanded (M4_SETPOINT, dashed) against what
   the FC sent its ESC (M4_THRUSTER_STATUS: clamped, or its failsafe's; solid) and the limit it
-  knows (dotted; no FC measures delivered thrust); the hips commanded against measured;
+  knows (dotted; no FC measures delivered thrust); the hips commanded against measured; each
+  ESC's speed and current (ESC_TELEMETRY_1_TO_4);
 - yaw_rate: the body yaw rate alone.
-Every time plot marks each fault (red dashed line) and its detection (black solid line), both
-named in the legend. Legends sit to the right of their panel, outside the data.
+Every time plot marks each fault (red dashed line), its detection (black solid line) and the
+latency between them (shaded), named in the legend; a confirmation of the companion's that
+detects no known fault (the log does not carry the fault's instant) is a black line too. Legends sit to the right of their panel, outside the data.
 """
 
 from __future__ import annotations
@@ -23,36 +27,66 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from analysis.measures import tilt_deg
 from analysis.tlog_reader import FlightRecord, Series
 from m4.attitude import rotation_ned_from_frd
 
+Marks = tuple[list[dict], list[tuple[float, int, str]]]     # (faults with their detections, confirmations)
 FORMATS = ("png", "pdf", "svg")
 ROTOR_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:purple")    # no red: the fault mark is red
 FAULT_STYLE = {"color": "crimson", "ls": "--", "lw": 1.3}
 DETECTION_STYLE = {"color": "black", "ls": "-", "lw": 1.3}        # no data line is black
+LATENCY_STYLE = {"color": "crimson", "alpha": 0.15, "lw": 0}   # from a fault to its detection
 DPI = 110
+POSITION_NAMES = ("north", "east", "altitude")
+ZOOM_BEFORE_S, ZOOM_AFTER_S = 0.2, 1.0
 FIGURES = ("trajectory", "velocities_rates", "actuators", "yaw_rate")
 
 
-def _marks(ax, faults: list[dict]) -> None:
+def _fault_label(f: dict) -> str:
+    which = "all rotors" if f["rotor"] == 0 else f"rotor {f['rotor']}"
+    return f"fault: {which}, {f.get('kind', 'degraded')} {100 * f['loss']:.0f} % ({f['at_s']:.2f} s)"
+
+
+def _marks(ax, faults: list[dict], confirmations: list[tuple[float, int, str]]) -> None:
+    """Each fault (red dashed), its detection (black) and the latency between them (shaded); a
+    confirmation of the companion's that detects no given fault, black as well."""
+    detected = set()
     for f in faults:
-        which = "all rotors" if f["rotor"] == 0 else f"rotor {f['rotor']}"
-        ax.axvline(f["at_s"], label=f"fault: {which}, {100 * f['loss']:.0f} % ({f['at_s']:.2f} s)", **FAULT_STYLE)
+        ax.axvline(f["at_s"], label=_fault_label(f), **FAULT_STYLE)
         if f.get("detected_at_s") is not None:
+            detected.add(round(f["detected_at_s"], 6))
             ax.axvline(f["detected_at_s"], label=f"detected: rotor {f['detected_rotor']} ({f['detected_at_s']:.2f} s)",
                        **DETECTION_STYLE)
+            ax.axvspan(f["at_s"], f["detected_at_s"], **LATENCY_STYLE)
+    for t_s, rotor, kind in confirmations:
+        if round(t_s, 6) not in detected:
+            ax.axvline(t_s, label=f"confirmed: rotor {rotor}, {kind} ({t_s:.2f} s)", **DETECTION_STYLE)
 
 
-def _finish(fig, axes, faults: list[dict], path: Path, title: str) -> Path:
+def _legend(ax) -> None:
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=8)
+
+
+def _mark_panels(axes, marks: Marks) -> None:
+    """The marks and a legend on every panel of a time axis shared by `axes`."""
     for ax in axes:
-        _marks(ax, faults)
-        ax.grid(alpha=0.3)
-        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=8)
+        _marks(ax, *marks)
+        _legend(ax)
     axes[-1].set_xlabel("time (s, flight controller clock)")
+
+
+def _save(fig, path: Path, title: str) -> Path:
     fig.suptitle(title)
     fig.savefig(path, dpi=DPI)
     plt.close(fig)
     return path
+
+
+def _finish(fig, axes, marks: Marks, path: Path, title: str) -> Path:
+    _mark_panels(axes, marks)
+    return _save(fig, path, title)
 
 
 def _figure(rows: int, height: float, **kwargs):
@@ -60,22 +94,67 @@ def _figure(rows: int, height: float, **kwargs):
     return fig, np.atleast_1d(axes)
 
 
-def trajectory_figure(path: Path, title: str, record: FlightRecord, faults: list[dict]) -> Path:
-    fig, axes = _figure(3, 9, height_ratios=(3, 3, 2))
-    pos, att = record.position_ned_m, record.euler_rad
-    for i, (name, sign) in enumerate((("north", 1), ("east", 1), ("altitude", -1))):
-        line, = axes[0].plot(pos.time_s, sign * pos.values[:, i], label=name)
+def _first_mark_s(marks: Marks) -> float | None:
+    faults, confirmations = marks
+    return faults[0]["at_s"] if faults else confirmations[0][0] if confirmations else None
+
+
+def _position(ax, record: FlightRecord, axes_ned: tuple[int, ...], window: tuple[float, float] | None = None) -> None:
+    """North/east/altitude (the indices of NED in axes_ned), the reference dashed, in `window` (s)."""
+    pos = record.position_ned_m
+    for i in axes_ned:
+        name, sign = POSITION_NAMES[i], -1 if i == 2 else 1
+        keep = slice(None) if window is None else (pos.time_s >= window[0]) & (pos.time_s <= window[1])
+        line, = ax.plot(pos.time_s[keep], sign * pos.values[keep, i], label=name)
         ref = record.named.get(f"ref_{'ned'[i]}")
         if ref is not None and len(ref):
-            axes[0].plot(ref.time_s, sign * ref.values[:, 0], ls="--", lw=1, color=line.get_color(),
-                         label=f"{name} reference (centre of mass)")
-    axes[0].set_ylabel("position (m)")
+            keep = slice(None) if window is None else (ref.time_s >= window[0]) & (ref.time_s <= window[1])
+            ax.plot(ref.time_s[keep], sign * ref.values[keep, 0], ls="--", lw=1, color=line.get_color(),
+                    label=f"{name} reference (centre of mass)")
+
+
+def trajectory_figure(path: Path, title: str, record: FlightRecord, marks: Marks) -> Path:
+    """North and east, altitude, attitude and yaw each on an axis scaled to it (a 3 cm sag shows);
+    below, the altitude and tilt around the first fault, where the fault and its detection stand apart."""
+    first_s = _first_mark_s(marks)
+    fig = plt.figure(figsize=(11, 13 if first_s is not None else 10), layout="constrained")
+    grid = fig.add_gridspec(2 if first_s is not None else 1, 1, height_ratios=(4, 1.3)[:1 + (first_s is not None)])
+    axes = np.atleast_1d(grid[0].subgridspec(4, 1, height_ratios=(2, 2, 2, 1.5)).subplots(sharex=True))
+    att = record.euler_rad
+    _position(axes[0], record, (0, 1))
+    axes[0].set_ylabel("north, east (m)")
+    _position(axes[1], record, (2,))
+    axes[1].set_ylabel("altitude (m)")
     for i, name in enumerate(("roll", "pitch")):
-        axes[1].plot(att.time_s, np.degrees(att.values[:, i]), label=name)
-    axes[1].set_ylabel("roll, pitch (deg)")
-    axes[2].plot(att.time_s, np.degrees(np.unwrap(att.values[:, 2])), color="tab:green", label="yaw")
-    axes[2].set_ylabel("yaw (deg, unwrapped)")
-    return _finish(fig, axes, faults, path, title)
+        axes[2].plot(att.time_s, np.degrees(att.values[:, i]), label=name)
+    axes[2].plot(att.time_s, tilt_deg(att.values), color="tab:gray", lw=1, label="tilt")
+    axes[2].set_ylabel("attitude (deg)")
+    axes[3].plot(att.time_s, np.degrees(np.unwrap(att.values[:, 2])), color="tab:green", label="yaw")
+    axes[3].set_ylabel("yaw (deg, unwrapped)")
+    _mark_panels(axes, marks)
+    if first_s is not None:
+        _zoom(fig.add_subplot(grid[1]), record, marks, (first_s - ZOOM_BEFORE_S, first_s + ZOOM_AFTER_S))
+    return _save(fig, path, title)
+
+
+def _zoom(ax, record: FlightRecord, marks: Marks, window: tuple[float, float]) -> None:
+    """Altitude (left) and tilt (right) over `window` around the first fault."""
+    _position(ax, record, (2,), window)
+    ax.set_ylabel("altitude (m)")
+    att = record.euler_rad
+    keep = (att.time_s >= window[0]) & (att.time_s <= window[1])
+    tilt_ax = ax.twinx()
+    tilt_ax.plot(att.time_s[keep], tilt_deg(att.values[keep]), color="tab:gray", lw=1, label="tilt")
+    tilt_ax.set_ylabel("tilt (deg)")
+    _marks(ax, *marks)
+    ax.set_xlim(*window)
+    ax.set_title("around the fault", fontsize=9)
+    ax.set_xlabel("time (s, flight controller clock)")
+    lines = ax.get_legend_handles_labels()
+    tilt_lines = tilt_ax.get_legend_handles_labels()
+    ax.legend(lines[0] + tilt_lines[0], lines[1] + tilt_lines[1], loc="upper left", bbox_to_anchor=(1.06, 1.0),
+              borderaxespad=0.0, fontsize=8)
+    ax.grid(alpha=0.3)
 
 
 def body_velocities(record: FlightRecord) -> Series:
@@ -85,7 +164,7 @@ def body_velocities(record: FlightRecord) -> Series:
     return Series(vel.time_s, np.array([rotation_ned_from_frd(e).T @ v for e, v in zip(euler, vel.values)]))
 
 
-def velocities_rates_figure(path: Path, title: str, record: FlightRecord, faults: list[dict]) -> Path:
+def velocities_rates_figure(path: Path, title: str, record: FlightRecord, marks: Marks) -> Path:
     fig, axes = _figure(2, 7)
     body = body_velocities(record)
     for i, name in enumerate(("u (forward)", "v (right)", "w (down)")):
@@ -95,11 +174,13 @@ def velocities_rates_figure(path: Path, title: str, record: FlightRecord, faults
     for i, name in enumerate(("p (roll)", "q (pitch)", "r (yaw)")):
         axes[1].plot(rates.time_s, rates.values[:, i], label=name)
     axes[1].set_ylabel("body rates (rad/s)")
-    return _finish(fig, axes, faults, path, title)
+    return _finish(fig, axes, marks, path, title)
 
 
-def actuators_figure(path: Path, title: str, record: FlightRecord, faults: list[dict]) -> Path:
-    fig, axes = _figure(2, 8)
+def actuators_figure(path: Path, title: str, record: FlightRecord, marks: Marks) -> Path:
+    """Thrusts, hips, and what the ESCs measure: speed and current (a stopped motor's fall to zero,
+    a lost propeller's overspeed)."""
+    fig, axes = _figure(4, 13, height_ratios=(3, 2, 2, 2))
     for i, colour in enumerate(ROTOR_COLOURS):
         n = i + 1
         axes[0].plot(record.thrust_cmd_n.time_s, record.thrust_cmd_n.values[:, i], color=colour,
@@ -112,25 +193,34 @@ def actuators_figure(path: Path, title: str, record: FlightRecord, faults: list[
                      label=f"hip {n} measured")
         axes[1].plot(record.setpoint_hip_rad.time_s, np.degrees(record.setpoint_hip_rad.values[:, i]), color=colour,
                      ls="--", lw=1, label=f"hip {n} commanded")
+        axes[2].plot(record.esc_rpm.time_s, record.esc_rpm.values[:, i], color=colour, label=f"ESC {n}")
+        axes[3].plot(record.esc_current_a.time_s, record.esc_current_a.values[:, i], color=colour, label=f"ESC {n}")
     axes[0].set_ylabel("thrust (N)")
     axes[1].set_ylabel("hip angle (deg)")
-    return _finish(fig, axes, faults, path, title)
+    axes[2].set_ylabel("ESC speed (rpm)")
+    axes[3].set_ylabel("ESC current (A)")
+    if not len(record.esc_rpm):
+        for ax in axes[2:]:
+            ax.text(0.5, 0.5, "no ESC telemetry in this log", transform=ax.transAxes, ha="center", va="center")
+    return _finish(fig, axes, marks, path, title)
 
 
-def yaw_rate_figure(path: Path, title: str, record: FlightRecord, faults: list[dict]) -> Path:
+def yaw_rate_figure(path: Path, title: str, record: FlightRecord, marks: Marks) -> Path:
     fig, axes = _figure(1, 4)
     rates = record.rates_frd_rad_s
     axes[0].plot(rates.time_s, rates.values[:, 2], color="tab:green", label="yaw rate r")
     axes[0].set_ylabel("yaw rate (rad/s)")
-    return _finish(fig, axes, faults, path, title)
+    return _finish(fig, axes, marks, path, title)
 
 
 def draw(record: FlightRecord, out_dir: Path, title: str, faults: list[dict], fmt: str = "png") -> list[Path]:
-    """Every figure of FIGURES as out_dir/<name>.<fmt>; `faults`: analysis.flight_metrics.detections()."""
+    """Every figure of FIGURES as out_dir/<name>.<fmt>; `faults`: analysis.flight_metrics.detections().
+    The companion's confirmations come from the record."""
     if fmt not in FORMATS:
         raise ValueError(f"unknown figure format {fmt!r}; choose from {', '.join(FORMATS)}")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     draw_one = {"trajectory": trajectory_figure, "velocities_rates": velocities_rates_figure,
                 "actuators": actuators_figure, "yaw_rate": yaw_rate_figure}
-    return [draw_one[name](out_dir / f"{name}.{fmt}", title, record, faults) for name in FIGURES]
+    marks = (faults, record.confirmations())
+    return [draw_one[name](out_dir / f"{name}.{fmt}", title, record, marks) for name in FIGURES]

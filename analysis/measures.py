@@ -38,3 +38,14 @@ def time_to_yaw_saturation(time_s: np.ndarray, yaw_rate: np.ndarray, from_s: flo
         return None
     hits = np.flatnonzero((time_s >= from_s) & (np.abs(yaw_rate) >= YAW_SATURATION_FRACTION * abs(final)))
     return float(time_s[hits[0]] - from_s) if hits.size else None
+
+
+def rounded(value):
+    """A metrics.json value with its floats to 4 decimals (a latency of 0.04 s, not 0.040000000000000036)."""
+    if isinstance(value, float):
+        return round(value, 4)
+    if isinstance(value, dict):
+        return {k: rounded(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [rounded(v) for v in value]
+    return value

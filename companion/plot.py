@@ -4,12 +4,18 @@ laptop without MuJoCo: `pip install "m4-fault-recovery[plot]"`.
 
     m4-companion plot FLIGHT.tlog [--out DIR] [--format png|pdf|svg] [--fault AT_S:ROTOR[:LOSS]]...
 
-Writes DIR/metrics.json (analysis.flight_metrics) and DIR/{trajectory, velocities_rates,
-actuators, yaw_rate}.FORMAT (analysis.figures); DIR defaults to a folder beside the tlog,
-named after it. Faults injected by command are in the tlog; `--fault` adds one that is not
-(a simulator scenario's, a rotor cut by hand), at AT_S seconds of the flight controller's clock:
-a degraded motor, LOSS as in a scenario file (its ceiling (1 - LOSS) x the default airframe's
-hover thrust, against which analysis.detection judges the companion's detection).
+Writes DIR/metrics.json (analysis.flight_metrics: fly's keys where both have them) and
+DIR/{trajectory, velocities_rates, actuators, yaw_rate}.FORMAT (analysis.figures); DIR
+defaults to a folder beside the tlog, named after it. The faults are the tlog's own (the
+flight controller's announcements, accepted commands: analysis.tlog_reader) and the
+companion's confirmations; `--fault` adds one the log does not carry (a rotor cut by hand),
+at AT_S seconds of the flight controller's clock: a degraded motor, LOSS as in a scenario
+file (its ceiling (1 - LOSS) x the default airframe's hover thrust, against which
+analysis.detection judges the companion's detection). Without any fault the metrics count
+"after the fault" from the companion's first confirmation, and say so.
+
+A tlog with bytes that make no whole record (cut short) is read up to them with a warning;
+an --out that is a file or cannot be made, and a file that is no tlog, end in one line.
 """
 
 from __future__ import annotations
@@ -50,21 +56,35 @@ def run(args: argparse.Namespace) -> int:
         return _error(hint)
     from analysis.figures import draw
     from analysis.flight_metrics import telemetry_metrics
+    from analysis.measures import rounded
     from analysis.tlog_reader import read_tlog
     from m4.airframe import load_airframe
 
     if not args.tlog.is_file():
         return _error(f"no such tlog: {args.tlog}")
     out = args.out or args.tlog.with_suffix("")
+    if out.exists() and not out.is_dir():
+        return _error(f"--out {out}: exists and is not a folder")
     try:
         record = read_tlog(args.tlog)
+        if record.unread_bytes == args.tlog.stat().st_size:
+            return _error(f"{args.tlog}: not a tlog (no MAVLink packet in it)")
         faults = sorted([*record.injected, *args.fault], key=lambda f: f.at_s)
-        metrics = telemetry_metrics(record, faults, load_airframe())
+        metrics = rounded(telemetry_metrics(record, faults, load_airframe()))
     except (OSError, ValueError) as e:
         return _error(f"{args.tlog}: {e}")
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
-    paths = draw(record, out, args.tlog.name, metrics["faults"], args.format)
+    if record.unread_bytes:
+        _warn(f"{args.tlog}: {record.unread_bytes} bytes are no whole record (a file cut short?): "
+              f"read up to t = {record.duration_s:.2f} s")
+    if (origin := metrics["measured_from"])["what"] != "fault":
+        _warn(f"{args.tlog}: no fault instant in the log: \"after the fault\" counts from the "
+              f"{origin['what']} (t = {origin['at_s']:.2f} s); --fault AT_S:ROTOR gives it")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+        paths = draw(record, out, args.tlog.name, metrics["faults"], args.format)
+    except OSError as e:
+        return _error(f"--out {out}: cannot write there ({e.strerror or e})")
     print(f"{args.tlog}: {record.duration_s:.1f} s of flight -> {out}/metrics.json, "
           + ", ".join(p.name for p in paths))
     return 0
@@ -73,3 +93,7 @@ def run(args: argparse.Namespace) -> int:
 def _error(text: str) -> int:
     print(f"m4-companion: error: {text}", file=sys.stderr)
     return EXIT_BAD_INPUT
+
+
+def _warn(text: str) -> None:
+    print(f"m4-companion: warning: {text}", file=sys.stderr)

@@ -37,7 +37,7 @@ from __future__ import annotations
 import numpy as np
 
 from analysis import detection
-from analysis.measures import tilt_deg, tilt_recovered_s, time_to_yaw_saturation, yaw_rate_final
+from analysis.measures import rounded, tilt_deg, tilt_recovered_s, time_to_yaw_saturation, yaw_rate_final
 from m4.airframe import Airframe
 from m4.mission_plan import MissionPlan
 from m4.scenario import Scenario
@@ -125,16 +125,6 @@ def realtime_factor(time_s: np.ndarray, wall_s: np.ndarray) -> float | None:
     return float((time_s[-1] - time_s[1]) / (wall_s[-1] - wall_s[1]))
 
 
-def _rounded(value):
-    if isinstance(value, float):
-        return round(value, 4)
-    if isinstance(value, dict):
-        return {k: _rounded(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_rounded(v) for v in value]
-    return value
-
-
 def reference_track(scenario: Scenario, af: Airframe, truth: Truth, status: FaultStatusLog) -> np.ndarray:
     """(n, 3) the mission reference at each truth sample, the hold where the companion confirmed the fault."""
     hold_s = detection.first_confirmation_s(status.time_s, status.state) if scenario.faults else None
@@ -178,7 +168,7 @@ def flight_metrics(scenario: Scenario, controller: str, af: Airframe, truth: Tru
     }
     m["checks"] = survival_checks(m, land_s is not None)
     m["survived"] = all(m["checks"].values())
-    return _rounded(m)
+    return rounded(m)
 
 
 def wind_summary(scenario: Scenario, truth: Truth) -> dict | None:

@@ -48,8 +48,9 @@ class _Tlog:
 ROTOR_4_LOST = (m.MAV_CMD_M4_ROTOR_LOSS, 4, 1, m.M4_FAULT_KIND_DEGRADED)
 
 
-def _flight(path, yaw_rad=0.0, vel_ned=(0.0, 0.0, 0.0), injection=ROTOR_4_LOST):
-    """injection: (command, its first three params) sent at 1 s and accepted."""
+def _flight(path, yaw_rad=0.0, vel_ned=(0.0, 0.0, 0.0), injection=ROTOR_4_LOST, announced=()):
+    """injection: (command, its first three params) sent at 1 s and accepted (None: no command);
+    announced: (k, text) the FC says at step k."""
     log = _Tlog(path)
     for k in range(151):
         t_s = k * 0.02
@@ -64,6 +65,8 @@ def _flight(path, yaw_rad=0.0, vel_ned=(0.0, 0.0, 0.0), injection=ROTOR_4_LOST):
         log.send(1, m.MAVLink_m4_joint_state_message(t_ms, [0.78] * 4, [0.0] * 4))
         thrust = [22.0, 22.0, 15.0, 0.0] if after else [14.7] * 4
         log.send(1, m.MAVLink_m4_thruster_status_message(t_ms, thrust, [30.0] * 4))
+        log.send(1, m.MAVLink_esc_telemetry_1_to_4_message([30] * 4, [1600] * 4, [1500, 1500, 1000, 0], [0] * 4,
+                                                           [5500, 5500, 4000, 0 if after else 5500], [k] * 4))
         log.send(191, m.MAVLink_m4_setpoint_message(1, 1, t_ms, 20, [29.0 if after else 14.7] * 4, [0.78] * 4,
                                                    [0.0] * 4, 0))
         confirmed = t_s >= DETECTED_S
@@ -71,7 +74,9 @@ def _flight(path, yaw_rad=0.0, vel_ned=(0.0, 0.0, 0.0), injection=ROTOR_4_LOST):
                                                         else 30.0], 1060 if confirmed else 0, 2 if confirmed else 0))
         for name, value in (("nmpc_ms", 1.0 + k % 3), ("ref_d", -2.0), ("step_ms", 2.0), ("nmpc_ok", 1.0)):
             log.send(191, m.MAVLink_named_value_float_message(t_ms, name.encode(), value))
-        if k == 50:
+        for _ in (text for at, text in announced if at == k):
+            log.send(1, m.MAVLink_statustext_message(m.MAV_SEVERITY_INFO, _.encode()))
+        if k == 50 and injection is not None:
             command, *params = injection
             log.send(190, m.MAVLink_command_long_message(1, 1, command, 0, *params, 0, 0, 0, 0))
             log.send(1, m.MAVLink_command_ack_message(command, m.MAV_RESULT_ACCEPTED, 0, 0, 255, 190))
@@ -101,6 +106,21 @@ def test_an_injected_fault_keeps_its_kind(tmp_path, injection, fault):
     assert read_tlog(_flight(tmp_path / "flight.tlog", injection=injection)).injected == [fault]
 
 
+def test_the_fc_announcement_gives_the_fault_and_a_restore_ends_it(tmp_path):
+    """What the simulated FC says for a scenario's fault and a command's alike: in the companion's log."""
+    record = read_tlog(_flight(tmp_path / "flight.tlog", injection=None,
+                               announced=[(50, "rotor 4 propeller loss injected"), (120, "rotor 4 restored")]))
+    assert record.injected == [Fault(FAULT_S, 4, 1.0, "propeller", until_s=2.4)]
+    both = read_tlog(_flight(tmp_path / "both.tlog", announced=[(50, "rotor 4 loss 100% injected")]))
+    assert both.injected == [Fault(FAULT_S, 4, 1.0)]                  # a command and its announcement: one fault
+
+
+def test_esc_speed_and_current_are_read(tlog):
+    record = read_tlog(tlog)
+    assert record.esc_rpm.values[-1].tolist() == [5500, 5500, 4000, 0]
+    assert record.esc_current_a.values[-1].tolist() == [15.0, 15.0, 10.0, 0.0]
+
+
 def test_metrics_from_telemetry(tlog):
     record = read_tlog(tlog)
     metrics = telemetry_metrics(record, record.injected, AF)
@@ -111,10 +131,23 @@ def test_metrics_from_telemetry(tlog):
     assert metrics["tilt_recovered_s"] == pytest.approx(0.4)      # 11.5 deg from 1.1 to 1.4 s
     assert metrics["yaw_rate_final_rad_s"] == pytest.approx(5.0)
     assert metrics["time_to_yaw_saturation_s"] == pytest.approx(0.5 + 0.9 * 0.5, abs=0.021)
-    assert metrics["max_thrust_commanded_n"] == 29.0 and metrics["max_thrust_to_esc_n"] == 22.0
-    assert metrics["nmpc_solve_ms"]["max"] == 3.0 and metrics["nmpc_failures"] == 0
-    assert metrics["setpoint_rate_hz"] == pytest.approx(50.0) and metrics["critical_messages"] == ["thrust loss rotor 4"]
+    assert metrics["max_thrust_commanded_n"] == 29.0 and metrics["max_thrust_n"] == 22.0
+    assert metrics["nmpc"] == {"rate_hz": pytest.approx(50.0), "solve_ms_median": 2.0,
+                               "solve_ms_p99": pytest.approx(3.0), "solve_failures": 0}
+    assert metrics["measured_from"] == {"what": "fault", "at_s": FAULT_S}
+    assert metrics["confirmations"] == [{"at_s": DETECTED_S, "rotor": 4, "kind": "unknown"}]
+    assert metrics["critical_messages"] == ["thrust loss rotor 4"]
     json.dumps(metrics)
+
+
+def test_plot_and_fly_share_every_key_they_both_have(tlog):
+    """One vocabulary: the keys of fly's metrics.json that a tlog can give, with fly's nmpc summary."""
+    record = read_tlog(tlog)
+    metrics = telemetry_metrics(record, record.injected, AF)
+    shared = {"duration_s", "faults", "altitude_loss_m", "max_tilt_deg_after_fault", "tilt_recovered_s",
+              "position_rmse_m", "yaw_rate_final_rad_s", "time_to_yaw_saturation_s", "max_thrust_n", "nmpc"}
+    assert shared <= set(metrics)
+    assert set(metrics["nmpc"]) == {"rate_hz", "solve_ms_median", "solve_ms_p99", "solve_failures"}
 
 
 def test_flying_north_while_facing_east_is_flying_to_the_left_in_the_body_frame(tmp_path):
@@ -140,15 +173,18 @@ def test_legends_sit_outside_the_panels_and_name_fault_and_detection(tlog, tmp_p
     seen = []
     monkeypatch.setattr(plt, "close", lambda fig: seen.append(fig))
     draw(record, tmp_path, "synthetic", faults)
+    fault, detected = "fault: rotor 4, degraded 100 % (1.00 s)", "detected: rotor 4 (1.06 s)"
     for fig in seen:
         fig.canvas.draw()
-        for ax in fig.axes:
+        panels = [ax for ax in fig.axes if ax.get_legend() is not None]
+        assert len(panels) >= len(fig.axes) - 1              # the zoom's tilt axis shares its panel's legend
+        for ax in panels:
             legend = ax.get_legend()
             assert legend.get_window_extent().x0 >= ax.get_window_extent().x1        # hides no data
             labels = [t.get_text() for t in legend.get_texts()]
-            assert "fault: rotor 4, 100 % (1.00 s)" in labels and "detected: rotor 4 (1.06 s)" in labels
+            assert fault in labels and detected in labels
             styles = {line.get_label(): (line.get_color(), line.get_linestyle()) for line in ax.get_lines()}
-            assert styles["fault: rotor 4, 100 % (1.00 s)"] != styles["detected: rotor 4 (1.06 s)"]
+            assert styles[fault] != styles[detected]
 
 
 def test_plot_command_writes_metrics_and_figures(tlog, tmp_path, capsys):
@@ -156,6 +192,70 @@ def test_plot_command_writes_metrics_and_figures(tlog, tmp_path, capsys):
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert [(f["at_s"], f["rotor"]) for f in metrics["faults"]] == [(1.0, 4), (2.0, 3)]
     assert (tmp_path / "actuators.svg").exists() and "metrics.json" in capsys.readouterr().out
+
+
+def test_without_a_fault_in_the_log_the_metrics_count_from_the_first_confirmation_and_say_so(tmp_path, capsys):
+    tlog = _flight(tmp_path / "flight.tlog", injection=None)
+    assert main(["plot", str(tlog), "--out", str(tmp_path / "out")]) == 0
+    metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    assert metrics["faults"] == [] and metrics["measured_from"] == {"what": "first confirmation", "at_s": DETECTED_S}
+    assert metrics["time_to_yaw_saturation_s"] == pytest.approx(0.44 + 0.9 * 0.5, abs=0.021)
+    assert "no fault instant in the log" in capsys.readouterr().err
+
+
+def _figure_axes(record, faults, tmp_path, monkeypatch) -> dict[str, list]:
+    import matplotlib.pyplot as plt
+
+    seen = []
+    monkeypatch.setattr(plt, "close", lambda fig: seen.append(fig))
+    draw(record, tmp_path, "synthetic", faults)
+    return {fig.get_suptitle() + str(i): fig.axes for i, fig in enumerate(seen)}
+
+
+def test_the_altitude_has_an_axis_scaled_to_the_sag_and_esc_speed_and_current_are_drawn(tlog, tmp_path,
+                                                                                         monkeypatch):
+    record = read_tlog(tlog)
+    axes = [ax for fig_axes in _figure_axes(record, [], tmp_path, monkeypatch).values() for ax in fig_axes]
+    [altitude] = [ax for ax in axes if ax.get_ylabel() == "altitude (m)" and ax.get_title() == ""]
+    low, high = altitude.get_ylim()
+    assert high - low < 0.2                                  # the 0.1 m sag fills the panel
+    assert {"ESC speed (rpm)", "ESC current (A)"} <= {ax.get_ylabel() for ax in axes}
+
+
+def test_a_confirmation_is_drawn_without_a_fault_and_a_fault_stands_apart_from_its_detection(tlog, tmp_path,
+                                                                                             monkeypatch):
+    record = read_tlog(tlog)
+    for ax in (ax for fig_axes in _figure_axes(record, [], tmp_path, monkeypatch).values() for ax in fig_axes
+               if ax.get_legend() is not None):
+        assert "confirmed: rotor 4, unknown (1.06 s)" in [t.get_text() for t in ax.get_legend().get_texts()]
+    faults = telemetry_metrics(record, record.injected, AF)["faults"]
+    [zoom] = [ax for fig_axes in _figure_axes(record, faults, tmp_path, monkeypatch).values() for ax in fig_axes
+              if ax.get_title() == "around the fault"]
+    low, high = zoom.get_xlim()
+    assert (DETECTED_S - FAULT_S) / (high - low) > 0.04     # 6 ms apart on a 1 s window: 40 px on 1000
+
+
+def test_a_truncated_tlog_is_plotted_with_a_warning(tlog, tmp_path, capsys):
+    cut = tmp_path / "cut.tlog"
+    cut.write_bytes(tlog.read_bytes()[:-7])
+    assert main(["plot", str(cut), "--out", str(tmp_path / "out")]) == 0
+    [warning] = [line for line in capsys.readouterr().err.splitlines() if "whole record" in line]
+    assert warning.startswith(f"m4-companion: warning: {cut}: ")
+
+
+@pytest.mark.parametrize("out", ["a-file", "a-file/below"])
+def test_plot_to_a_bad_out_says_so_in_one_line(tlog, tmp_path, capsys, out):
+    (tmp_path / "a-file").write_text("")
+    assert main(["plot", str(tlog), "--out", str(tmp_path / out)]) == 2
+    [line] = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith(f"m4-companion: error: --out {tmp_path / out}: ")
+
+
+def test_plot_of_a_file_that_is_no_tlog_says_so_in_one_line(tmp_path, capsys):
+    text = tmp_path / "notes.tlog"
+    text.write_text("not a flight\n" * 50)
+    assert main(["plot", str(text)]) == 2
+    assert capsys.readouterr().err.strip() == f"m4-companion: error: {text}: not a tlog (no MAVLink packet in it)"
 
 
 def test_plot_of_a_missing_tlog_says_so_in_one_line(capsys):
