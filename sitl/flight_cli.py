@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 from sitl import scenarios
-from m4.arguments import number, positive_number, seed_number
+from m4.arguments import number, positive_int, positive_number, seed_number
 from m4.scenario import SENSOR_PROFILES, TURBULENCE_LEVELS, WIND_SPEED_MAX_M_S
 from sitl.cli_args import BadInput, add_link_arguments, link_of
 from sitl.flights.flight_run import CONTROLLERS, FlightError, FlightOptions, make_output_dir
@@ -89,7 +89,7 @@ def add_compare(sub) -> None:
 
     p = sub.add_parser("compare", help="posture manipulation vs fixed posture on the paper's scenarios: a Markdown table")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, metavar="DIR", help=f"output folder (default {DEFAULT_OUT})")
-    p.add_argument("--jobs", type=int, metavar="N", help="flights at once (default: one per core)")
+    p.add_argument("--jobs", type=positive_int, metavar="N", help="flights at once (default: one per core)")
     _rate(p)
     add_link_arguments(p, "the same for every flight")
     p.set_defaults(func=_compare)
@@ -115,12 +115,12 @@ def add_campaign(sub) -> None:
     p = sub.add_parser("campaign", help="many faulted flights in parallel: survival, altitude loss, detection")
     p.add_argument("--out", type=Path, metavar="DIR",
                    help=f"output folder (default {DEFAULT_OUT}; with --kind or --false-alarm-minutes {DETECTION_OUT})")
-    p.add_argument("--samples", type=int, default=20, metavar="N", help="random flights (default 20)")
+    p.add_argument("--samples", type=positive_int, default=20, metavar="N", help="random flights (default 20)")
     p.add_argument("--grid", action="store_true", help="the full grid of rotors, losses, speeds, fault times instead")
     p.add_argument("--loss", type=_loss, action="append", metavar="X",
                    help="only this loss of effectiveness (0..1; repeat for more; default 0.33, 0.66 and 1)")
     p.add_argument("--seed", type=seed_number, default=0, help="seed of the sample and of the sensor noise (default 0)")
-    p.add_argument("--jobs", type=int, metavar="N", help="flights at once (default: one per core)")
+    p.add_argument("--jobs", type=positive_int, metavar="N", help="flights at once (default: one per core)")
     _rate(p)
     p.add_argument("--engine", choices=ENGINES, default="local", help="local processes (default) or Dask (cluster extra)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler, e.g. tcp://HOST:8786 (default: a local cluster)")

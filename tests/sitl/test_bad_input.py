@@ -100,3 +100,13 @@ def test_the_truth_log_keeps_a_bounded_window():
     truth = recorder.truth()
     assert len(truth.time_s) == 100 and recorder.dropped == 400
     assert truth.time_s[0] == pytest.approx(4.0) and truth.time_s[-1] == pytest.approx(4.99)
+
+
+@pytest.mark.parametrize("args, error", [
+    (["campaign", "--samples", "0"], "argument --samples: must be >= 1, got 0"),
+    (["campaign", "--samples", "-1"], "argument --samples: must be >= 1, got -1"),
+    (["campaign", "--jobs", "0"], "argument --jobs: must be >= 1, got 0"),
+    (["compare", "--jobs", "0"], "argument --jobs: must be >= 1, got 0")])
+def test_a_campaign_of_no_flights_or_no_workers_is_refused_before_anything_flies(capsys, tmp_path, args, error):
+    line = _one_line(capsys, sitl_main, [*args, "--out", str(tmp_path / "out")], "m4-sitl")
+    assert line.endswith(error) and not (tmp_path / "out").exists()
