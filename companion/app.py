@@ -29,6 +29,9 @@ published. When telemetry returns, control resumes; if the FC's clock moved on b
 than a couple of periods meanwhile, the controller drops its warm start and the stale
 previous state first.
 
+The flight's end: the FC's HEARTBEAT with MAV_STATE_POWEROFF (the simulator's end) is said,
+and the silence after it is the end of the flight, not a lost link (`end()` says which it was).
+
 Signing (docs/authority.md): with a key, the signing timestamps are kept across restarts
 (m4.mavlink.signing.StreamTimestamps: saved on a thread of its own, never on the loop, and
 once more at exit), so a restarted companion refuses a captured packet;
@@ -141,6 +144,7 @@ class CompanionApp:
         else:
             log.info("no mission file: flying the flight controller's mission when it has one")
         self._new_mission = None                 # a mission from the FC not flown yet
+        self.fc_shut_down_s: float | None = None     # FC time at which the FC said it shuts down (its flight's end)
 
     # -- the loop ----------------------------------------------------------------------------------
     def stop(self) -> None:
@@ -155,8 +159,9 @@ class CompanionApp:
     def poll(self) -> None:
         """Everything that has arrived, what it means, then the answer and the periodic messages."""
         now = self.clock()
+        since = self.flight_log.position()          # a new flight found in this poll starts with its packets
         received = self.fc.receive(now)
-        self.flight_log.observe(received.messages)
+        self.flight_log.observe(received.messages, since, LinkEvent.REBOOTED in received.events)
         self._received += len(received.messages)
         messages = self._profiled(received.messages)          # before LOCKED asks for the profile's streams
         for event in received.events:
@@ -169,6 +174,8 @@ class CompanionApp:
                 self._on_kept_status(msg)
             elif msg_id == mavlink.MAVLINK_MSG_ID_CURRENT_MODE:
                 self._fc_landing = msg.standard_mode == mavlink.MAV_STANDARD_MODE_LAND
+            elif msg_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+                self._on_fc_heartbeat(msg)
             if self.fc_mission is not None and (flown := self.fc_mission.on_message(msg, now)) is not None:
                 self._new_mission = flown.mission
         for msg in received.param_requests:
@@ -433,7 +440,30 @@ class CompanionApp:
                 self.fc.fc_time_ms - self._last_answered_ms > RESUME_GAP_PERIODS * self.period_ms:
             self.controller.resume()
 
+    def _on_fc_heartbeat(self, msg) -> None:
+        """The FC saying it shuts down (MAV_STATE_POWEROFF) makes the silence that follows the flight's end."""
+        if msg.system_status != mavlink.MAV_STATE_POWEROFF:
+            self.fc_shut_down_s = None
+        elif self.fc_shut_down_s is None:
+            self.fc_shut_down_s = (self.fc.fc_time_ms or 0) / 1000.0
+            log.info("t=%.3f s: the flight controller shuts down (HEARTBEAT MAV_STATE_POWEROFF): the flight is over",
+                     self.fc_shut_down_s)
+
+    def end(self) -> str:
+        """How the flight stands as the companion stops: its normal end, a lost link, or neither."""
+        if self.fc_shut_down_s is not None:
+            return f"the flight ended: the flight controller shut down at t={self.fc_shut_down_s:.3f} s"
+        if self.fc.fc_time_ms is None:
+            return "no flight: the flight controller never sent telemetry"
+        if not self.fc.connected:
+            return f"telemetry lost at t={self.fc.fc_time_ms / 1000.0:.3f} s and not back"
+        return f"stopped in flight at t={self.fc.fc_time_ms / 1000.0:.3f} s, the flight controller still sending"
+
     def _on_lost(self) -> None:
+        if self.fc_shut_down_s is not None:
+            log.info("telemetry ended after the flight controller's shutdown: the end of the flight, not a lost link")
+            self._publish_link(self.fc_shut_down_s)
+            return
         self.counters.link_losses += 1
         last_s = None if self._last_answered_ms is None else self._last_answered_ms / 1000.0
         log.warning("no telemetry for %.2f s: link lost, setpoints stopped", self.fc.telemetry_timeout_s)

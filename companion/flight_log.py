@@ -13,10 +13,14 @@ link), so that any tlog tool (mavlogdump, MAVExplorer, `m4-companion plot`) read
 - The detector's state is M4_FAULT_STATUS and the fault announcement STATUSTEXT: both go out
   on the link, so they are in the log already.
 
-Files: `<dir>/flight-YYYYmmdd-HHMMSS.tlog` (UTC, the time the file was opened). A flight is
-from process start, or from the FC's HEARTBEAT turning armed after it was disarmed, to the
-next such arming or to the process's end. A file larger than `max_file_mb` is continued in
-a new one (`...-HHMMSS-2.tlog`). When a file is closed, the oldest logs of the folder go
+Files: `<dir>/flight-YYYYmmdd-HHMMSS.tlog` (UTC, the time the file was opened; the folder is
+said at start: /var/log/m4 unless `[log] dir` says otherwise). One file a flight: a flight is
+from process start, from the FC's HEARTBEAT turning armed after it was disarmed, or from the
+FC's reboot (its clock going back after a silence: a new power-up starts armed in the
+simulator) to the next such start or to the process's end. The new file begins with the
+first packet of the poll that showed it (`position()` before the poll, `observe(..., since)`),
+or with the next one when the writer has already passed it. A file larger than `max_file_mb`
+is continued in a new one (`...-HHMMSS-2.tlog`). When a file is closed, the oldest logs of the folder go
 until all of them fit in `max_total_mb` (the file being written is never removed).
 
 Timing: the control loop only appends to a queue (a deque: no lock, no I/O, no packing); a
@@ -55,7 +59,6 @@ log = logging.getLogger("m4-companion")
 FLUSH_S = 0.05                    # a batch: ~2.5 control steps, ~0.1-0.3 ms of the writer holding the GIL
 RETRY_S = 1.0                     # a paused log tries a new file this often
 PATTERN = "flight-*.tlog"
-_NEW_FLIGHT = object()            # a queue entry: start a new file here
 _FLOAT32_MAX = 3.4028234663852886e38
 
 
@@ -79,6 +82,9 @@ class FlightLog:
         self._tried_s = 0.0                           # monotonic time of the last try at a new file
         self._clock_ns = clock_ns
         self._queue: collections.deque = collections.deque()
+        self._appended = 0                            # queue entries ever appended (the control loop's count)
+        self._taken = 0                               # ... and taken off (the writer's)
+        self._flights: collections.deque[int] = collections.deque()   # entry numbers at which a new flight starts
         self._armed: bool | None = None
         self._file = None
         self._size = 0
@@ -110,19 +116,26 @@ class FlightLog:
         return self
 
     # -- the control loop's side: appends only -----------------------------------------------
+    def position(self) -> int:
+        """The number the next entry will have: where a flight found in the coming poll starts."""
+        return self._appended
+
     def record(self, packet: bytes, unix_time_us: int | None = None) -> None:
         """One packet sent or received (the link's tlog interface)."""
         if self._thread is not None:
             self._queue.append((self._clock_ns() // 1000 if unix_time_us is None else unix_time_us, bytes(packet)))
+            self._appended += 1
 
-    def observe(self, msgs) -> None:
-        """The FC's messages as received: its HEARTBEAT turning armed after disarmed starts a new flight."""
+    def observe(self, msgs, since: int, fc_rebooted: bool = False) -> None:
+        """The FC's messages of one poll, which began at entry `since`: its reboot, or its HEARTBEAT
+        turning armed after disarmed, starts a new flight there."""
         for msg in msgs:
             if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
                 armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
-                if armed and self._armed is False and self._thread is not None:
-                    self._queue.append(_NEW_FLIGHT)
+                fc_rebooted |= armed and self._armed is False
                 self._armed = armed
+        if fc_rebooted and self._thread is not None and (not self._flights or self._flights[-1] != since):
+            self._flights.append(since)
 
     def decision(self, time_ms: int, step, latency_s: float) -> None:
         """What the controller decided for the telemetry instant `time_ms` (a ControlStep)."""
@@ -138,6 +151,7 @@ class FlightLog:
             values += [(b"nmpc_ms", r.solve_ms), (b"nmpc_iter", r.iterations), (b"nmpc_cost", r.cost),
                        (b"nmpc_ok", r.ok), (b"nmpc_fb", r.fallback)]
         self._queue.append((self._clock_ns() // 1000, Decision(int(time_ms), tuple(values))))
+        self._appended += 1
 
     # -- the writer thread -------------------------------------------------------------------
     def _run(self) -> None:
@@ -155,14 +169,19 @@ class FlightLog:
         elif self._queue and time.monotonic() - self._tried_s >= RETRY_S:
             self._resume()
         else:
-            self._queue.clear()
+            self._drop_queued()
+
+    def _drop_queued(self) -> None:
+        while self._queue:
+            self._queue.popleft()
+            self._taken += 1
 
     def _pause(self, error: OSError) -> None:
         reason = error.strerror or str(error)
         log.error("flight log paused: cannot write %s (%s); trying a new file every %g s", self.files[-1], reason,
                   RETRY_S)
         self._let_go()
-        self._queue.clear()
+        self._drop_queued()
         self._paused_s = self._tried_s = time.monotonic()
         self.gaps += 1
         self.notices.append(f"companion: log paused: {reason}")
@@ -170,12 +189,14 @@ class FlightLog:
     def _resume(self) -> None:
         """A new file for what is queued now; the gap ends when it is written."""
         self._tried_s = time.monotonic()
+        while self._flights and self._flights[0] <= self._taken:     # the new file starts them anyway
+            self._flights.popleft()
         try:
             self._open()
             self._drain()
         except OSError:                               # still failing: the gap goes on (said when it began)
             self._let_go()
-            self._queue.clear()
+            self._drop_queued()
             return
         gap_s = self._tried_s - self._paused_s
         self._paused_s = None
@@ -202,10 +223,12 @@ class FlightLog:
         """Write what is queued, one write a file."""
         chunk: list[bytes] = []                       # tlog records for the current file
         while self._queue:
-            entry = self._queue.popleft()
-            if entry is _NEW_FLIGHT:
+            if self._flights and self._taken >= self._flights[0]:
+                self._flights.popleft()
                 chunk = self._next_file(chunk)
                 continue
+            entry = self._queue.popleft()
+            self._taken += 1
             for record in self._records(*entry):
                 if self._size >= self._max_file_bytes:
                     chunk = self._next_file(chunk)

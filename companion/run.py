@@ -4,7 +4,9 @@ Reads the configuration (defaults without --config), builds the NMPC (compiling 
 first start, cached) and opens the link before it says "ready" (in its log and, with
 --ready-fd, as one line written to that descriptor, which it then closes: the signal a
 supervisor such as `m4-sitl fly` waits for), having put its loop in the real-time class the
-configuration asks for (companion/realtime.py), then runs until SIGINT or SIGTERM. A bad
+configuration asks for (companion/realtime.py), then runs until SIGINT or SIGTERM. It says
+where its flight log goes and whether its feed is on; its last line says what stopped it and
+how the flight ended (the flight controller's shutdown, a lost link, still flying). A bad
 configuration, URL, key, feed setting, ready descriptor or a port in use prints one line on
 stderr and exits with 2; a feed that cannot reach Zenoh does not stop it (it is said and
 tried again in the background).
@@ -77,6 +79,18 @@ def _config(args: argparse.Namespace):
     return with_params_file(config)
 
 
+def _say_outputs(config, flight_log) -> None:
+    """Where the flight log goes and whether the feed is on: neither is a surprise later."""
+    log = logging.getLogger("m4-companion")
+    if flight_log.enabled:
+        log.info("flight log: %s (a new file at each arming; [log] dir sets the folder)", flight_log.files[-1])
+    elif not config.log.enabled:
+        log.info("flight log off ([log] enabled = false)")
+    if not config.feed.enabled:
+        log.info("feed off: m4-companion watch and dashboard see nothing ([feed] enabled = true turns it on: "
+                 "docs/dashboard.md)")
+
+
 def _ms(value_ms: float | None, decimals: int) -> str:
     return "not measured" if value_ms is None else f"{value_ms:.{decimals}f} ms"
 
@@ -95,13 +109,15 @@ def run(args: argparse.Namespace) -> int:
     except (ConfigError, LinkError, CodegenError) as e:
         print(f"m4-companion: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    stopped_by = []
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: app.stop())
+        signal.signal(sig, lambda number, _: (stopped_by.append(signal.Signals(number).name), app.stop()))
     use_realtime(config.realtime_priority)       # once built: the compiler and the feed's threads stay normal
     ready = f"ready: {config.rate_hz:g} Hz on {config.link.fc_url}"
     logging.getLogger("m4-companion").info(ready)
     if args.ready_fd is not None:
         _say_ready(args.ready_fd, ready)
+    _say_outputs(config, app.flight_log)
     try:
         app.run()
     finally:
@@ -109,8 +125,8 @@ def run(args: argparse.Namespace) -> int:
         c = app.counters
         lead, timing = app.fc.delay.lead_s, app.timing
         logging.getLogger("m4-companion").info(
-            "stopped after %d setpoints; %d link losses; slowest solve %.1f ms; %d steps over the period; "
-            "setpoint lead %s; telemetry read to setpoint sent %s on average; CPU %s per step", c.answered,
-            c.link_losses, c.solve_ms_max, timing.overruns, _ms(None if lead is None else 1e3 * lead, 0),
+            "stopped%s after %d setpoints (%s); %d link losses; slowest solve %.1f ms; %d steps over the period; "
+            "setpoint lead %s; telemetry read to setpoint sent %s on average; CPU %s per step",
+            "".join(f" by {name}" for name in stopped_by[:1]), c.answered, app.end(), c.link_losses, c.solve_ms_max, timing.overruns, _ms(None if lead is None else 1e3 * lead, 0),
             _ms(timing.mean_answer_ms, 2), _ms(timing.cpu_ms_per_step, 2))
     return 0

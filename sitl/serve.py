@@ -35,6 +35,9 @@ Real time (`realtime=True`): the simulated clock follows the wall clock; message
 as they arrive (with `link`, 2 D later). Every packet in and out goes to the tlog when one is asked for. With several
 links, what arrives on one is routed to the others as an autopilot does (sitl/fc/routing.py).
 
+At its end (the duration flown, or stopped) the FC says it shuts down: a HEARTBEAT with
+MAV_STATE_POWEROFF on every link, so a companion reports the end of the flight, not a lost link.
+
 A flood cannot stall the simulation: one poll reads at most `POLL_DATAGRAMS` datagrams per
 link (the rest waits in the socket, and the kernel drops what does not fit), so the plant
 and the telemetry streams keep their pace. A udpin link answers the paired companion's
@@ -255,6 +258,7 @@ class Server:
              + ", ".join(link.endpoint.url for link in self.links) + unsigned + kept)
         try:
             (self._run_realtime if self.options.realtime else self._run_lockstep)()
+            self.send(self.vehicle.fc.power_off(self.vehicle.now_ms))      # a normal end: said, not a lost link
         finally:
             wall, cpu = time.monotonic() - wall0, time.process_time() - cpu0
             sim = self.vehicle.now_ms / 1000.0

@@ -445,6 +445,13 @@ class FlightController:
         due = self.schedule.next_due_ms()
         return next_tick if due is None else min(next_tick, max(due, now_ms + 1))
 
+    def power_off(self, now_ms: int) -> list[mavlink.MAVLink_message]:
+        """Its last word as it shuts down (the simulation's end): a HEARTBEAT with system_status
+        MAV_STATE_POWEROFF, so that the companion tells the flight's end from a lost link."""
+        beat = self.telemetry_builder.heartbeat(self.snapshot(now_ms))
+        beat.system_status = mavlink.MAV_STATE_POWEROFF
+        return [beat]
+
     def announce(self, severity: int, text: str) -> None:
         self._outbox.append(statustext(severity, text))
 

@@ -4,6 +4,8 @@ control) without an exception and without a bad setpoint leaving."""
 
 from __future__ import annotations
 
+import logging
+
 import math
 import random
 import re
@@ -165,6 +167,32 @@ def test_telemetry_loss_is_noticed_within_0_3_s_setpoints_stop_and_control_resum
     severities = {m.severity for m in link.sent_messages() if m.get_type() == "STATUSTEXT"}
     assert severities.isdisjoint({mavlink.MAV_SEVERITY_EMERGENCY, mavlink.MAV_SEVERITY_ALERT,
                                   mavlink.MAV_SEVERITY_CRITICAL})
+
+
+def test_the_fcs_shutdown_then_silence_is_the_end_of_the_flight_not_a_lost_link(rig, caplog):
+    app, fc, link, clock = rig
+    fc.join(app)
+    fly(app, fc, clock, 0, 10)
+    assert app.end() == "stopped in flight at t=0.180 s, the flight controller still sending"
+    fc.send(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, 0, 0, 0, mavlink.MAV_STATE_POWEROFF, 3))
+    with caplog.at_level(logging.INFO, logger="m4-companion"):
+        while app.fc.connected:
+            clock.now += 0.01
+            app.poll()
+    assert app.counters.link_losses == 0
+    assert "companion: telemetry lost, setpoints stopped" not in [text for _, text in statustexts(link)]
+    assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
+    assert app.end() == "the flight ended: the flight controller shut down at t=0.180 s"
+
+
+def test_a_silence_without_the_fcs_shutdown_is_a_lost_link_at_the_end(rig):
+    app, fc, link, clock = rig
+    fc.join(app)
+    fly(app, fc, clock, 0, 10)
+    while app.fc.connected:
+        clock.now += 0.01
+        app.poll()
+    assert app.counters.link_losses == 1 and app.end() == "telemetry lost at t=0.180 s and not back"
 
 
 def test_a_short_wall_clock_gap_in_lockstep_does_not_reset_the_controller(rig, monkeypatch):

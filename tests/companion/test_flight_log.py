@@ -59,6 +59,36 @@ def _step(nmpc=True):
     return SimpleNamespace(state=np.array([0.1, 0.2, -1.9] + [0.0] * 17), reference=reference, nmpc=result)
 
 
+def _poll(flight_log, packets, msgs, fc_rebooted=False):
+    """As the control loop does: the packets of a poll recorded as the link reads them, then observed."""
+    since = flight_log.position()
+    for packet in packets:
+        flight_log.record(packet)
+    flight_log.observe(msgs, since, fc_rebooted)
+
+
+def _frame_packet(t_ms):
+    return _packets_of(mavlink.MAVLink_attitude_message(t_ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))[0]
+
+
+def test_a_rebooted_fc_starts_a_new_flight_with_the_first_packet_of_its_new_run(tmp_path):
+    """A companion kept running while the FC powers off and on again (three flights of m4-sitl
+    serve): one file a flight, each with its own clock from its first packet."""
+    flight_log = FlightLog(LogSettings(dir=tmp_path)).start()
+    armed, armed_packet = _heartbeat(True)
+    for run in range(3):
+        _poll(flight_log, [armed_packet, _frame_packet(0)], [armed], fc_rebooted=run > 0)
+        for k in range(1, 5):
+            _poll(flight_log, [_frame_packet(20 * k)], [])
+            time.sleep(0.02 * (run == 1))             # the writer drains between polls, or not
+    flight_log.close()
+    assert len(flight_log.files) == 3
+    for path in flight_log.files:
+        msgs = _read(path)
+        assert msgs[0].get_type() == "HEARTBEAT"
+        assert [m.time_boot_ms for m in msgs if m.get_type() == "ATTITUDE"] == [0, 20, 40, 60, 80]
+
+
 def test_packets_and_decisions_land_in_one_tlog_per_flight(tmp_path):
     flight_log = FlightLog(LogSettings(dir=tmp_path)).start()
     armed, armed_packet = _heartbeat(True)
@@ -66,11 +96,9 @@ def test_packets_and_decisions_land_in_one_tlog_per_flight(tmp_path):
     setpoint = _packets_of(mavlink.MAVLink_m4_setpoint_message(1, 1, 20, 20, [14.7] * 4, [0.78] * 4, [0.0] * 4, 0),
                            component=COMPANION_COMPONENT_ID)[0]
     for packet, msgs in ((armed_packet, [armed]), (setpoint, []), (disarmed_packet, [disarmed])):
-        flight_log.record(packet)
-        flight_log.observe(msgs)
+        _poll(flight_log, [packet], msgs)
     flight_log.decision(20, _step(), latency_s=0.0021)
-    flight_log.observe([armed])                       # armed again: a second flight
-    flight_log.record(armed_packet)
+    _poll(flight_log, [armed_packet], [armed])      # armed again: a second flight, from this packet on
     flight_log.decision(40, _step(nmpc=False), latency_s=0.001)
     flight_log.close()
 

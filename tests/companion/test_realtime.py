@@ -89,7 +89,7 @@ def test_run_says_so_in_one_line_and_flies_on_when_not_permitted(tmp_path):
     assert len(said) == 1 and "not granted" in said[0] and "normal priority" in said[0], lines
     assert "RLIMIT_RTPRIO" in said[0]                        # and what would grant it
     assert policy == os.SCHED_OTHER
-    assert code == 0 and "stopped after" in rest and "Traceback" not in rest
+    assert code == 0 and "stopped by SIGTERM after" in rest and "Traceback" not in rest
 
 
 def test_a_platform_without_sched_fifo_is_said_in_one_line(monkeypatch, caplog):

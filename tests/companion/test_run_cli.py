@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -108,7 +109,10 @@ def test_a_signal_stops_the_companion_cleanly(sig, signed):
             proc.kill()
             proc.wait()
     assert code == 0
-    assert "stopped after 0 setpoints" in rest and "Traceback" not in rest
+    assert f"stopped by {sig.name} after 0 setpoints (no flight: the flight controller never sent telemetry)" in rest
+    assert re.search(r"flight log: \S+/flight-\d{8}-\d{6}(-\d+)?\.tlog \(a new file at each arming", rest), rest
+    assert "feed off: m4-companion watch and dashboard see nothing" in rest
+    assert "Traceback" not in rest
 
 
 def test_the_ready_line_goes_to_the_ready_fd_which_is_then_closed_while_the_companion_runs_on(signed):
