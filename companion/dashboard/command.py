@@ -6,8 +6,10 @@
 
 then open http://HOST:PORT/ in a browser. Live, the server subscribes to m4/<vehicle>/**
 as `m4-companion watch` does; replayed, every page that opens watches the flight from its
-start, paced by the flight's own clock. A tlog replays the state, setpoints and faults its
-MAVLink messages carry (companion.dashboard.tlog); the NMPC and link plots stay empty.
+start, paced by the flight's own clock, and can pause it and seek in it. A tlog replays the
+state, setpoints, faults and NMPC solves its MAVLink messages carry
+(companion.dashboard.tlog); the link plot stays empty. A file that is neither says so in
+one line naming it.
 """
 
 from __future__ import annotations
@@ -55,10 +57,11 @@ def run(args: argparse.Namespace) -> int:
     session = None
     try:
         if args.replay is not None:
-            samples = (tlog_samples(args.replay, args.vehicle) if args.replay.suffix == ".tlog"
+            samples = (tlog_samples(args.replay, af, args.vehicle) if args.replay.suffix == ".tlog"
                        else read_recorded_feed(args.replay))
             source = ReplaySource(samples, af, args.speed)
-            config |= {"mode": "replay", "source": f"{args.replay} at {args.speed:g}x"}
+            config |= {"mode": "replay", "source": f"{args.replay} at {args.speed:g}x",
+                       "replay": source.span()}
         else:
             vehicle, session = watch.connect(args)
             source = Hub(af)

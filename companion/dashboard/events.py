@@ -9,7 +9,9 @@ None in it means "nothing new for a while" (the server sends a keep-alive then).
 - LiveSource: a Hub that the Zenoh subscriber publishes into; a page that connects gets
   the newest event of each topic first, then everything that follows.
 - ReplaySource: a recorded feed (feed.jsonl, as `m4-sitl fly` writes it), paced by the
-  payloads' t_s at `speed` times real time; every page watches it from the start.
+  payloads' t_s at `speed` times real time; every page watches it from the start, or from
+  the instant it seeks to (`from_s`: the newest event of each topic and the HISTORY_S before
+  it come at once, so the plots have their window; then the flight paced from there).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from m4.airframe import Airframe
 from m4.feed.payloads import TOPICS
 
 KEEPALIVE_S = 1.0
+HISTORY_S = 20.0               # a seek sends this much flight before its instant at once (the page's plot window)
 QUEUE_EVENTS = 2000            # per page: about 8 s of every topic at 50 Hz; the oldest go first
 
 
@@ -148,6 +151,9 @@ def read_recorded_feed(path: str | Path) -> list[tuple[str, dict[str, Any]]]:
         text = path.read_text()
     except OSError as e:
         raise ReplayError(f"{path}: cannot read the recorded feed: {e.strerror}") from None
+    except UnicodeDecodeError as e:
+        raise ReplayError(f"{path}: not a recorded feed (feed.jsonl) nor a .tlog: not UTF-8 text (byte "
+                          f"{e.object[e.start]:#04x} at offset {e.start})") from None
     samples = []
     for line in text.splitlines():
         try:
@@ -173,18 +179,46 @@ class ReplaySource:
         self.speed = speed
 
     @property
+    def start_s(self) -> float:
+        """The flight time (t_s) the replay starts at, seconds."""
+        return min((t for t in map(_t_s, self._events) if t is not None), default=0.0)
+
+    @property
     def duration_s(self) -> float:
         """Flight time the replay spans (the payloads' t_s), seconds."""
         times = [t for t in map(_t_s, self._events) if t is not None]
         return max(times) - min(times) if times else 0.0
 
-    def events(self, stop: threading.Event, clock=time.monotonic) -> Iterator[dict[str, Any] | None]:
+    def span(self) -> dict[str, float]:
+        """The page's replay controls: {"start_s", "end_s"} of flight time."""
+        return {"start_s": self.start_s, "end_s": self.start_s + self.duration_s}
+
+    def _seek(self, from_s: float) -> tuple[list[dict[str, Any]], int]:
+        """(what a page seeking to from_s gets at once, the index the paced replay goes on from)."""
+        newest, k, history = None, 0, len(self._events)
+        for k, event in enumerate(self._events):
+            t_s = _t_s(event)
+            newest = t_s if newest is None or (t_s is not None and t_s > newest) else newest
+            if history == len(self._events) and newest is not None and newest >= from_s - HISTORY_S:
+                history = k
+            if newest is not None and newest >= from_s:
+                break
+        else:
+            k = len(self._events)
+        before = {e["topic"]: e for e in self._events[:history]}
+        return [*before.values(), *self._events[history:k]], k
+
+    def events(self, stop: threading.Event, clock=time.monotonic,
+               from_s: float | None = None) -> Iterator[dict[str, Any] | None]:
         """Every event at its time: t_s since the first stamped event, divided by the speed,
-        after the page connected. Ends after the last one."""
+        after the page connected (with from_s: the seek's history at once, then from there).
+        Ends after the last one."""
+        at_once, k = self._seek(from_s) if from_s is not None else ([], 0)
+        yield from at_once
         start_s = clock()
         first_t_s = None
         newest_t_s = None
-        for event in self._events:
+        for event in self._events[k:]:
             t_s = _t_s(event)
             if t_s is not None:
                 first_t_s = t_s if first_t_s is None else first_t_s

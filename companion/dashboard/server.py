@@ -2,10 +2,12 @@
 
 Routes:
     /                   the page (static/index.html), /dashboard.js, /dashboard.css
-    /config.json        {"vehicle", "mode": "live" | "replay", "source", "airframe": {...}}
+    /config.json        {"vehicle", "mode": "live" | "replay", "source", "airframe": {...}};
+                        a replay's "replay": {"start_s", "end_s"} (flight time)
     /events             text/event-stream: one `data: {event}` per feed sample (events.py);
                         `: keep-alive` comments while nothing comes; a replay ends with
-                        `event: end` and closes
+                        `event: end` and closes. A replay's /events?from_s=T starts at
+                        flight time T (a seek; the page pauses by closing the stream)
     /latest.json        live only: the newest event of each topic
 
 Standard library only (http.server, one thread per connection): a page on the robot's
@@ -15,11 +17,13 @@ network needs nothing fetched from anywhere else.
 from __future__ import annotations
 
 import json
+import math
 import threading
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from typing import Any, Protocol
+from urllib.parse import parse_qs
 from collections.abc import Iterator
 
 STATIC = {"/": ("index.html", "text/html; charset=utf-8"),
@@ -28,7 +32,7 @@ STATIC = {"/": ("index.html", "text/html; charset=utf-8"),
 
 
 class EventSource(Protocol):
-    def events(self, stop: threading.Event) -> Iterator[dict[str, Any] | None]: ...
+    def events(self, stop: threading.Event, **seek: float) -> Iterator[dict[str, Any] | None]: ...
 
 
 def static_file(name: str) -> bytes:
@@ -43,6 +47,7 @@ class DashboardServer(ThreadingHTTPServer):
     def __init__(self, source: EventSource, config: dict[str, Any], host: str = "127.0.0.1", port: int = 8080):
         self.source = source
         self.config_bytes = json.dumps(config).encode()
+        self.seekable = config.get("mode") == "replay"
         self.stopping = threading.Event()
         super().__init__((host, port), _Handler)
 
@@ -57,12 +62,24 @@ class DashboardServer(ThreadingHTTPServer):
         self.server_close()
 
 
+def _seek(query: str) -> dict[str, float] | None:
+    """{"from_s": T} of a replay's ?from_s=T, {} without one; None when T is not a finite number."""
+    values = parse_qs(query).get("from_s")
+    if not values:
+        return {}
+    try:
+        from_s = float(values[0])
+    except ValueError:
+        return None
+    return {"from_s": from_s} if math.isfinite(from_s) else None
+
+
 class _Handler(BaseHTTPRequestHandler):
     server: DashboardServer
     protocol_version = "HTTP/1.1"
 
     def do_GET(self) -> None:  # noqa: N802 - http.server's name
-        path = self.path.split("?", 1)[0]
+        path, _, query = self.path.partition("?")
         if path in STATIC:
             name, content_type = STATIC[path]
             self._send(HTTPStatus.OK, content_type, static_file(name))
@@ -71,7 +88,12 @@ class _Handler(BaseHTTPRequestHandler):
         elif path == "/latest.json" and hasattr(self.server.source, "latest"):
             self._send(HTTPStatus.OK, "application/json", json.dumps(self.server.source.latest()).encode())
         elif path == "/events":
-            self._stream()
+            seek = _seek(query)
+            if seek is None or (seek and not self.server.seekable):
+                self._send(HTTPStatus.BAD_REQUEST, "text/plain; charset=utf-8",
+                           b"from_s: a number, and only for a replay\n")
+            else:
+                self._stream(seek)
         else:
             self._send(HTTPStatus.NOT_FOUND, "text/plain; charset=utf-8", b"not found\n")
 
@@ -83,7 +105,7 @@ class _Handler(BaseHTTPRequestHandler):
         self.end_headers()
         self.wfile.write(body)
 
-    def _stream(self) -> None:
+    def _stream(self, seek: dict[str, float]) -> None:
         self.send_response(HTTPStatus.OK)
         self.send_header("Content-Type", "text/event-stream")
         self.send_header("Cache-Control", "no-store")
@@ -91,7 +113,7 @@ class _Handler(BaseHTTPRequestHandler):
         self.end_headers()
         self.close_connection = True
         try:
-            for event in self.server.source.events(self.server.stopping):
+            for event in self.server.source.events(self.server.stopping, **seek):
                 chunk = ": keep-alive\n\n" if event is None else f"data: {json.dumps(event, separators=(',', ':'))}\n\n"
                 self.wfile.write(chunk.encode())
                 self.wfile.flush()

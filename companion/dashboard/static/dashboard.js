@@ -10,9 +10,12 @@ const AXIS_COLOURS = ["#e06c75", "#61afef", "#e5c07b"];
 const FAULT_RED = "#d32f2f";
 const DEG = Math.PI / 180;
 
-const dash = window.m4dash = {events: 0, byTopic: {}, ended: false, faultText: ""};
+const dash = window.m4dash = {events: 0, byTopic: {}, ended: false, faultText: "", t: null, paused: false};
 let airframe = null;
 let mode = "live";
+let replay = null;                    // a replay's {start_s, end_s}: its controls pause and seek
+let stream = null;                    // the EventSource of /events (closed while paused)
+let pausedAt = null;                  // flight time a paused replay stands at
 let lastEventWall = 0;
 let latest = {};                      // topic -> newest payload
 let hubs = null;                      // hub_frd_m of the newest state
@@ -302,7 +305,8 @@ function makePlots() {
   plots = {
     attitude: new Plot("attitude", "deg", ["roll", "pitch", "yaw"].map((label, i) => ({label, colour: AXIS_COLOURS[i]}))),
     altitude: new Plot("altitude", "m", [{label: "alt", colour: "#98c379", digits: 2}]),
-    thrust: new Plot("thrust, ceiling dashed", "N", perRotor("T").concat(
+    thrust: new Plot("thrust, commanded dotted, ceiling dashed", "N", perRotor("T").concat(
+      perRotor("cmd", {dash: [2, 3], width: 1.2, legend: false}),
       perRotor("max", {dash: [5, 4], width: 1.2, legend: false})), {min: 0, max: thrustMax}),
     hips: new Plot("hips, setpoint dashed", "deg", perRotor("q").concat(
       perRotor("set", {dash: [5, 4], width: 1.2, legend: false})),
@@ -338,6 +342,7 @@ const handlers = {
   },
   setpoint(p) {
     (p.hip_deg || []).forEach((v, i) => plots.hips.push(`set${i + 1}`, p.t_s, v));
+    (p.thrust_n || []).forEach((v, i) => plots.thrust.push(`cmd${i + 1}`, p.t_s, v));
   },
   fault(p) {
     (p.thrust_max_estimate_n || []).forEach((v, i) => plots.thrust.push(`max${i + 1}`, p.t_s, v));
@@ -397,7 +402,9 @@ function onEvent(event) {
 function updateReadouts() {
   const s = latest.state || {}, sp = latest.setpoint || {}, f = latest.fault || {}, n = latest.nmpc, l = latest.link;
   const t = [s, n || {}, sp].map((p) => p.t_s).find(isNum);
+  dash.t = isNum(t) ? t : null;
   $("clock").textContent = `t = ${fmt(t, 2)} s`;
+  if (replay && isNum(t) && document.activeElement !== $("seek")) $("seek").value = t;
   $("r-pos").textContent = fmtVec(s.pos_ned_m, 2, 7);
   $("r-att").textContent = Array.isArray(s.euler_deg)
     ? `roll ${fmt(s.euler_deg[0], 1)}  pitch ${fmt(s.euler_deg[1], 1)}  yaw ${fmt(s.euler_deg[2], 1)}` : "-";
@@ -434,6 +441,73 @@ function watchStaleness() {
   else setStatus("live", "live");
 }
 
+// ---- the replay's controls: pause closes the stream, play and seek open it at an instant --
+function clearPlots() {
+  for (const plot of Object.values(plots)) for (const series of plot.series) series.data = [];
+  latest = {};
+  hubs = null;
+}
+
+function openEvents(fromS) {
+  if (stream) stream.close();
+  if (isNum(fromS)) clearPlots();
+  dash.ended = false;
+  const source = stream = new EventSource(isNum(fromS) ? `events?from_s=${fromS}` : "events");
+  source.onmessage = (msg) => {
+    if (source !== stream) return;
+    const event = JSON.parse(msg.data);
+    onEvent(event);
+    if (dash.paused && isNum(event.payload.t_s) && event.payload.t_s >= pausedAt) closeEvents();   // a seek while paused
+    else if (document.body.dataset.status === "waiting") setStatus(mode === "live" ? "live" : "replaying", mode === "live" ? "live" : "replaying");
+  };
+  source.addEventListener("end", () => {
+    source.close();
+    if (source !== stream) return;
+    stream = null;
+    dash.ended = true;
+    setStatus("ended", "replay ended");
+  });
+  source.onerror = () => { if (source === stream && !dash.ended) setStatus("lost", "connection to the dashboard lost, retrying"); };
+}
+
+function closeEvents() {
+  if (stream) stream.close();
+  stream = null;
+}
+
+function pause() {
+  dash.paused = true;
+  pausedAt = isNum(dash.t) ? dash.t : replay.start_s;
+  closeEvents();
+  $("pause").textContent = "play";
+  setStatus("paused", `paused at t = ${pausedAt.toFixed(2)} s`);
+}
+
+function play() {
+  dash.paused = false;
+  $("pause").textContent = "pause";
+  setStatus("replaying", "replaying");
+  openEvents(dash.ended ? replay.start_s : pausedAt);
+}
+
+function seek(t) {
+  pausedAt = t;
+  openEvents(t);
+  setStatus(dash.paused ? "paused" : "replaying", dash.paused ? `paused at t = ${t.toFixed(2)} s` : "replaying");
+}
+
+function showReplayControls(span) {
+  replay = span;
+  const slider = $("seek");
+  slider.min = span.start_s;
+  slider.max = span.end_s;
+  slider.value = span.start_s;
+  slider.addEventListener("change", () => seek(Number(slider.value)));
+  $("pause").addEventListener("click", () => (dash.paused || dash.ended ? play() : pause()));
+  $("replay-controls").hidden = false;
+  dash.seek = seek;
+}
+
 async function start() {
   const config = await (await fetch("config.json")).json();
   airframe = config.airframe;
@@ -441,17 +515,8 @@ async function start() {
   $("source").textContent = `${config.vehicle}: ${config.mode}, ${config.source}`;
   makePlots();
   enableDrag();
-  const source = new EventSource("events");
-  source.onmessage = (msg) => {
-    onEvent(JSON.parse(msg.data));
-    if (document.body.dataset.status === "waiting") setStatus(mode === "live" ? "live" : "replaying", mode === "live" ? "live" : "replaying");
-  };
-  source.addEventListener("end", () => {
-    source.close();
-    dash.ended = true;
-    setStatus("ended", "replay ended");
-  });
-  source.onerror = () => { if (!dash.ended) setStatus("lost", "connection to the dashboard lost, retrying"); };
+  if (config.replay) showReplayControls(config.replay);
+  openEvents(null);
   setInterval(watchStaleness, 500);
   window.addEventListener("resize", () => { dirty = true; });
   requestAnimationFrame(frame);

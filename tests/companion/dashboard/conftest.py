@@ -160,7 +160,7 @@ def serve():
 
     def start(source) -> DashboardServer:
         config = {"vehicle": "m4", "mode": "replay", "source": f"{FEED.name} at {source.speed:g}x",
-                  "airframe": airframe_view(load_airframe())}
+                  "airframe": airframe_view(load_airframe()), "replay": source.span()}
         server = DashboardServer(source, config, "127.0.0.1", 0)
         threading.Thread(target=server.serve_forever, daemon=True).start()
         servers.append(server)

@@ -98,3 +98,23 @@ def test_a_replay_is_paced_by_the_flight_clock_not_dumped(chromium, serve):
     chromium.wait_for("window.m4dash.ended")
     assert time.monotonic() - started_s >= source.duration_s
     assert chromium.evaluate("window.m4dash.events") == len(samples)
+
+
+def test_a_replay_pauses_and_seeks(chromium, serve):
+    samples = read_recorded_feed(FEED)
+    server = serve(ReplaySource(samples, load_airframe(), speed=1.0))
+    chromium.open(server.url)
+    chromium.wait_for("window.m4dash && window.m4dash.t > 0.5")
+    chromium.evaluate("document.getElementById('pause').click()")
+    assert chromium.evaluate("document.body.dataset.status") == "paused"
+    paused_at = chromium.evaluate("window.m4dash.t")
+    time.sleep(1.0)
+    assert chromium.evaluate("window.m4dash.t") == paused_at                     # nothing moves while paused
+    chromium.evaluate("window.m4dash.seek(4.0)")                                 # the slider's change
+    chromium.wait_for("window.m4dash.t >= 4.0")
+    time.sleep(0.5)
+    assert 4.0 <= chromium.evaluate("window.m4dash.t") < 4.1                     # there, and still paused
+    assert "FAULT" in chromium.evaluate("document.getElementById('banner').textContent")   # the fault before it
+    chromium.evaluate("document.getElementById('pause').click()")
+    chromium.wait_for("window.m4dash.ended")
+    assert chromium.evaluate("document.body.dataset.status") == "ended"

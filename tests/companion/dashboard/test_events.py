@@ -124,3 +124,14 @@ def test_replay_stops_when_asked_and_refuses_a_bad_speed():
             ReplaySource([("m4/m4/state", _state(0.0))], AF, speed=speed)
     with pytest.raises(ReplayError, match="no sample"):
         ReplaySource([("m4/m4/other", {"t_s": 0.0})], AF)
+
+
+def test_a_seek_sends_the_history_before_its_instant_at_once_then_paces_from_there():
+    samples = [("m4/m4/state", _state(t)) for t in (0.0, 10.0, 25.0, 30.0, 31.0, 40.0)]
+    source = ReplaySource(samples, AF, speed=1.0)
+    clock = FakeClock()
+    emitted = [(e["payload"]["t_s"], clock.now_s - 100.0) for e in source.events(SleepingStop(clock), clock=clock,
+                                                                                   from_s=30.5) if e is not None]
+    # the newest before the 20 s window (10.0), the window (25, 30) at once; 31 at once, 40 nine seconds on
+    assert emitted == [(10.0, 0.0), (25.0, 0.0), (30.0, 0.0), (31.0, 0.0), (40.0, 9.0)]
+    assert source.start_s == 0.0 and source.duration_s == 40.0

@@ -28,14 +28,14 @@ def _get(url: str, path: str) -> tuple[int, str, bytes]:
         conn.close()
 
 
-def read_events(url: str, wanted, timeout_s: float = 10.0) -> list[dict]:
-    """Events from /events until wanted(events) is true, the stream ends, or the timeout."""
+def read_events(url: str, wanted, timeout_s: float = 10.0, path: str = "/events") -> list[dict]:
+    """Events from /events (or `path`) until wanted(events) is true, the stream ends, or the timeout."""
     parts = urlsplit(url)
     conn = http.client.HTTPConnection(parts.hostname, parts.port, timeout=timeout_s)
     events: list[dict] = []
     deadline = time.monotonic() + timeout_s
     try:
-        conn.request("GET", "/events")
+        conn.request("GET", path)
         reply = conn.getresponse()
         assert reply.getheader("Content-Type") == "text/event-stream"
         name = None
@@ -83,6 +83,19 @@ def test_a_replay_streams_every_sample_in_order_then_ends(serve):
         (k.rsplit("/", 1)[-1], p["t_s"]) for k, p in samples]
     states = [e for e in events if e.get("topic") == "state"]
     assert all(len(e["hub_frd_m"]) == 4 for e in states)
+
+
+def test_a_replay_seeks_to_an_instant_and_refuses_a_bad_one(serve):
+    """From 0.1 s before the end of a 5 s flight at half speed: the history at once, then 0.2 s paced."""
+    samples = read_recorded_feed(FEED)
+    server = serve(ReplaySource(samples, load_airframe(), speed=0.5))
+    times = [p["t_s"] for _, p in samples if p.get("t_s") is not None]
+    start = time.monotonic()
+    events = read_events(server.url, lambda evs: evs and evs[-1].get("end"), timeout_s=5.0,
+                         path=f"/events?from_s={times[-1] - 0.1}")
+    assert events[-1] == {"end": True} and time.monotonic() - start < 5.0       # not the 10 s from the start
+    assert [e["payload"]["t_s"] for e in events[:-1]] == [p["t_s"] for _, p in samples]   # a 20 s window: all of it
+    assert _get(server.url, "/events?from_s=later")[0] == 400
 
 
 def test_live_feed_reaches_the_page_with_the_posture(dashboard_process, publish_all, wait_until):

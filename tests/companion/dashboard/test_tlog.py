@@ -4,12 +4,15 @@ import math
 
 import pytest
 
+from companion.core.esc_evidence import PropellerModel
 from companion.dashboard import command
 from companion.dashboard.tlog import TlogError, tlog_samples
+from m4.airframe import load_airframe
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
 from m4.mavlink.tlog import TlogWriter
 
 T0_US = 1_796_000_000_000_000
+AF = load_airframe()
 
 
 def _write(path, messages) -> None:
@@ -41,7 +44,7 @@ def test_a_tlog_gives_state_setpoint_and_fault_payloads_with_the_companions_word
     path = tmp_path / "flight.tlog"
     statustext = (COMPANION_COMPONENT_ID, 1.04, "statustext", (mavlink.MAV_SEVERITY_CRITICAL, b"thrust loss rotor 4"))
     _write(path, _flight(1000, 0) + _flight(1020, 1) + [statustext] + _flight(1040, 2, cut=True))
-    samples = tlog_samples(path, "test")
+    samples = tlog_samples(path, AF, "test")
     assert [k.rsplit("/", 1)[-1] for k, _ in samples] == ["state", "setpoint", "fault"] * 3
     state = samples[0][1]
     assert state["t_s"] == 1.0 and state["wall_time_unix_s"] == pytest.approx(T0_US / 1e6 + 1.0, abs=1e-5)
@@ -62,14 +65,41 @@ def test_no_state_before_position_and_hips(tmp_path):
                   (fc, 0.0, "local_position_ned", (0, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0)),
                   (fc, 0.0, "m4_joint_state", (0, [0.8] * 4, [0.0] * 4)),
                   (fc, 0.02, "attitude", (20, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))])
-    samples = tlog_samples(path)
+    samples = tlog_samples(path, AF)
     assert len(samples) == 1 and samples[0][1]["t_s"] == 0.02 and samples[0][1]["thrust_n"] == [None] * 4
 
 
 def test_a_missing_or_empty_tlog_is_one_line_and_exit_2(tmp_path, capsys):
     with pytest.raises(TlogError, match="no such tlog"):
-        tlog_samples(tmp_path / "none.tlog")
+        tlog_samples(tmp_path / "none.tlog", AF)
     (tmp_path / "empty.tlog").write_bytes(b"")
     assert command.main(["--replay", str(tmp_path / "empty.tlog"), "--port", "0"]) == 2
     err = capsys.readouterr().err
     assert "empty.tlog: no flight controller state nor companion messages" in err and err.count("\n") == 1
+
+
+def test_a_companion_log_replays_its_nmpc_solves_and_the_thrust_its_escs_imply(tmp_path):
+    """What `m4-companion plot` reads, the replay shows: the NMPC's decisions and the ESC speeds."""
+    path = tmp_path / "flight.tlog"
+    fc, comp = FC_COMPONENT_ID, COMPANION_COMPONENT_ID
+    decisions = [(comp, 0.02, "named_value_float", (20, name.encode(), value)) for name, value in
+                 (("step_ms", 2.5), ("nmpc_ms", 1.25), ("nmpc_iter", 3.0), ("nmpc_cost", 0.5), ("nmpc_ok", 1.0),
+                  ("nmpc_fb", 0.0))]
+    esc = (fc, 0.02, "esc_telemetry_1_to_4", ([30] * 4, [1600] * 4, [1500] * 4, [0] * 4, [5500, 5500, 4000, 0],
+                                             [1] * 4))
+    _write(path, [esc] + _flight(20, 0) + decisions)
+    samples = dict((k.rsplit("/", 1)[-1], p) for k, p in tlog_samples(path, AF))
+    assert samples["state"]["thrust_n"] == pytest.approx(
+        PropellerModel.from_airframe(AF).thrust_n([5500, 5500, 4000, 0]).tolist(), rel=1e-6)
+    nmpc = samples["nmpc"]
+    assert (nmpc["t_s"], nmpc["solve_ms"], nmpc["iterations"], nmpc["cost"], nmpc["ok"], nmpc["fallback"]) == (
+        0.02, 1.25, 3, 0.5, True, False)
+    assert nmpc["predicted_p_ned_m"] == []
+
+
+def test_a_file_that_is_no_log_is_one_line_naming_it(tmp_path, capsys):
+    picture = tmp_path / "figure.png"
+    picture.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)))
+    assert command.main(["--replay", str(picture), "--port", "0"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{picture}: not a recorded feed (feed.jsonl) nor a .tlog" in err
