@@ -6,7 +6,8 @@ M4_FAULT_STATUS and the NAMED_VALUE_FLOAT of its flight log: component 191), STA
 either, and the faults applied:
 - announced by the FC (its STATUSTEXT "rotor 4 motor stop injected", m4.fault_text: the
   simulated FC says it for a command's fault and a scenario's alike, so the companion's own
-  log carries them);
+  log carries them), at the instant of the FC's next stamped message (it says it just
+  before the frame of the instant it applies the fault);
 - else injected by a command the log holds (MAV_CMD_INJECT_FAILURE: a motor stop;
   MAV_CMD_M4_ROTOR_LOSS with its kind; once the FC accepted them): a ground station's command
   is in the FC's tlog, not in the companion's.
@@ -128,7 +129,7 @@ def read_tlog(path: str | Path) -> FlightRecord:
     rows: dict[str, list] = {k: [] for k in ("pos", "vel", "att", "rates", "hip", "thrust", "limit", "sp_thrust",
                                              "sp_hip", "fault", "rpm", "current")}
     named: dict[str, list] = {}
-    texts, announced, commanded, pending = [], [], [], {}
+    texts, announced, unstamped, commanded, pending = [], [], [], [], {}
     now_s, whole_bytes = 0.0, 0
     conn = mavutil.mavlink_connection(str(path), dialect="m4")
     try:
@@ -141,6 +142,8 @@ def read_tlog(path: str | Path) -> FlightRecord:
             t_s = now_s if t is None else t / 1000.0
             if comp == FC_COMPONENT_ID and t is not None:
                 now_s = max(now_s, t_s)
+                announced += [replace(fault, at_s=t_s) for fault in unstamped]
+                unstamped.clear()
             if kind == "LOCAL_POSITION_NED" and comp == FC_COMPONENT_ID:
                 rows["pos"].append((t_s, [msg.x, msg.y, msg.z]))
                 rows["vel"].append((t_s, [msg.vx, msg.vy, msg.vz]))
@@ -165,7 +168,7 @@ def read_tlog(path: str | Path) -> FlightRecord:
             elif kind == "STATUSTEXT":
                 texts.append((t_s, comp, msg.severity, msg.text))
                 if comp == FC_COMPONENT_ID and (fault := _announced_fault(msg.text, t_s)) is not None:
-                    announced.append(fault)
+                    unstamped.append(fault)          # the FC says it before the frame of the instant it applies it
             elif kind in ("COMMAND_LONG", "COMMAND_INT") and msg.command in _INJECT and msg.target_component in (
                     0, FC_COMPONENT_ID):
                 pending[msg.command] = (msg, t_s)
@@ -173,6 +176,7 @@ def read_tlog(path: str | Path) -> FlightRecord:
                 fault = _commanded_fault(*pending.pop(msg.command))
                 if fault is not None:
                     commanded.append(fault)
+        announced += unstamped
         size = conn.f.seek(0, os.SEEK_END)
     finally:
         conn.close()

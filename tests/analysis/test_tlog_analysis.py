@@ -50,11 +50,13 @@ ROTOR_4_LOST = (m.MAV_CMD_M4_ROTOR_LOSS, 4, 1, m.M4_FAULT_KIND_DEGRADED)
 
 def _flight(path, yaw_rad=0.0, vel_ned=(0.0, 0.0, 0.0), injection=ROTOR_4_LOST, announced=()):
     """injection: (command, its first three params) sent at 1 s and accepted (None: no command);
-    announced: (k, text) the FC says at step k."""
+    announced: (k, text) the FC says at step k, before that step's frame."""
     log = _Tlog(path)
     for k in range(151):
         t_s = k * 0.02
         log.t_s, t_ms = t_s, k * 20
+        for text in (text for at, text in announced if at == k):       # as the FC: before the instant's frame
+            log.send(1, m.MAVLink_statustext_message(m.MAV_SEVERITY_INFO, text.encode()))
         after = t_s >= FAULT_S
         z = -2.0 + (0.1 * min(t_s - FAULT_S, 0.5) / 0.5 if after else 0.0)
         roll = 0.2 if 1.1 <= t_s < 1.4 else 0.0
@@ -74,8 +76,6 @@ def _flight(path, yaw_rad=0.0, vel_ned=(0.0, 0.0, 0.0), injection=ROTOR_4_LOST, 
                                                         else 30.0], 1060 if confirmed else 0, 2 if confirmed else 0))
         for name, value in (("nmpc_ms", 1.0 + k % 3), ("ref_d", -2.0), ("step_ms", 2.0), ("nmpc_ok", 1.0)):
             log.send(191, m.MAVLink_named_value_float_message(t_ms, name.encode(), value))
-        for _ in (text for at, text in announced if at == k):
-            log.send(1, m.MAVLink_statustext_message(m.MAV_SEVERITY_INFO, _.encode()))
         if k == 50 and injection is not None:
             command, *params = injection
             log.send(190, m.MAVLink_command_long_message(1, 1, command, 0, *params, 0, 0, 0, 0))
