@@ -391,6 +391,7 @@ function faultMarks() {
 function onEvent(event) {
   const p = event.payload;
   latest[event.topic] = p;
+  if (isNum(p.t_s)) dash.t = p.t_s;           // the newest instant received (drawn at the next frame)
   if (event.topic === "state") hubs = event.hub_frd_m || null;
   dash.events += 1;
   dash.byTopic[event.topic] = (dash.byTopic[event.topic] || 0) + 1;
@@ -402,7 +403,6 @@ function onEvent(event) {
 function updateReadouts() {
   const s = latest.state || {}, sp = latest.setpoint || {}, f = latest.fault || {}, n = latest.nmpc, l = latest.link;
   const t = [s, n || {}, sp].map((p) => p.t_s).find(isNum);
-  dash.t = isNum(t) ? t : null;
   $("clock").textContent = `t = ${fmt(t, 2)} s`;
   if (replay && isNum(t) && document.activeElement !== $("seek")) $("seek").value = t;
   $("r-pos").textContent = fmtVec(s.pos_ned_m, 2, 7);
