@@ -98,8 +98,10 @@ def test_a_signal_stops_the_companion_cleanly(sig, signed):
     proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--fc", "udpin:127.0.0.1:0", *signed],
                             stderr=subprocess.PIPE, text=True)
     try:
-        ready = proc.stderr.readline()
-        assert "ready" in ready, ready
+        said = []
+        while "ready" not in (line := proc.stderr.readline()) and line:
+            said.append(line)                                 # the start's lines: the log, the mission, the feed
+        assert "ready" in line, said
         time.sleep(0.2)
         proc.send_signal(sig)
         code = proc.wait(timeout=10)
