@@ -33,7 +33,9 @@ the same frames and setpoints. Other links (a ground station's) are not impaired
 
 Real time (`realtime=True`): the simulated clock follows the wall clock; messages are handled
 as they arrive (with `link`, 2 D later). Every packet in and out goes to the tlog when one is asked for. With several
-links, what arrives on one is routed to the others as an autopilot does (sitl/fc/routing.py).
+links, what arrives on one is routed to the others as an autopilot does (sitl/fc/routing.py);
+the FC's replies go to the link the message came on, its telemetry at each link's own rates
+(sitl/vehicle.py).
 
 At its end (the duration flown, or stopped) the FC says it shuts down: a HEARTBEAT with
 MAV_STATE_POWEROFF on every link, so a companion reports the end of the flight, not a lost link.
@@ -114,7 +116,8 @@ class Server:
             self.vehicle = Vehicle(options.scenario, airframe or load_airframe(), options.seed,
                                    lockstep=not options.realtime, companion_ids=options.companion_ids,
                                    require_signed=options.signing_key is not None,
-                                   params_file=ParamFile(options.params_path) if options.params_path else None)
+                                   params_file=ParamFile(options.params_path) if options.params_path else None,
+                                   links=len(options.mavlink_urls))
         except ConfigError as e:
             raise ServeError(f"parameters: {e}") from None
         self._viewer = None
@@ -156,11 +159,12 @@ class Server:
         return UdpLink(url, FC_SYSTEM_ID, FC_COMPONENT_ID, tlog=self.tlog, key=o.signing_key, link_id=i)
 
     # -- plumbing --------------------------------------------------------------------------------
-    def send(self, msgs) -> None:
+    def send(self, msgs, link: int | None = None) -> None:
+        """To every link, or to link number `link`."""
         msgs = list(msgs)
         if msgs:
-            for link in self.links:
-                link.send_all(msgs)
+            for out in self.links if link is None else (self.links[link],):
+                out.send_all(msgs)
 
     def poll(self) -> None:
         """Handle everything that has arrived, at the current simulated instant."""
@@ -194,7 +198,7 @@ class Server:
         msgs = [msg for _, batch in datagrams for msg in batch]
         if msgs:
             self.router.forward(i, msgs)
-            self.vehicle.handle(msgs, self.send)
+            self.vehicle.handle(msgs, self.send, i)
 
     # -- the emulated link's messages, as the vehicle's inbox (sitl/vehicle.py) -------------------
     def next_delivery_ms(self) -> int | None:

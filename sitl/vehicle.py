@@ -4,7 +4,11 @@ on one simulated clock (integer milliseconds since the scenario's t = 0).
 No sockets and no wall clock here: `advance_to()` steps the physics from event to event (FC
 ticks, telemetry streams, scheduled faults) and hands every message the FC emits on the way
 to `send`; `handle()` feeds it received messages at the current instant. sitl/serve.py
-paces it (lockstep or real time) and moves the bytes. An `inbox` (a delayed link) is stepped
+paces it (lockstep or real time) and moves the bytes. With several links, `send(msgs, link)`
+sends to one of them: its telemetry (each link has its own stream rates), the replies to a
+message (to the link it came on: a ground station does not hear the acks meant for the
+companion), and the companion's critical STATUSTEXT the FC repeats as its own (to the other
+links); `send(msgs)` to all of them. An `inbox` (a delayed link) is stepped
 to as well: what it holds for an instant is handed over first thing at that instant, so its
 replies go out before that instant's telemetry.
 """
@@ -30,7 +34,7 @@ from sitl.plant.mujoco_plant import Plant
 from sitl.fc.streams import FRAME
 from sitl.plant.truth import DEFAULT_PERIOD_MS as OBSERVED_GRID_MS
 
-Send = Callable[[Iterable[mavlink.MAVLink_message]], None]
+Send = Callable[..., None]         # send(msgs): on every link; send(msgs, link): on that one
 
 
 class Inbox(Protocol):
@@ -49,9 +53,9 @@ def log(text: str) -> None:
 class Vehicle:
     def __init__(self, scenario: Scenario, airframe: Airframe, seed: int = 0, lockstep: bool = False,
                  companion_ids: tuple[int, int] = (FC_SYSTEM_ID, COMPANION_COMPONENT_ID), require_signed: bool = False,
-                 params_file: ParamFile | None = None):
+                 params_file: ParamFile | None = None, links: int = 1):
         """params_file: the FC's parameters set over MAVLink, loaded here (ConfigError on a bad
-        entry) and kept there (None: they last this run)."""
+        entry) and kept there (None: they last this run); links: how many links the FC has."""
         self.scenario = scenario
         sensors = PROFILES.get(scenario.sensors.profile)       # None: "ideal", the measured state as it is
         self.plant = Plant(airframe, scenario.plant, start_ned_m=scenario.start.ned_m,
@@ -61,7 +65,8 @@ class Vehicle:
         options = scenario.plant
         esc = EscTelemetry(airframe, TICK_MS, noise=options.sensor_noise, seed=seed) if options.esc_telemetry else None
         self.fc = FlightController(airframe, self.plant, lockstep=lockstep, companion_ids=companion_ids,
-                                   require_signed=require_signed, log=log, esc=esc, estimator=estimator)
+                                   require_signed=require_signed, log=log, esc=esc, estimator=estimator, links=links)
+        self.links = links
         self.now_ms = 0
         self.fc.params = ParamService(fc_params(self.fc, lambda: self.now_ms), FC_SYSTEM_ID, FC_COMPONENT_ID, "FC",
                                       params_file, log)
@@ -100,14 +105,27 @@ class Vehicle:
         if self.now_ms % TICK_MS == 0:
             self.fc.tick(self.now_ms)
         send(self.fc.take_outbox())
-        send(self.fc.telemetry(self.now_ms, frame=frame))
+        for link in range(self.links):
+            self._send_on(send, link, self.fc.telemetry(self.now_ms, frame=frame, link=link))
         for observe in self.observers:
             observe(self.now_ms, self.plant)
 
-    def handle(self, msgs: Iterable[mavlink.MAVLink_message], send: Send) -> None:
+    def handle(self, msgs: Iterable[mavlink.MAVLink_message], send: Send, link: int = 0) -> None:
+        """Messages that arrived on link `link`."""
         for msg in msgs:
-            send(self.fc.handle(msg, self.now_ms))
+            self._send_on(send, link, self.fc.handle(msg, self.now_ms, link))
+            relayed = self.fc.relayed(msg)
+            if relayed is not None:
+                for other in range(self.links):
+                    if other != link:
+                        send([relayed], other)
         send(self.fc.take_outbox())
+
+    def _send_on(self, send: Send, link: int, msgs) -> None:
+        if self.links == 1:
+            send(msgs)
+        else:
+            send(msgs, link)
 
     def current_frame(self) -> list[mavlink.MAVLink_message]:
         """HEARTBEAT and the frame at the current instant again (lockstep, while waiting)."""

@@ -6,7 +6,8 @@ thrust -> attitude PD -> moments), the legs at the nominal posture, and a 4x4 al
 force and moments to the rotors.
 
 HOLD keeps the position and yaw where it engaged. LAND (entered after `LAND_AFTER_S` of
-HOLD when the FC allows it) lowers the target at `LAND_SPEED_M_S`; on touchdown (ground
+HOLD when the FC allows it, or at once when engaged to land: LAND was selected) lowers the
+target at `LAND_SPEED_M_S`; on touchdown (ground
 contact, or the descent stalled on the ground) the thrust is cut: LANDED.
 
 A lost rotor (`set_lost_rotor`: from the companion's last M4_FAULT_STATUS, or the FC's own
@@ -123,9 +124,10 @@ class Failsafe:
     def hip_rad(self) -> np.ndarray:
         return self.controller.hip_rad if self.three_rotor is None else self.three_rotor.hip_rad
 
-    def engage(self, state, now_ms: int, may_land: bool) -> None:
-        """Hold here from `now_ms`; with `may_land`, land once held for LAND_AFTER_S."""
-        self.mode = FcMode.HOLD
+    def engage(self, state, now_ms: int, may_land: bool, land: bool = False) -> None:
+        """Hold here from `now_ms`; with `may_land`, land once held for LAND_AFTER_S; with
+        `land`, land from here now."""
+        self.mode = FcMode.LAND if land else FcMode.HOLD
         self._since_ms = now_ms
         self._may_land = may_land
         self._target_ned_m = np.array(state.pos_ned_m, dtype=float)

@@ -10,14 +10,24 @@ with an `estimator` (sitl/fc/estimator.py: a scenario's [sensors] profile "mocap
 its attitude, rates, position and velocity come from the estimator's raw sensors, never the
 truth, and so do the rates of the fast loop.
 
-Authority: the FC is paired with one companion (`companion_ids`, system 1 component 191 by
-default). Setpoints, commands (rotor faults, arming, stream rates, requests) and
-M4_FAULT_STATUS are taken from it only (with `require_signed`, only signed); from anyone
-else they are refused and counted, a command with COMMAND_ACK DENIED. A setpoint is judged
+Authority (docs/authority.md), as autopilots have it: setpoints and M4_FAULT_STATUS are taken
+from the paired companion only (`companion_ids`, system 1 component 191 by default);
+commands (sitl/fc/commands.py: rotor faults, arming, modes, stream rates, requests) from the
+companion and from any ground station alike. With `require_signed`, only signed packets
+count, from anyone. What it refuses is counted and logged once per 10 s per kind
+(m4.log_limit), a command with COMMAND_ACK DENIED. Other command-like traffic (missions,
+parameters) asks `from_commander` as the commands do. A setpoint is judged
 by the instant it answers (time_boot_ms, the FC's clock), with `MAX_AGE_MIN_MS`,
 `MAX_AGE_PERIODS` and `MAX_PERIOD_MS`; what it refuses is counted by reason. A second sender
 using the companion's ids (its caller, sitl/serve.py, knows the addresses) is reported by
 `second_sender` (m4/mavlink/second_sender.py): counted, a log line and a STATUSTEXT WARNING.
+
+Modes (sitl/fc/modes.py, m4/fc_mode.py): `selected` is the mode a command chose (COMPANION
+at arming); while setpoints are fresh it is the mode in force and the companion flies it
+(its mission, a hold, a landing). While they are stale the failsafe flies and its mode is in
+force (HOLD, LAND after 2 s; LAND at once when LAND is selected); the selection stays, except
+that nothing but LAND can be selected then (nobody would fly it). Each change of the mode in
+force, or of who flies it, is announced (STATUSTEXT) and sent as CURRENT_MODE.
 
 Arming: the FC starts armed (the scenarios start in the air). Once it has landed or applied
 a thrust cut it is disarmed: setpoints are refused (counted) and the motors stay off until
@@ -83,12 +93,16 @@ _CONTROL_IDS = frozenset({mavlink.MAVLINK_MSG_ID_M4_SETPOINT, mavlink.MAVLINK_MS
 _COMMAND_IDS = (mavlink.MAVLINK_MSG_ID_COMMAND_LONG, mavlink.MAVLINK_MSG_ID_COMMAND_INT)
 
 
-_ANNOUNCE = {
-    FcMode.COMPANION: (mavlink.MAV_SEVERITY_INFO, "FC: flying companion setpoints"),
-    FcMode.HOLD: (mavlink.MAV_SEVERITY_WARNING, "FC failsafe HOLD: no fresh setpoints"),
-    FcMode.LAND: (mavlink.MAV_SEVERITY_WARNING, "FC failsafe LAND: setpoints stale for 2 s"),
-    FcMode.LANDED: (mavlink.MAV_SEVERITY_NOTICE, "FC LANDED: thrust cut"),
+_ANNOUNCE = {                     # (mode in force, flown by the failsafe) -> STATUSTEXT
+    (FcMode.COMPANION, False): (mavlink.MAV_SEVERITY_INFO, "FC: flying companion setpoints"),
+    (FcMode.HOLD, False): (mavlink.MAV_SEVERITY_INFO, "FC HOLD: the companion holds"),
+    (FcMode.LAND, False): (mavlink.MAV_SEVERITY_INFO, "FC LAND: the companion lands"),
+    (FcMode.HOLD, True): (mavlink.MAV_SEVERITY_WARNING, "FC failsafe HOLD: no fresh setpoints"),
+    (FcMode.LAND, True): (mavlink.MAV_SEVERITY_WARNING, "FC failsafe LAND: setpoints stale for 2 s"),
+    (FcMode.LANDED, False): (mavlink.MAV_SEVERITY_NOTICE, "FC LANDED: thrust cut"),
 }
+_ANNOUNCE[FcMode.LANDED, True] = _ANNOUNCE[FcMode.LANDED, False]
+_LAND_SELECTED = (mavlink.MAV_SEVERITY_WARNING, "FC failsafe LAND: no fresh setpoints")
 
 
 def _clip(values: np.ndarray, lo: float, hi: float) -> np.ndarray:
@@ -124,7 +138,8 @@ class FcCounters:
     setpoints_accepted: int = 0
     setpoints_dropped: int = 0      # every setpoint refused; by reason in `dropped_by_reason`
     commands_acked: int = 0
-    refused_foreign: int = 0        # setpoints, commands and fault status from anyone but the companion
+    refused_foreign: int = 0        # setpoints and fault status from anyone but the companion; unsigned commands
+    commands_refused: int = 0       # commands answered other than ACCEPTED or FAILED (sitl/fc/commands.py)
     dropped_by_reason: collections.Counter = field(default_factory=collections.Counter)
 
     def drop(self, reason: str) -> None:
@@ -136,7 +151,7 @@ class FlightController:
     def __init__(self, airframe: Airframe, plant, home: Home | None = None, lockstep: bool = False,
                  companion_ids: tuple[int, int] = (FC_SYSTEM_ID, COMPANION_COMPONENT_ID), require_signed: bool = False,
                  log: Callable[[str], None] = lambda text: None, esc: EscTelemetry | None = None,
-                 estimator: Estimator | None = None):
+                 estimator: Estimator | None = None, links: int = 1):
         self.airframe = airframe
         self.companion_ids = companion_ids
         self.require_signed = require_signed
@@ -160,7 +175,8 @@ class FlightController:
         self.telemetry_builder = Telemetry(airframe, home, esc_telemetry=esc is not None)
         self.mission = MissionStore(self.telemetry_builder.home, log)
         self.telemetry_builder.add(mavlink.MAVLINK_MSG_ID_MISSION_CURRENT, lambda snap: self.mission.current_message())
-        self.schedule = StreamSchedule(DEFAULT_INTERVALS_MS if esc is None else ESC_TELEMETRY_INTERVALS_MS)
+        intervals = DEFAULT_INTERVALS_MS if esc is None else ESC_TELEMETRY_INTERVALS_MS
+        self.schedules = [StreamSchedule(intervals) for _ in range(links)]    # each link's own stream rates
         self.failsafe = Failsafe(airframe)
         self.counters = FcCounters()
         # parameters (sitl/fc/params.py), with the failsafe's and the rotor watch's
@@ -169,7 +185,11 @@ class FlightController:
         self.shortfall_cover_enabled = True
         self.params: ParamService | None = None         # the parameter protocol (sitl/vehicle.py sets it up)
         self.setpoint: ReceivedSetpoint | None = None
-        self.mode: FcMode | None = None
+        self.mode: FcMode | None = None         # the mode in force
+        self.selected = FcMode.COMPANION        # the mode commanded
+        self._by_failsafe = False               # the failsafe flies the mode in force
+        self._told_selected: FcMode | None = None     # the selection CURRENT_MODE last told
+        self._announced: tuple[int, str] | None = None  # the last STATUSTEXT on the mode
         self._applied: ReceivedSetpoint | None = None
         self._applied_at_ms = 0
         self._outbox: list[mavlink.MAVLink_message] = []
@@ -228,13 +248,30 @@ class FlightController:
         self.announce(mavlink.MAV_SEVERITY_INFO, fault_text(rotor, loss, kind))
 
     # -- modes -------------------------------------------------------------------------------
-    def _set_mode(self, mode: FcMode) -> None:
-        if mode != self.mode:
-            self.mode = mode
-            self._outbox += [statustext(*_ANNOUNCE[mode]), current_mode(mode)]
+    def _set_mode(self, mode: FcMode, by_failsafe: bool) -> None:
+        """The mode in force and who flies it: announced when the announcement changes,
+        CURRENT_MODE sent when the mode in force or the selection changes."""
+        land_selected = mode == FcMode.LAND and by_failsafe and self.selected == FcMode.LAND
+        announcement = _LAND_SELECTED if land_selected else _ANNOUNCE[mode, by_failsafe]
+        if announcement != self._announced:
+            self._announced = announcement
+            self._outbox.append(statustext(*announcement))
+        if (mode, self.selected) != (self.mode, self._told_selected):
+            self._outbox.append(current_mode(mode, self.selected))
+        self.mode, self._by_failsafe, self._told_selected = mode, by_failsafe, self.selected
 
-    def _fresh(self, now_ms: int) -> bool:
+    def fresh(self, now_ms: int) -> bool:
+        """The companion's setpoints are fresh: it flies."""
         return self.setpoint is not None and now_ms <= self.setpoint.stale_after_ms(self.stale_min_ms)
+
+    def select_mode(self, mode: FcMode, now_ms: int) -> None:
+        """Make `mode` the selected one (sitl/fc/commands.py judged it possible) and put it in
+        force at once: the companion flies it, or, LAND while the failsafe holds, the failsafe
+        lands now."""
+        self.selected = mode
+        if self._by_failsafe and mode == FcMode.LAND and self.mode == FcMode.HOLD:
+            self.failsafe.engage(self.measured_state(now_ms), now_ms, may_land=True, land=True)
+        self.tick(now_ms)
 
     def set_armed(self, armed: bool) -> None:
         """Arm (the next fresh setpoint, or the failsafe, flies) or disarm (motors off)."""
@@ -244,6 +281,7 @@ class FlightController:
             self.setpoint = None
             if armed:
                 self.fault_status = None        # a new flight: the last one's fault and mission stay behind
+                self.selected = FcMode.COMPANION
             else:
                 self._outbox += self.mission.landed()
 
@@ -262,16 +300,16 @@ class FlightController:
         self._outbox += self.mission.tick(now_ms)
         self._measure(now_ms)
         if not self.armed:
-            self._set_mode(FcMode.LANDED)
+            self._set_mode(FcMode.LANDED, by_failsafe=False)
             self._command_plant(np.zeros(ROTOR_COUNT), self.failsafe.hip_rad)
             return
-        if self._fresh(now_ms):
+        if self.fresh(now_ms):
             sp = self.setpoint.command
             if sp.thrust_cut:
                 self.set_armed(False)
                 self.tick(now_ms)
                 return
-            self._set_mode(FcMode.COMPANION)
+            self._set_mode(self.selected, by_failsafe=False)
             if self.setpoint is not self._applied:
                 self._command_plant(sp.thrust_n, sp.hip_rad, sp.hip_rate_rad_s)
                 self._applied, self._applied_at_ms = self.setpoint, now_ms
@@ -280,10 +318,10 @@ class FlightController:
             return
         state = self.measured_state(now_ms)
         self.failsafe.set_lost_rotor(self.lost_rotor())
-        if self.mode not in (FcMode.HOLD, FcMode.LAND):
-            self.failsafe.engage(state, now_ms, may_land=self.mode is not None)
+        if not self._by_failsafe:
+            self.failsafe.engage(state, now_ms, may_land=self.mode is not None, land=self.selected == FcMode.LAND)
         out = self.failsafe.update(state, now_ms)
-        self._set_mode(out.mode)
+        self._set_mode(out.mode, by_failsafe=True)
         self._command_plant(out.thrust_n, out.hip_rad)
         if out.mode == FcMode.LANDED:
             self.set_armed(False)
@@ -308,7 +346,8 @@ class FlightController:
     def _measure_on_gyro(self, now_ms: int, commanded) -> None:
         """The rotors' shortfall on our gyro (sitl/fc/gyro_shortfall.py) against the setpoint we
         flew over the last tick (commanded: what we sent the ESCs); the filter runs whoever flies."""
-        flown = self._applied.command if self._applied is not None and self.mode == FcMode.COMPANION else None
+        companion_flies = self.mode not in (None, FcMode.LANDED) and not self._by_failsafe
+        flown = self._applied.command if self._applied is not None and companion_flies else None
         planned, accel, effectiveness = commanded, np.zeros(2), None
         if flown is not None:
             planned = flown.thrust_n
@@ -344,41 +383,49 @@ class FlightController:
         return ((msg.get_srcSystem(), msg.get_srcComponent()) == self.companion_ids
                 and (not self.require_signed or msg.get_signed()))
 
-    def _say(self, key, text: str) -> None:
+    def from_commander(self, msg) -> bool:
+        """May command the FC: anyone (the companion, a ground station), signed when signing is
+        required."""
+        return not self.require_signed or msg.get_signed()
+
+    def say(self, key, text: str) -> None:
+        """Log `text`, once per 10 s for each `key` (the repeats counted in the next line)."""
         self._repeats.say(key, text, self.log)
 
-    def handle(self, msg, now_ms: int) -> list[mavlink.MAVLink_message]:
-        """React to one received message; returns the immediate replies (acks, requested messages)."""
+    def handle(self, msg, now_ms: int, link: int = 0) -> list[mavlink.MAVLink_message]:
+        """React to one received message (on link `link`); returns the replies for its sender
+        (acks, requested messages)."""
         msg_id = msg.get_msgId()
         if msg_id == mavlink.MAVLINK_MSG_ID_TIMESYNC:
             return [mavlink.MAVLink_timesync_message(now_ms * 1_000_000, msg.ts1)] if msg.tc1 == 0 else []
         if msg_id in PARAM_IDS and self.params is not None:
-            # from the companion and ground stations alike; with signing, only signed
-            return [] if self.require_signed and not msg.get_signed() else (self.params.handle(msg) or [])
+            return (self.params.handle(msg) or []) if self.from_commander(msg) else []
         if msg_id in MISSION_IDS:           # from the companion and ground stations alike; with signing, only signed
-            if (self.require_signed and not msg.get_signed()) or not self.addressed_to_me(msg):
+            if not self.from_commander(msg) or not self.addressed_to_me(msg):
                 return []
             return self.mission.handle(msg, now_ms, self.from_companion(msg))
         if msg_id not in _CONTROL_IDS or (msg_id != mavlink.MAVLINK_MSG_ID_M4_FAULT_STATUS
                                           and not self.addressed_to_me(msg)):
             return []
+        if msg_id in _COMMAND_IDS:
+            return self._commands.handle(msg, now_ms, link) if self.from_commander(msg) else self._refuse(msg)
         if not self.from_companion(msg):
             return self._refuse(msg)
         if msg_id == mavlink.MAVLINK_MSG_ID_M4_SETPOINT:
             self._on_setpoint(msg, now_ms)
             return []
-        if msg_id == mavlink.MAVLINK_MSG_ID_M4_FAULT_STATUS:
-            self.fault_status = msg
-            return []
-        return self._commands.handle(msg, now_ms)
+        self.fault_status = msg
+        return []
 
     def _refuse(self, msg) -> list[mavlink.MAVLink_message]:
         self.counters.refused_foreign += 1
         src = (msg.get_srcSystem(), msg.get_srcComponent())
-        unsigned = " or unsigned" if self.require_signed else ""
-        self._say(("foreign", msg.get_msgId()),
-                  f"refused {msg.get_type()} from {src[0]}/{src[1]}: not the paired companion "
-                  f"{self.companion_ids[0]}/{self.companion_ids[1]}{unsigned}")
+        if msg.get_msgId() in _COMMAND_IDS:
+            why = "unsigned (the FC has a signing key)"
+        else:
+            unsigned = " or unsigned" if self.require_signed else ""
+            why = f"not the paired companion {self.companion_ids[0]}/{self.companion_ids[1]}{unsigned}"
+        self.say(("foreign", msg.get_msgId()), f"refused {msg.get_type()} from {src[0]}/{src[1]}: {why}")
         if msg.get_msgId() in _COMMAND_IDS:
             return [self._commands.ack(msg, mavlink.MAV_RESULT_DENIED)]
         return []
@@ -404,7 +451,7 @@ class FlightController:
         reason = self._setpoint_fault(msg, values, now_ms)
         if reason is not None:
             self.counters.drop(reason)
-            self._say(("setpoint", reason), f"t={now_ms / 1000:.3f} s: setpoint for t={msg.time_boot_ms / 1000:.3f} s "
+            self.say(("setpoint", reason), f"t={now_ms / 1000:.3f} s: setpoint for t={msg.time_boot_ms / 1000:.3f} s "
                                             f"refused: {reason}")
             return
         af = self.airframe
@@ -426,12 +473,22 @@ class FlightController:
         state = self.measured_state(now_ms)
         landed = self.mode == FcMode.LANDED or bool(state.on_ground)
         return Snapshot(t_ms=now_ms, state=state, custom_mode=int(self.mode or 0), armed=self.armed, landed=landed,
-                        esc=None if self.esc is None else self.esc.report(now_ms))
+                        esc=None if self.esc is None else self.esc.report(now_ms), intended_mode=int(self.selected))
 
-    def telemetry(self, now_ms: int, frame: bool = False) -> list[mavlink.MAVLink_message]:
-        """The streams due at `now_ms` (with `frame`: plus the lockstep frame), in order. In
-        lockstep M4_THRUSTER_STATUS goes out only in frames: it tells the companion to answer."""
-        ids = self.schedule.due(now_ms, FRAME if frame else ())
+    @property
+    def schedule(self) -> StreamSchedule:
+        """The first link's stream rates (the companion's)."""
+        return self.schedules[0]
+
+    def schedule_for(self, link: int) -> StreamSchedule:
+        """The stream rates of link `link` (MAV_CMD_SET_MESSAGE_INTERVAL sets the sender's link's)."""
+        return self.schedules[link]
+
+    def telemetry(self, now_ms: int, frame: bool = False, link: int = 0) -> list[mavlink.MAVLink_message]:
+        """The streams due at `now_ms` on link `link` (with `frame`: plus the lockstep frame), in
+        order. In lockstep M4_THRUSTER_STATUS goes out only in frames: it tells the companion to
+        answer."""
+        ids = self.schedules[link].due(now_ms, FRAME if frame else ())
         if self.lockstep and not frame:
             ids = [i for i in ids if i != FRAME[-1]]
         if not ids:
@@ -442,8 +499,17 @@ class FlightController:
     def next_event_ms(self, now_ms: int) -> int:
         """The next instant at which the FC has something to do."""
         next_tick = (now_ms // TICK_MS + 1) * TICK_MS
-        due = self.schedule.next_due_ms()
-        return next_tick if due is None else min(next_tick, max(due, now_ms + 1))
+        dues = [due for schedule in self.schedules if (due := schedule.next_due_ms()) is not None]
+        return min([next_tick, *(max(due, now_ms + 1) for due in dues)])
+
+    def relayed(self, msg) -> mavlink.MAVLink_message | None:
+        """The companion's STATUSTEXT at CRITICAL or above (its fault, a crash) as our own, for
+        the ground stations: autopilots announce their own failures, and ground stations print
+        the autopilot's texts (MAVProxy no other). None for anything else."""
+        if (msg.get_msgId() != mavlink.MAVLINK_MSG_ID_STATUSTEXT or not self.from_companion(msg)
+                or msg.severity > mavlink.MAV_SEVERITY_CRITICAL):
+            return None
+        return statustext(msg.severity, msg.text)
 
     def power_off(self, now_ms: int) -> list[mavlink.MAVLink_message]:
         """Its last word as it shuts down (the simulation's end): a HEARTBEAT with system_status

@@ -11,27 +11,21 @@ station shows them for what they are.
   CURRENT_MODE on every mode change and every CURRENT_MODE_INTERVAL_MS; AVAILABLE_MODES on
   MAV_CMD_REQUEST_MESSAGE (param2: 0 for every mode, else the mode's index from 1). HOLD and
   LAND are the standard POSITION_HOLD and LAND (no name, as the protocol asks); COMPANION and
-  LANDED are custom modes with their names. None is user selectable: the FC enters them itself.
+  LANDED are custom modes with their names. COMPANION, HOLD and LAND are user selectable
+  (sitl/fc/commands.py: MAV_CMD_DO_SET_MODE, MAV_CMD_DO_SET_STANDARD_MODE, MAV_CMD_NAV_LAND);
+  CURRENT_MODE's intended_custom_mode is the one selected, custom_mode the one in force (the
+  failsafe's, while setpoints are stale). A new mode is one more row of `MODES`.
 """
 
 from __future__ import annotations
 
-import enum
 from dataclasses import dataclass
 
+from m4.fc_mode import FcMode
 from m4.mavlink import mavlink
 
 m = mavlink
 CURRENT_MODE_INTERVAL_MS = 2000           # 0.5 Hz, the protocol's nominal rate
-
-
-class FcMode(enum.IntEnum):
-    """HEARTBEAT and CURRENT_MODE custom_mode values; the failsafe (sitl/fc/failsafe.py) runs
-    HOLD, LAND and LANDED."""
-    COMPANION = 0                  # flying the companion's setpoints
-    HOLD = 1
-    LAND = 2
-    LANDED = 3
 
 
 @dataclass(frozen=True)
@@ -40,6 +34,7 @@ class ModeInfo:
     standard_mode: int             # MAV_STANDARD_MODE
     name: str                      # sent for the custom (non-standard) modes only
     base_flags: int                # MAV_MODE_FLAG bits besides SAFETY_ARMED
+    selectable: bool = True        # a ground station or the companion may select it
 
 
 _STAB = m.MAV_MODE_FLAG_STABILIZE_ENABLED
@@ -47,7 +42,7 @@ MODES = (
     ModeInfo(FcMode.COMPANION, m.MAV_STANDARD_MODE_NON_STANDARD, "COMPANION", _STAB | m.MAV_MODE_FLAG_GUIDED_ENABLED),
     ModeInfo(FcMode.HOLD, m.MAV_STANDARD_MODE_POSITION_HOLD, "HOLD", _STAB | m.MAV_MODE_FLAG_AUTO_ENABLED),
     ModeInfo(FcMode.LAND, m.MAV_STANDARD_MODE_LAND, "LAND", _STAB | m.MAV_MODE_FLAG_AUTO_ENABLED),
-    ModeInfo(FcMode.LANDED, m.MAV_STANDARD_MODE_NON_STANDARD, "LANDED", 0),
+    ModeInfo(FcMode.LANDED, m.MAV_STANDARD_MODE_NON_STANDARD, "LANDED", 0, selectable=False),
 )
 _BY_MODE = {info.mode: info for info in MODES}
 
@@ -58,9 +53,22 @@ def base_mode(custom_mode: int, armed: bool) -> int:
     return flags | (m.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0)
 
 
-def current_mode(custom_mode: int) -> mavlink.MAVLink_current_mode_message:
+def current_mode(custom_mode: int, intended: int) -> mavlink.MAVLink_current_mode_message:
+    """CURRENT_MODE: the mode in force (`custom_mode`) and the one selected (`intended`)."""
     info = _BY_MODE[FcMode(custom_mode)]
-    return m.MAVLink_current_mode_message(info.standard_mode, int(info.mode), 0)    # 0: nobody asked for a mode
+    return m.MAVLink_current_mode_message(info.standard_mode, int(info.mode), int(intended))
+
+
+def mode_info(mode: FcMode) -> ModeInfo:
+    return _BY_MODE[mode]
+
+
+def by_standard_mode(standard_mode: int) -> FcMode | None:
+    """The selectable mode a MAV_STANDARD_MODE names (None: none of ours, or NON_STANDARD)."""
+    for info in MODES:
+        if info.selectable and info.standard_mode == standard_mode != m.MAV_STANDARD_MODE_NON_STANDARD:
+            return info.mode
+    return None
 
 
 def available_modes(index: int) -> list[mavlink.MAVLink_available_modes_message] | None:
@@ -74,5 +82,5 @@ def available_modes(index: int) -> list[mavlink.MAVLink_available_modes_message]
 def _available(index: int) -> mavlink.MAVLink_available_modes_message:
     info = MODES[index - 1]
     name = b"" if info.standard_mode != m.MAV_STANDARD_MODE_NON_STANDARD else info.name.encode()
-    return m.MAVLink_available_modes_message(len(MODES), index, info.standard_mode, int(info.mode),
-                                             m.MAV_MODE_PROPERTY_NOT_USER_SELECTABLE, name)
+    properties = 0 if info.selectable else m.MAV_MODE_PROPERTY_NOT_USER_SELECTABLE
+    return m.MAVLink_available_modes_message(len(MODES), index, info.standard_mode, int(info.mode), properties, name)

@@ -40,6 +40,7 @@ class Snapshot:
     armed: bool
     landed: bool
     esc: EscReport | None = None     # what the ESCs reported (None: the FC has no ESC telemetry)
+    intended_mode: int = 0           # the mode selected (custom_mode: the one in force)
 
 
 def _f4(v) -> list[float]:
@@ -86,7 +87,7 @@ class Telemetry:
                                                  base, snap.custom_mode, status, 3)
 
     def current_mode(self, snap: Snapshot):
-        return modes.current_mode(snap.custom_mode)
+        return modes.current_mode(snap.custom_mode, snap.intended_mode)
 
     def sys_status(self, snap: Snapshot):
         """The power module's pack voltage and current; the charge left assumes a full pack at boot."""

@@ -144,9 +144,9 @@ def test_unknown_command_is_acknowledged_unsupported():
         ack = _command(companion, m.MAV_CMD_NAV_TAKEOFF, 0)
         assert ack.result == m.MAV_RESULT_UNSUPPORTED
         before = len(companion.of_type("COMMAND_ACK"))
-        companion.send(m.MAVLink_command_int_message(1, 1, 0, m.MAV_CMD_DO_SET_MODE, 0, 0, 1, 0, 0, 0, 0, 0, 0))
+        companion.send(m.MAVLink_command_int_message(1, 1, 0, m.MAV_CMD_DO_SET_HOME, 0, 0, 1, 0, 0, 0, 0, 0, 0))
         ack = companion.wait_for("COMMAND_ACK", lambda a: a in companion.of_type("COMMAND_ACK")[before:])
-        assert ack.command == m.MAV_CMD_DO_SET_MODE and ack.result == m.MAV_RESULT_UNSUPPORTED
+        assert ack.command == m.MAV_CMD_DO_SET_HOME and ack.result == m.MAV_RESULT_UNSUPPORTED
 
 
 def test_command_for_another_component_is_left_to_it():
