@@ -38,6 +38,11 @@ once more at exit), so a restarted companion refuses a captured packet;
 without (`[link] signing = false`) it says so at start and, as STATUSTEXT WARNING, at every
 lock-on.
 
+The FC's modes (companion.controller): CURRENT_MODE's intended_custom_mode, the mode selected
+at the FC (by a ground station), says what to fly: the mission (COMPANION, and any mode we do
+not know), a hold or a landing; a change is logged. Its standard_mode LAND (the FC lands,
+maybe by its failsafe) makes a takeover join the landing.
+
 A confirmed fault is announced: STATUSTEXT MAV_SEVERITY_CRITICAL "thrust loss rotor N (kind)"
 (that severity is used for nothing else), the same text on the feed's fault topic. When
 more evidence re-settles the kind (a damaged propeller turns out lost), the new text is
@@ -69,6 +74,7 @@ from companion.flight_log import FlightLog, open_flight_log
 from companion.stream_watch import Report, StreamWatch, blocking, labels
 from companion.telemetry import ESC_TELEMETRY, THRUSTER_STATUS, TelemetryAssembler, VehicleSnapshot, rom_state
 from m4.airframe import ROTOR_COUNT
+from m4.fc_mode import FcMode
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from m4.mavlink.connect import listens_for_peer, open_link
 from m4.mavlink.link import wait_readable
@@ -79,6 +85,7 @@ from m4.params_file import ParamFile
 
 log = logging.getLogger("m4-companion")
 
+_FOLLOWING = {FcMode.HOLD: "holding where the robot stops", FcMode.LAND: "landing where it is"}
 RESUME_GAP_PERIODS = 2            # FC clock moved more than this many periods during a loss: reset
 KIND_ANNOUNCE_MIN_S = 1.0         # a re-settled fault kind is announced at most this often
 
@@ -129,7 +136,8 @@ class CompanionApp:
         self.timing = LoopTiming(config.control_period_s)
         self._frame_ms: int | None = None        # the newest frame (its M4_THRUSTER_STATUS) not yet answered
         self._kept_mission: MissionProgress | None = None     # what the FC kept of an earlier run's mission
-        self._fc_landing = False                 # the FC's mode, as it last said: its failsafe lands
+        self._fc_landing = False                 # the FC's mode in force, as it last said: it lands
+        self._fc_mode = FcMode.COMPANION         # the mode selected at the FC: what we fly
         self.streams = StreamWatch(config.control_period_s)
         self.params = ParamService(CompanionParams(config, self._retune).table, FC_SYSTEM_ID, COMPANION_COMPONENT_ID,
                                    "companion", None if config.params_path is None else ParamFile(config.params_path),
@@ -173,7 +181,7 @@ class CompanionApp:
             elif msg_id == mavlink.MAVLINK_MSG_ID_M4_FAULT_STATUS:
                 self._on_kept_status(msg)
             elif msg_id == mavlink.MAVLINK_MSG_ID_CURRENT_MODE:
-                self._fc_landing = msg.standard_mode == mavlink.MAV_STANDARD_MODE_LAND
+                self._on_mode(msg)
             elif msg_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
                 self._on_fc_heartbeat(msg)
             if self.fc_mission is not None and (flown := self.fc_mission.on_message(msg, now)) is not None:
@@ -211,6 +219,13 @@ class CompanionApp:
     def _joining(self, now: float) -> bool:
         """Still waiting for what the FC kept, or for its mission (the first download)?"""
         return self.fc.kept_state_pending() or (self.fc_mission is not None and self.fc_mission.pending(now))
+
+    def _on_mode(self, msg) -> None:
+        """The FC's CURRENT_MODE: is it landing, and which mode is selected (another FC's mode,
+        or one we do not know: our mission)."""
+        self._fc_landing = msg.standard_mode == mavlink.MAV_STANDARD_MODE_LAND
+        mode = FcMode.of(msg.intended_custom_mode)
+        self._fc_mode = FcMode.COMPANION if mode is None else mode
 
     def _on_kept_status(self, msg) -> None:
         """The FC's copy of the last M4_FAULT_STATUS it had from us (from before this process
@@ -276,7 +291,8 @@ class CompanionApp:
             if not self.controller.started and self.controller.start(t_s, x, self._kept_mission):
                 self._say_started(t_s, x)
             step = self.controller.step(t_s, x, esc, snap.thrust_limit_n, lead_s=self.fc.delay.lead_s,
-                                        thrust_cmd_n=self._frame_thrust_cmd(snap, t_ms), fc_landing=self._fc_landing)
+                                        thrust_cmd_n=self._frame_thrust_cmd(snap, t_ms), fc_landing=self._fc_landing,
+                                        fc_mode=self._fc_mode)
         except Exception:           # a defect, not bad input: say it, send nothing, let the FC's failsafe fly
             self.counters.control_errors += 1
             log.exception("control step at t=%.3f s failed; no setpoint for this instant", t_ms / 1000.0)
@@ -299,6 +315,9 @@ class CompanionApp:
             self.counters.solve_ms_max = max(self.counters.solve_ms_max, step.nmpc.solve_ms)
         if step.fault_confirmed_now or self._kind_resettled(step):
             self._announce_fault(step)
+        if step.followed is not None:
+            log.info("t=%.3f s: the flight controller's mode is %s: %s", t_s, step.followed.name,
+                     _FOLLOWING.get(step.followed, "flying the mission"))
         if step.took_over:
             log.info("t=%.3f s: control taken from the flight controller's own%s", t_s,
                      ": it was landing, the companion lands" if self._fc_landing else "")

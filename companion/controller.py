@@ -42,7 +42,14 @@ FC (its failsafe flew; FC_STALE_PERIODS, FC_STALE_MIN_S: the FC contract), the t
 from what the FC reports commanding (companion.core.takeover), and, when the FC says its
 failsafe is landing, the plan lands from there instead of flying the mission on. The
 mission's clock stops while the FC flies: it is the FC's clock less the time paused, so after
-a gap the mission goes on where it was left. A restarted companion starts from the progress
+a gap the mission goes on where it was left.
+
+The FC's mode (m4.fc_mode: the one selected, CURRENT_MODE's intended_custom_mode) says what
+to fly, and a change is followed at the next step: COMPANION the mission; HOLD a brake from
+where the robot is and a hold where it stops (m4.mission_plan.stopping), the mission's clock
+stopped until the mode changes again; LAND a landing from where the robot is (the mission's
+`land_from`, as when joining the FC's failsafe landing; after it the mission is that landing).
+The NMPC, the fault detector and the FC's fast loops fly every mode alike. A restarted companion starts from the progress
 the FC kept (m4.mission_plan.MissionProgress) instead of anchoring the mission where it finds
 the robot.
 """
@@ -66,13 +73,14 @@ from companion.core.nmpc import Nmpc, NmpcResult
 from companion.core.nmpc_config import NmpcConfig
 from companion.core.prediction import CommandHistory, Predictor, SentCommand
 from companion.core.rate_feedback import RateFeedbackDesign
-from companion.core.reference import MissionReference, ReferenceConfig
+from companion.core.reference import MissionReference, ReferenceConfig, reference_rows
 from companion.core.takeover import TakeoverRamp
 from companion.core.touchdown import TouchdownConfig, TouchdownDetector
 from companion.core.upset import UpsetConfig, UpsetDetector
 from m4.airframe import ROTOR_COUNT, Airframe
+from m4.fc_mode import FcMode
 from m4.mission import Mission
-from m4.mission_plan import MissionProgress
+from m4.mission_plan import MissionProgress, stopping
 from m4.setpoint import Setpoint
 
 if TYPE_CHECKING:
@@ -127,6 +135,7 @@ class ControlStep:
     crash: str | None = None      # why the flight is over ("upside down", "on the ground"): thrust cut for good
     crash_now: bool = False       # the step at which the crash was recognised (announce it)
     took_over: bool = False       # the step that took control from the FC's own controller
+    followed: FcMode | None = None  # the FC's mode this step began to follow (None: no change)
 
 
 @dataclass(frozen=True)
@@ -145,10 +154,14 @@ class Flight:
     touchdown: TouchdownDetector
     upset: UpsetDetector
     fault_announced: bool = False
-    paused_s: float = 0.0         # the FC's clock less the mission's: when the mission began, and time the FC's failsafe flew
+    paused_s: float = 0.0         # the FC's clock less the mission's: when the mission began, time the FC's failsafe flew, and holds
+    mode: FcMode = FcMode.COMPANION     # the FC's mode followed
+    hold: Callable | None = None  # in HOLD: the hold's state(t) on the FC's clock (m4.mission_plan.stopping)
+    hold_since_s: float = 0.0
 
     def mission_time_s(self, time_s: float) -> float:
-        return time_s - self.paused_s
+        held_s = time_s - self.hold_since_s if self.hold is not None else 0.0
+        return time_s - self.paused_s - held_s
 
 
 class Controller:
@@ -260,10 +273,12 @@ class Controller:
         self.detector.restore(rotor, thrust_max_estimate_n, detected_at_s)
 
     def step(self, time_s: float, x_measured, esc: EscSample | None = None, thrust_limit_n=None,
-             lead_s: float | None = 0.0, thrust_cmd_n=None, fc_landing: bool = False) -> ControlStep:
+             lead_s: float | None = 0.0, thrust_cmd_n=None, fc_landing: bool = False,
+             fc_mode: FcMode = FcMode.COMPANION) -> ControlStep:
         """The setpoint answering the telemetry instant time_s for the measured ROM state, to act
         lead_s later; thrust_cmd_n is what the FC reports it commands at time_s (None: it does
-        not say); fc_landing: the FC says its failsafe is landing (its mode). A lead not measured
+        not say); fc_landing: the FC says its failsafe is landing (its mode in force); fc_mode:
+        the mode selected at the FC, which says what to fly. A lead not measured
         yet (None, or not finite) is planned as 0, and the disturbance estimate waits for it
         (_estimate_disturbance)."""
         af = self.af
@@ -287,6 +302,7 @@ class Controller:
         took_over = self._takeover
         if took_over:
             self._take_over(time_s, x, thrust_cmd_n, fc_landing)
+        followed = self._follow(time_s, x, fc_mode)
         upset, crashed_before = self.flight.upset, self.flight.upset.crash is not None
         landing = self.flight.reference.landing_started(self.flight.mission_time_s(time_s))
         if upset.update(time_s, x, landing) is not None:
@@ -295,7 +311,7 @@ class Controller:
             return self._cut(time_s, x, fault, confirmed_now, d)
         c = self.nmpc.config
         x_plan = self.predictor.predict(x, time_s, lead_s, self.sent, d, fault.thrust_bound_n)
-        x_ref = self.flight.reference.reference(self.flight.mission_time_s(time_s) + lead_s, c.horizon, c.dt_s)
+        x_ref = self._reference(time_s, lead_s, c.horizon, c.dt_s)
         res = self.nmpc.solve(x_plan, x_ref, fault.thrust_bound_n, d)
         sp = self._setpoint(x_plan, res, fault.thrust_bound_n)
         sp = replace(sp, thrust_n=self.ramp.limit(sp.thrust_n, fault.thrust_bound_n))
@@ -306,7 +322,8 @@ class Controller:
                                   sp.shortfall_cover))
         self._solved = (time_s, lead_s, fault.thrust_bound_n, d)
         return ControlStep(time_s=time_s, setpoint=sp, state=x_plan, fault=fault, fault_confirmed_now=confirmed_now,
-                           disturbance=d, lead_s=lead_s, reference=x_ref, nmpc=res, took_over=took_over)
+                           disturbance=d, lead_s=lead_s, reference=x_ref, nmpc=res, took_over=took_over,
+                           followed=followed)
 
     def prepare(self) -> None:
         """After the last step's setpoint was sent: the NMPC prepares the next step's solve (the
@@ -331,7 +348,7 @@ class Controller:
         self._last_step_s = time_s
         if last is not None and time_s - last > max(FC_STALE_PERIODS * period, FC_STALE_MIN_S):
             self._takeover = True
-            if self.flight is not None:
+            if self.flight is not None and self.flight.hold is None:      # a hold stops the clock already
                 self.flight.paused_s += time_s - last - period
 
     def _take_over(self, time_s: float, x: np.ndarray, thrust_cmd_n, fc_landing: bool) -> None:
@@ -340,6 +357,30 @@ class Controller:
         self.ramp.begin(self._thrust_telemetry(thrust_cmd_n))
         if fc_landing:
             self.flight.reference.land_from(self.flight.mission_time_s(time_s), x[rom.P])
+
+    def _follow(self, time_s: float, x: np.ndarray, mode: FcMode) -> FcMode | None:
+        """Follow the FC's selected mode; the mode when it changed at this step, else None."""
+        f = self.flight
+        if mode is f.mode:
+            return None
+        if f.hold is not None:                  # the hold ends: the mission's clock goes on
+            f.paused_s += time_s - f.hold_since_s
+            f.hold = None
+        if mode is FcMode.HOLD:
+            f.hold = stopping(time_s, x[rom.P], x[rom.V], self.settings.reference.accel_max_m_s2).state
+            f.hold_since_s = time_s
+        elif mode is FcMode.LAND:
+            f.reference.land_from(f.mission_time_s(time_s), x[rom.P])
+        f.mode = mode
+        return mode
+
+    def _reference(self, time_s: float, lead_s: float, horizon: int, dt_s: float) -> np.ndarray:
+        """The NMPC's reference rows from lead_s after the FC's instant time_s: the hold's, or
+        the mission's."""
+        f = self.flight
+        if f.hold is not None:
+            return reference_rows(f.hold, self.af, time_s + lead_s, horizon, dt_s)
+        return f.reference.reference(f.mission_time_s(time_s) + lead_s, horizon, dt_s)
 
     def _thrust_telemetry(self, thrust_n) -> np.ndarray | None:
         """Per-rotor thrusts from the FC with what cannot be a thrust (non-finite, negative,

@@ -150,6 +150,13 @@ class _Plan:
         return _Plan([p for p in self.pieces if p.t0_s < t_s] + pieces)
 
 
+def stopping(t_s: float, p_ned_m, v_ned_m_s, accel_m_s2: float) -> _Plan:
+    """From t_s a brake from p_ned_m along v_ned_m_s at accel_m_s2, then a hold where it ends:
+    a fault's hold, and the companion's hold when the flight controller's mode is HOLD."""
+    brake = _Brake(t_s, p_ned_m, v_ned_m_s, accel_m_s2)
+    return _Plan([brake, _Hold(brake.end_s, brake.state(brake.end_s)[0])])
+
+
 class MissionPlan:
     """The plan of a mission flown from start_ned_m (centre of mass) at t0_s, every speed
     change at accel_max_m_s2."""
@@ -181,8 +188,7 @@ class MissionPlan:
         return pieces
 
     def _stop(self, t_s: float, p_ned_m, v_ned_m_s) -> list:
-        brake = _Brake(t_s, p_ned_m, v_ned_m_s, self._a)
-        return [brake, _Hold(brake.end_s, brake.state(brake.end_s)[0])]
+        return stopping(t_s, p_ned_m, v_ned_m_s, self._a).pieces
 
     def _with_landing(self, base: _Plan) -> _Plan:
         land, at_s = self._mission.land, self.land_at_s

@@ -1,4 +1,5 @@
 """The mission's reference for the NMPC: where the centre of mass should be over the horizon.
+`reference_rows` makes the same rows from any plan (the hold the FC's HOLD mode asks for).
 
 The plan itself (legs, holds, the brake after a fault, the landing) is `m4.mission_plan`,
 shared with the simulator's metrics; this adds the NMPC's rows. Only position and velocity
@@ -9,6 +10,7 @@ hips nominal (the NMPC weighs neither yaw nor the reference's hips).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,10 +41,17 @@ class MissionReference(MissionPlan):
 
     def reference(self, t_s: float, horizon: int, dt_s: float) -> np.ndarray:
         """(horizon + 1, rom.NX) ROM states at t_s, t_s + dt_s, ..., t_s + horizon dt_s."""
-        if horizon < 0 or not dt_s > 0:
-            raise ValueError(f"reference needs horizon >= 0 and dt_s > 0, got {horizon}, {dt_s}")
-        out = np.zeros((horizon + 1, rom.NX))
-        out[:, rom.HIP] = self._af.nominal_hip_rad
-        for k in range(horizon + 1):
-            out[k, rom.P], out[k, rom.V] = self.state(t_s + k * dt_s)
-        return out
+        return reference_rows(self.state, self._af, t_s, horizon, dt_s)
+
+
+def reference_rows(state: Callable[[float], tuple[np.ndarray, np.ndarray]], af: Airframe, t_s: float,
+                   horizon: int, dt_s: float) -> np.ndarray:
+    """(horizon + 1, rom.NX) ROM states at t_s, t_s + dt_s, ..., t_s + horizon dt_s of a plan
+    (`state(t)`: position and velocity, NED)."""
+    if horizon < 0 or not dt_s > 0:
+        raise ValueError(f"reference needs horizon >= 0 and dt_s > 0, got {horizon}, {dt_s}")
+    out = np.zeros((horizon + 1, rom.NX))
+    out[:, rom.HIP] = af.nominal_hip_rad
+    for k in range(horizon + 1):
+        out[k, rom.P], out[k, rom.V] = state(t_s + k * dt_s)
+    return out
