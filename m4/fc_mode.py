@@ -2,6 +2,10 @@
 custom_mode, CURRENT_MODE intended_custom_mode, MAV_CMD_DO_SET_MODE param2): one vocabulary
 for the simulated FC (sitl/fc/modes.py, where each mode's standard number and flags are) and
 the companion, which flies what the FC's selected mode asks (docs/flight-controller.md#modes).
+The numbers are ArduCopter's modes of the same meaning (GUIDED: a companion flies; LOITER;
+LAND), so MAVProxy, Mission Planner and pymavlink name them and MAVProxy's `mode LOITER` sets
+one; LANDED has no ArduCopter twin and a number outside its table. A new mode (a mission's:
+ArduCopter's AUTO, 3) takes its ArduCopter number.
 
 - COMPANION: the FC flies the companion's setpoints; the companion flies its mission.
 - HOLD: position hold where it was selected; the companion flies it (its NMPC: a lost rotor is
@@ -18,10 +22,10 @@ from enum import IntEnum
 
 
 class FcMode(IntEnum):
-    COMPANION = 0
-    HOLD = 1
-    LAND = 2
-    LANDED = 3
+    COMPANION = 4                  # ArduCopter's GUIDED
+    HOLD = 5                       # LOITER
+    LAND = 9                       # LAND
+    LANDED = 100
 
     @classmethod
     def of(cls, number: int) -> FcMode | None:

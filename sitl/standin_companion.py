@@ -3,7 +3,9 @@
 It listens on a UDP port, keeps every message it receives, and answers each new
 M4_THRUSTER_STATUS (the last message of a lockstep frame) with an M4_SETPOINT for that
 instant: by default the hover thrust per rotor at the nominal posture (open loop).
-`python -m benchmarks.lockstep` times `m4-sitl serve` in lockstep against it.
+`python -m benchmarks.lockstep` times `m4-sitl serve` in lockstep against it. With other
+`ids` and `until_ms=0` it answers nothing: a ground station that listens and sends what it is
+told.
 """
 
 from __future__ import annotations
@@ -34,10 +36,11 @@ def _hover_answer() -> Answer:
 
 class StandInCompanion:
     def __init__(self, period_ms: int = 20, key: bytes | None = None, answer: Answer | None = None,
-                 until_ms: int | None = None, port: int = 0):
+                 until_ms: int | None = None, port: int = 0,
+                 ids: tuple[int, int] = (FC_SYSTEM_ID, COMPANION_COMPONENT_ID)):
         self.period_ms = period_ms
         self.answer = answer or _hover_answer()
-        self.link = UdpLink(f"udpin:127.0.0.1:{port}", FC_SYSTEM_ID, COMPANION_COMPONENT_ID, key=key)
+        self.link = UdpLink(f"udpin:127.0.0.1:{port}", *ids, key=key)
         self.received: list[mavlink.MAVLink_message] = []
         self.until_ms = until_ms          # stop answering frames from this instant on (None: never)
         self.answered = 0

@@ -14,7 +14,8 @@ COMMAND_LONG and COMMAND_INT alike (their first four params are the same floats)
 - MAV_CMD_COMPONENT_ARM_DISARM: 1 arms; 0 disarms on the ground (in the air only with
   param2 = 21196, the force code ArduPilot and PX4 use).
 - Modes (sitl/fc/modes.py): MAV_CMD_DO_SET_MODE (param1 with MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
-  param2 our custom mode; a PX4 sub mode in param3 is refused), MAV_CMD_DO_SET_STANDARD_MODE
+  param2 our custom mode; with a sub mode in param3, PX4's main and sub mode, as MAVSDK sends
+  them: AUTO.LOITER is HOLD, AUTO.LAND is LAND), MAV_CMD_DO_SET_STANDARD_MODE
   (param1 a MAV_STANDARD_MODE), MAV_CMD_NAV_LAND (LAND where it is; a location is not flown to).
   Refused while disarmed, and, but LAND, while the failsafe flies (TEMPORARILY_REJECTED).
 Anything else: MAV_RESULT_UNSUPPORTED. Bad parameters: MAV_RESULT_DENIED.
@@ -35,7 +36,7 @@ from m4.fault_kind import FaultKind, rotor_loss_kind
 from m4.fc_mode import FcMode
 from m4.log_limit import RepeatLimiter
 from m4.mavlink import mavlink
-from sitl.fc.modes import available_modes, by_standard_mode, mode_info
+from sitl.fc.modes import PX4_MODES, available_modes, by_standard_mode, mode_info
 from sitl.fc.telemetry import statustext
 
 m = mavlink
@@ -179,7 +180,10 @@ class CommandHandler:
         if not _whole(base) or not int(base) & m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
             return Outcome(m.MAV_RESULT_DENIED, reason="custom modes only")
         if math.isfinite(sub) and sub != 0:
-            return Outcome(m.MAV_RESULT_DENIED, reason=f"no sub mode {sub:g}")
+            mode = PX4_MODES.get((custom, sub))
+            if mode is None:
+                return Outcome(m.MAV_RESULT_DENIED, reason=f"no PX4 mode {custom:g}.{sub:g}")
+            return self._select(mode, call)
         mode = FcMode.of(int(custom)) if _whole(custom) else None
         if mode is None:
             return Outcome(m.MAV_RESULT_DENIED, reason=f"no mode {custom:g}")

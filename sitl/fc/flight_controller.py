@@ -472,7 +472,7 @@ class FlightController:
     def snapshot(self, now_ms: int) -> Snapshot:
         state = self.measured_state(now_ms)
         landed = self.mode == FcMode.LANDED or bool(state.on_ground)
-        return Snapshot(t_ms=now_ms, state=state, custom_mode=int(self.mode or 0), armed=self.armed, landed=landed,
+        return Snapshot(t_ms=now_ms, state=state, custom_mode=int(self.selected if self.mode is None else self.mode), armed=self.armed, landed=landed,
                         esc=None if self.esc is None else self.esc.report(now_ms), intended_mode=int(self.selected))
 
     @property

@@ -1,18 +1,19 @@
 """The simulated flight controller's modes and how they look on the wire, so that any ground
 station shows them for what they are.
 
-- HEARTBEAT: autopilot MAV_AUTOPILOT_GENERIC, base_mode made of MAVLink's standard flags only
-  (SAFETY_ARMED; GUIDED while the companion's setpoints fly, AUTO while the FC's own failsafe
-  does; STABILIZE whenever a controller holds the attitude), custom_mode our mode number
-  without MAV_MODE_FLAG_CUSTOM_MODE_ENABLED. With that flag a GCS reads custom_mode through
-  the mode table of the vehicle type (pymavlink's `mode_string_v10`, MAVProxy: ArduCopter's
-  for a quadrotor, where 1 is ACRO and 0 STABILIZE); without it, it reads the base flags.
+- HEARTBEAT: autopilot MAV_AUTOPILOT_GENERIC, base_mode MAV_MODE_FLAG_CUSTOM_MODE_ENABLED and
+  MAVLink's standard flags (SAFETY_ARMED; GUIDED while the companion's setpoints fly, AUTO
+  while the FC's own failsafe does; STABILIZE whenever a controller holds the attitude),
+  custom_mode our mode number (m4.fc_mode: ArduCopter's number of the same mode, so
+  pymavlink and MAVProxy, which read custom_mode through ArduCopter's table for a quadrotor,
+  show GUIDED, LOITER and LAND; LANDED shows as Mode(100)).
 - The standard modes protocol (MAVLink's development.xml, which the dialect includes):
   CURRENT_MODE on every mode change and every CURRENT_MODE_INTERVAL_MS; AVAILABLE_MODES on
   MAV_CMD_REQUEST_MESSAGE (param2: 0 for every mode, else the mode's index from 1). HOLD and
   LAND are the standard POSITION_HOLD and LAND (no name, as the protocol asks); COMPANION and
   LANDED are custom modes with their names. COMPANION, HOLD and LAND are user selectable
-  (sitl/fc/commands.py: MAV_CMD_DO_SET_MODE, MAV_CMD_DO_SET_STANDARD_MODE, MAV_CMD_NAV_LAND);
+  (sitl/fc/commands.py: MAV_CMD_DO_SET_MODE with our numbers, or PX4's main and sub mode as
+  MAVSDK sends them, MAV_CMD_DO_SET_STANDARD_MODE, MAV_CMD_NAV_LAND);
   CURRENT_MODE's intended_custom_mode is the one selected, custom_mode the one in force (the
   failsafe's, while setpoints are stale). A new mode is one more row of `MODES`.
 """
@@ -48,8 +49,8 @@ _BY_MODE = {info.mode: info for info in MODES}
 
 
 def base_mode(custom_mode: int, armed: bool) -> int:
-    """HEARTBEAT.base_mode for a mode (standard flags only: no CUSTOM_MODE_ENABLED)."""
-    flags = _BY_MODE[FcMode(custom_mode)].base_flags
+    """HEARTBEAT.base_mode for a mode: custom_mode holds it, the standard flags say who flies."""
+    flags = _BY_MODE[FcMode(custom_mode)].base_flags | m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
     return flags | (m.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0)
 
 
@@ -61,6 +62,11 @@ def current_mode(custom_mode: int, intended: int) -> mavlink.MAVLink_current_mod
 
 def mode_info(mode: FcMode) -> ModeInfo:
     return _BY_MODE[mode]
+
+
+# MAV_CMD_DO_SET_MODE as MAVSDK sends it to any autopilot but ArduPilot: PX4's (main mode,
+# sub mode) in param2 and param3 (PX4's px4_custom_mode.h: AUTO 4; LOITER 3, LAND 6).
+PX4_MODES = {(4, 3): FcMode.HOLD, (4, 6): FcMode.LAND}
 
 
 def by_standard_mode(standard_mode: int) -> FcMode | None:

@@ -40,7 +40,7 @@ class Snapshot:
     armed: bool
     landed: bool
     esc: EscReport | None = None     # what the ESCs reported (None: the FC has no ESC telemetry)
-    intended_mode: int = 0           # the mode selected (custom_mode: the one in force)
+    intended_mode: int = 0           # the mode selected (custom_mode: the one in force; 0: unknown)
 
 
 def _f4(v) -> list[float]:
@@ -81,7 +81,7 @@ class Telemetry:
         return self._builders[msg_id](snap)
 
     def heartbeat(self, snap: Snapshot):
-        base = modes.base_mode(snap.custom_mode, snap.armed)        # no CUSTOM_MODE_ENABLED: see sitl/fc/modes.py
+        base = modes.base_mode(snap.custom_mode, snap.armed)        # sitl/fc/modes.py
         status = mavlink.MAV_STATE_ACTIVE if snap.armed else mavlink.MAV_STATE_STANDBY
         return mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_GENERIC,
                                                  base, snap.custom_mode, status, 3)

@@ -159,10 +159,10 @@ def test_the_modes_are_told_by_the_standard_modes_protocol():
         assert _command(companion, m.MAV_CMD_REQUEST_MESSAGE, m.MAVLINK_MSG_ID_AVAILABLE_MODES, 0).result \
             == m.MAV_RESULT_ACCEPTED
         companion.wait_for("AVAILABLE_MODES", lambda a: a.mode_index == a.number_modes)
-        assert [(a.custom_mode, a.mode_name) for a in companion.of_type("AVAILABLE_MODES")] == [
-            (0, "COMPANION"), (1, ""), (2, ""), (3, "LANDED")]
+        assert [(a.custom_mode, a.mode_name, a.properties) for a in companion.of_type("AVAILABLE_MODES")] == [
+            (4, "COMPANION", 0), (5, "", 0), (9, "", 0), (100, "LANDED", m.MAV_MODE_PROPERTY_NOT_USER_SELECTABLE)]
         assert _command(companion, m.MAV_CMD_REQUEST_MESSAGE, m.MAVLINK_MSG_ID_AVAILABLE_MODES, 9).result \
             == m.MAV_RESULT_DENIED
-        current = companion.wait_for("CURRENT_MODE", lambda c: c.custom_mode == 0)      # flying our setpoints
+        current = companion.wait_for("CURRENT_MODE", lambda c: c.custom_mode == 4)      # flying our setpoints
         assert current.standard_mode == m.MAV_STANDARD_MODE_NON_STANDARD
         assert companion.of_type("CURRENT_MODE")[0].standard_mode == m.MAV_STANDARD_MODE_POSITION_HOLD   # at start
