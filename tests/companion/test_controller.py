@@ -1,4 +1,5 @@
-"""The companion's control step: safe setpoints whatever comes in, hover, fault bound, hips, thrust cut."""
+"""The companion's control step: safe setpoints whatever comes in, hover, fault bound, hips, thrust cut,
+the FC's modes followed."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from m4.airframe import ROTOR_COUNT, load_airframe
+from m4.fc_mode import FcMode
 from companion.config import parse_config
 from companion.controller import Controller, ControllerSettings
 from companion.core import rom
@@ -348,3 +350,29 @@ def test_the_real_time_iteration_feeds_back_what_prepare_built_after_the_last_se
     assert step(c, 3 * PERIOD, bad).nmpc is None                  # no solve: what was prepared is stale
     c.prepare()
     assert step(c, 4 * PERIOD, x).nmpc.status == "rti_unprepared"
+
+
+def test_the_fcs_hold_is_flown_where_the_robot_stops_and_the_mission_waits_for_it():
+    c = controller(mission=Mission(waypoints=(Waypoint(ned_m=(10.0, 0.0, -2.0), speed_m_s=2.0, hold_s=0.0),)))
+    moving = rom.hover_state(AF, p_ned_m=(1.0, 0.0, -2.0))
+    moving[rom.V] = (1.0, 0.0, 0.0)
+    modes = [FcMode.COMPANION] * 3 + [FcMode.HOLD] * 10 + [FcMode.COMPANION]
+    outs = [step(c, k * PERIOD, moving, None, None, 0.0, None, False, mode) for k, mode in enumerate(modes)]
+    assert [o.followed for o in outs] == [None] * 3 + [FcMode.HOLD] + [None] * 9 + [FcMode.COMPANION]
+    held, last_held = outs[3], outs[12]
+    stop_m = 1.0 + 1.0**2 / (2 * CONFIG.reference.accel_max_m_s2)        # braking from 1 m/s
+    assert held.reference[0, rom.V][0] == pytest.approx(1.0)           # a brake, not a step
+    np.testing.assert_allclose(last_held.reference[-1, rom.P], (stop_m, 0.0, -2.0), atol=1e-9)
+    np.testing.assert_allclose(last_held.reference[-1, rom.V], 0.0, atol=1e-12)
+    assert c.mission_progress(13 * PERIOD).time_s == pytest.approx(3 * PERIOD)     # the mission waited
+    np.testing.assert_allclose(outs[13].reference[0, rom.P], c.flight.reference.state(3 * PERIOD)[0], atol=1e-12)
+
+
+def test_the_fcs_land_is_flown_from_where_the_robot_is():
+    c = controller()
+    at = rom.hover_state(AF, p_ned_m=(3.0, 1.0, -2.0))
+    step(c, 0.0, at)
+    out = step(c, 0.02, at, None, None, 0.0, None, False, FcMode.LAND)
+    assert out.followed is FcMode.LAND and c.flight.reference.landing_started(0.02)
+    end = out.reference[-1]
+    assert end[rom.P][:2] == pytest.approx((3.0, 1.0)) and end[rom.P][2] > -2.0 and end[rom.V][2] > 0.0
