@@ -31,7 +31,7 @@ force, or of who flies it, is announced (STATUSTEXT) and sent as CURRENT_MODE.
 
 Arming: the FC starts armed (the scenarios start in the air). Once it has landed or applied
 a thrust cut it is disarmed: setpoints are refused (counted) and the motors stay off until
-the paired companion re-arms it with MAV_CMD_COMPONENT_ARM_DISARM(1).
+the companion or a ground station re-arms it with MAV_CMD_COMPONENT_ARM_DISARM(1).
 
 Parameters (PARAM_* protocol, `params`: m4/mavlink/param_service.py over sitl/fc/params.py) are
 answered to the companion and ground stations alike (with `require_signed`, signed only); their
@@ -388,8 +388,7 @@ class FlightController:
         required."""
         return not self.require_signed or msg.get_signed()
 
-    def say(self, key, text: str) -> None:
-        """Log `text`, once per 10 s for each `key` (the repeats counted in the next line)."""
+    def _say(self, key, text: str) -> None:
         self._repeats.say(key, text, self.log)
 
     def handle(self, msg, now_ms: int, link: int = 0) -> list[mavlink.MAVLink_message]:
@@ -425,7 +424,7 @@ class FlightController:
         else:
             unsigned = " or unsigned" if self.require_signed else ""
             why = f"not the paired companion {self.companion_ids[0]}/{self.companion_ids[1]}{unsigned}"
-        self.say(("foreign", msg.get_msgId()), f"refused {msg.get_type()} from {src[0]}/{src[1]}: {why}")
+        self._say(("foreign", msg.get_msgId()), f"refused {msg.get_type()} from {src[0]}/{src[1]}: {why}")
         if msg.get_msgId() in _COMMAND_IDS:
             return [self._commands.ack(msg, mavlink.MAV_RESULT_DENIED)]
         return []
@@ -451,7 +450,7 @@ class FlightController:
         reason = self._setpoint_fault(msg, values, now_ms)
         if reason is not None:
             self.counters.drop(reason)
-            self.say(("setpoint", reason), f"t={now_ms / 1000:.3f} s: setpoint for t={msg.time_boot_ms / 1000:.3f} s "
+            self._say(("setpoint", reason), f"t={now_ms / 1000:.3f} s: setpoint for t={msg.time_boot_ms / 1000:.3f} s "
                                             f"refused: {reason}")
             return
         af = self.airframe
