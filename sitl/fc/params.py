@@ -44,13 +44,15 @@ def _scaled(obj, attr: str, per_unit: float) -> dict:
 
 
 def _stream(fc, msg_id: int, now_ms: Callable[[], int]) -> dict:
-    """A stream's rate in Hz (0: stopped), as MAV_CMD_SET_MESSAGE_INTERVAL sets it."""
+    """A stream's rate in Hz (0: stopped), as MAV_CMD_SET_MESSAGE_INTERVAL sets it: read on the
+    companion's link, set on every link (the command sets the sender's link alone)."""
     def get() -> float:
         interval = fc.schedule.interval_ms(msg_id)
         return 0.0 if interval is None else 1000.0 / interval
 
     def set_(hz: float) -> None:
-        fc.schedule.set_interval_us(msg_id, 1e6 / hz if hz > 0 else -1, now_ms())
+        for schedule in fc.schedules:
+            schedule.set_interval_us(msg_id, 1e6 / hz if hz > 0 else -1, now_ms())
     return dict(get=get, set=set_)
 
 
