@@ -336,8 +336,7 @@ class Controller:
             return
         time_s, lead_s, thrust_bound_n, d = solved
         c = self.nmpc.config
-        x_ref = self.flight.reference.reference(self.flight.mission_time_s(time_s + self.period_s) + lead_s,
-                                                c.horizon, c.dt_s)
+        x_ref = self._reference(time_s + self.period_s, lead_s, c.horizon, c.dt_s)
         self.nmpc.prepare(x_ref, thrust_bound_n, d)
 
     # ------------------------------------------------------------------------------------------
