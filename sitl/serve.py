@@ -297,8 +297,12 @@ class Server:
     def _run_lockstep(self) -> None:
         v, fc = self.vehicle, self.vehicle.fc
         v.start(self.send)
-        held: list = []                          # what the FC says between two frames
-        send = self.send if self.emulated is not None else held.extend
+        held: list[list] = [[] for _ in self.links]      # what the FC says between two frames, per link
+
+        def hold(msgs, link: int | None = None) -> None:
+            for i in range(len(held)) if link is None else (link,):
+                held[i].extend(msgs)
+        send = self.send if self.emulated is not None else hold
         waiting = True
         while not self._ended():
             if waiting:
@@ -314,8 +318,9 @@ class Server:
                 waiting = self._answers() > answers
             period_ms = fc.setpoint.period_ms if fc.setpoint is not None else IDLE_PERIOD_MS
             v.advance_to(v.now_ms + period_ms, send, frame=True)
-            self.send(held)
-            held.clear()
+            for i, msgs in enumerate(held):
+                self.send(msgs, i)
+                msgs.clear()
             self._sync_viewer()
 
     def _await_setpoint(self, t_ms: int) -> bool:
