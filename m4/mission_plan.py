@@ -13,7 +13,11 @@ giving position and velocity (local NED, centre of mass) as a function of time.
   the brake ends. "continue" changes nothing. A fault during the landing changes nothing.
 - From land.at_s (without one: when the last waypoint's hold ends, as first planned) the plan
   brakes (when it is moving) and descends at descent_speed_m_s to the ground, where the centre
-  of mass sits ground_com_height_m above z = 0.
+  of mass sits ground_com_height_m above z = 0; from there it sinks on at LANDING_SINK_M_S
+  until the touchdown (the companion's thrust cut ends it): a robot that tracks the plan a few
+  centimetres high (a disturbance estimate's bias, a controller that closes the last gap
+  slowly) still meets the ground, at a touchdown speed of about the sink's, instead of
+  hovering just above it.
 - `item` says which waypoint (or the landing) the plan is on: the progress a mission from a
   ground station reports (m4.mission_items).
 - `land_from`: the flight controller's failsafe is landing when the companion takes over (a
@@ -43,6 +47,7 @@ from m4.mission import Mission
 
 DEFAULT_ACCEL_MAX_M_S2 = 2.0    # the reference's acceleration limit unless the companion's config says otherwise
 FC_LAND_SPEED_M_S = 0.5         # the flight controller's failsafe descent (mavlink_defs/README.md, Failsafe)
+LANDING_SINK_M_S = 0.1          # the landing's descent below the ground's height, until the touchdown
 
 
 class PlanState(enum.IntEnum):
@@ -118,6 +123,24 @@ class _Move:
         else:
             s, v = 0.5 * self._a * self._t_acc**2 + self._v * (tau - self._t_acc), self._v
         return self._p0 + s * self._dir, v * self._dir
+
+
+class _Sink:
+    """Down from rest at p0 towards and into the ground: speeds up at accel_m_s2 to speed_m_s,
+    then on at that speed for ever."""
+
+    def __init__(self, t0_s: float, p0: np.ndarray, speed_m_s: float, accel_m_s2: float):
+        self._p0, self._v, self._a = np.array(p0, dtype=float), speed_m_s, accel_m_s2
+        self._t_acc = speed_m_s / accel_m_s2
+        self.t0_s, self.end_s = t0_s, math.inf
+
+    def state(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
+        tau = max(t_s - self.t0_s, 0.0)
+        if tau < self._t_acc:
+            s, v = 0.5 * self._a * tau**2, self._a * tau
+        else:
+            s, v = self._v * (tau - 0.5 * self._t_acc), self._v
+        return self._p0 + np.array([0.0, 0.0, s]), np.array([0.0, 0.0, v])
 
 
 class _Brake:
@@ -198,7 +221,10 @@ class MissionPlan:
         above = stop[-1].state(stop[-1].t0_s)[0]
         ground = np.array([above[0], above[1], max(above[2], self.ground_com_z_ned_m)])
         descent = _Move(stop[-1].t0_s, above, ground, land.descent_speed_m_s, self._a)
-        return base.replaced_from(at_s, stop[:-1] + [descent, _Hold(descent.end_s, ground)])
+        return base.replaced_from(at_s, stop[:-1] + [descent, self._sink(descent.end_s, ground)])
+
+    def _sink(self, t_s: float, ground_ned_m: np.ndarray) -> _Sink:
+        return _Sink(t_s, ground_ned_m, LANDING_SINK_M_S, self._a)
 
     def state(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
         """(p_ned_m (3,), v_ned_m_s (3,)) of the reference at t_s."""
@@ -223,7 +249,7 @@ class MissionPlan:
         above = np.asarray(position_ned_m, dtype=float)
         ground = np.array([above[0], above[1], max(above[2], self.ground_com_z_ned_m)])
         descent = _Move(t_s, above, ground, FC_LAND_SPEED_M_S if land is None else land.descent_speed_m_s, self._a)
-        self._plan = self._plan.replaced_from(t_s, [descent, _Hold(descent.end_s, ground)])
+        self._plan = self._plan.replaced_from(t_s, [descent, self._sink(descent.end_s, ground)])
         self.landing_from_s = t_s
         self._changed(PlanState.LANDING, t_s, position_ned_m)
 

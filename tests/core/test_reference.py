@@ -8,7 +8,7 @@ from companion.core import rom
 from companion.core.reference import MissionReference, ReferenceConfig
 from companion.core.touchdown import TouchdownConfig, TouchdownDetector
 from m4.mission import Landing, Mission, Waypoint
-from m4.mission_plan import FC_LAND_SPEED_M_S, PlanProgress, PlanState, ground_com_height_m
+from m4.mission_plan import FC_LAND_SPEED_M_S, LANDING_SINK_M_S, PlanProgress, PlanState, ground_com_height_m
 
 AF = load_airframe()
 START = (0.0, 0.0, -2.0)
@@ -17,6 +17,11 @@ A_MAX = ReferenceConfig().accel_max_m_s2
 
 def mission(*waypoints, on_fault="hold", land=None):
     return Mission(on_fault=on_fault, waypoints=tuple(Waypoint(*w) for w in waypoints), land=land)
+
+
+def sunk_m(since_s):
+    """How far below the standing height the landing's reference is since_s after it got there."""
+    return LANDING_SINK_M_S * (since_s - 0.5 * LANDING_SINK_M_S / A_MAX)
 
 
 def sample(ref, t_end, dt=0.01):
@@ -111,9 +116,22 @@ def test_landing_descends_at_the_descent_speed_to_the_standing_height():
     assert v[:, 2].max() == pytest.approx(0.5)
     cruise = np.isclose(v[:, 2], 0.5)
     assert cruise.sum() * 0.01 == pytest.approx((2.0 - ground_com_height_m(AF)) / 0.5 - 0.5 / A_MAX, abs=0.03)
-    assert p[-1, 2] == pytest.approx(-ground_com_height_m(AF)) and np.allclose(p[-1, :2], [2.0, 0.0])
     ground_z = -ground_com_height_m(AF)
-    assert ref.state(8.0)[0][2] < ground_z - 0.05 and ref.state(14.0)[0][2] == pytest.approx(ground_z)   # down by 14 s
+    down_s = 5.0 + (2.0 - ground_com_height_m(AF)) / 0.5 + 0.5 / A_MAX
+    assert ref.state(8.0)[0][2] < ground_z - 0.05
+    assert ref.state(down_s)[0][2] == pytest.approx(ground_z) and np.allclose(ref.state(down_s)[1], 0.0)
+
+
+def test_landing_sinks_on_below_the_standing_height_until_the_touchdown():
+    """A robot tracking the plan a few centimetres high still meets the ground."""
+    ref = MissionReference(mission(((2.0, 0.0, -2.0), 2.0, 0.0), land=Landing(at_s=5.0, descent_speed_m_s=0.5)),
+                           START, AF)
+    down_s = 5.0 + (2.0 - ground_com_height_m(AF)) / 0.5 + 0.5 / A_MAX
+    _t, p, v = sample(ref, down_s + 3.0)
+    assert np.linalg.norm(np.diff(v, axis=0), axis=1).max() <= A_MAX * 0.01 + 1e-9
+    p_end, v_end = ref.state(down_s + 3.0)
+    assert np.allclose(v_end, [0.0, 0.0, LANDING_SINK_M_S]) and np.allclose(p_end[:2], [2.0, 0.0])
+    assert p_end[2] == pytest.approx(-ground_com_height_m(AF) + sunk_m(3.0))
 
 
 def test_landing_while_moving_brakes_first():
@@ -137,7 +155,7 @@ def test_landing_after_a_fault_hold_descends_from_the_hold_position():
                            START, AF)
     ref.fault_detected(2.0, (4.0, 0.0, -2.0))
     p, _ = ref.state(20.0)
-    assert np.allclose(p, [4.0 + 9.0 / (2 * A_MAX), 0.0, -ground_com_height_m(AF)])
+    assert np.allclose(p[:2], [4.0 + 9.0 / (2 * A_MAX), 0.0]) and p[2] > -ground_com_height_m(AF)
 
 
 def test_ground_height_is_the_hull_bottom_for_the_reference_airframe():
@@ -173,8 +191,9 @@ def test_joining_the_fcs_landing_descends_from_where_the_robot_is_at_the_fcs_spe
     assert np.allclose(p, [4.0, 0.5, -1.4]) and np.allclose(v, 0.0)
     speeds = [ref.state(t)[1][2] for t in np.arange(2.0, 5.0, 0.01)]
     assert max(speeds) == pytest.approx(FC_LAND_SPEED_M_S)
-    p_end, _ = ref.state(10.0)
-    assert np.allclose(p_end, [4.0, 0.5, -ground_com_height_m(AF)])
+    down_s = 2.0 + (1.4 - ground_com_height_m(AF)) / FC_LAND_SPEED_M_S + FC_LAND_SPEED_M_S / A_MAX
+    assert np.allclose(ref.state(down_s)[0], [4.0, 0.5, -ground_com_height_m(AF)])
+    assert ref.state(10.0)[0][2] == pytest.approx(-ground_com_height_m(AF) + sunk_m(10.0 - down_s))
     ref.fault_detected(3.0, (4.0, 0.5, -1.0))                       # during the landing: nothing changes
     assert ref.progress == PlanProgress(PlanState.LANDING, 0.0, START, 2.0, (4.0, 0.5, -1.4))
     ref.land_from(4.0, (4.0, 0.5, -0.6))                              # the FC landed it further meanwhile
