@@ -32,9 +32,10 @@ PERIOD_S = 0.1
 
 @pytest.fixture(scope="module")
 def nmpc():
-    # The converged SQP: this loop solves without the real-time iteration's preparation, and
-    # one unprepared QP per 0.1 s lost the agile flight of seed 1 at 6.5 s (docs/performance.md).
-    return Nmpc(AF, NmpcConfig(control_period_s=PERIOD_S, scheme="sqp"))
+    # The companion's scheme, the real-time iteration, prepared after each command as the
+    # companion does (without the preparation seed 1's agile flight was lost at 6.5 s:
+    # docs/performance.md).
+    return Nmpc(AF, NmpcConfig(control_period_s=PERIOD_S))
 
 
 def measured_rom_state(plant: Plant) -> np.ndarray:
@@ -64,6 +65,7 @@ def fly(nmpc, reference, duration_s, fault=None, seed=0):
         result = nmpc.solve(x, reference.reference(t, cfg.horizon, cfg.dt_s), status.thrust_bound_n, d)
         u, last = result.u, (x, result.u)
         plant.command(u[rom.THRUST], result.x_pred[1][rom.HIP], result.x_pred[1][rom.HIP_RATE])
+        nmpc.prepare(reference.reference(t + PERIOD_S, cfg.horizon, cfg.dt_s), status.thrust_bound_n, d)
         if fault is not None and t < fault[0] <= t + PERIOD_S:
             before = round((fault[0] - t) / plant.physics_dt_s) * plant.physics_dt_s
             plant.step(before)
