@@ -42,9 +42,9 @@ def _fly(link: LinkEmulation, seconds: float = 1.0, seed: int = 0, companion: St
         fc = server.vehicle.fc
         handle = fc.handle
 
-        def recording(msg, now_ms):
+        def recording(msg, now_ms, link=0):
             handled.append((msg.get_type(), now_ms, msg))
-            return handle(msg, now_ms)
+            return handle(msg, now_ms, link)
         fc.handle = recording
 
     options = ServeOptions(scenario=HOVER, duration_s=seconds, link=link, seed=seed, lockstep_timeout_s=30.0)
