@@ -29,15 +29,11 @@ pytestmark = pytest.mark.flight
 
 m = mavlink
 FAULT_AT_S = 5.5                  # on the leg to the second waypoint
-SCENARIO = f"""
+SCENARIO = """
 name = "uploaded-mission-rotor-loss"
 duration_s = 15.0
 [start]
 ned_m = [0.0, 0.0, -2.0]
-[[fault]]
-at_s = {FAULT_AT_S}
-rotor = 4
-loss = 1.0
 """
 
 
@@ -53,6 +49,23 @@ def _upload(gcs, items) -> int:
             return msg.type
         gcs.mav.send(items[msg.seq].message(FC_SYSTEM_ID, FC_COMPONENT_ID))
     raise AssertionError("the flight controller never acknowledged the upload")
+
+
+def _inject_at(gcs, at_s: float) -> int:
+    """The ground station stops rotor 4 (MAV_CMD_INJECT_FAILURE) once the FC's clock reaches
+    at_s; the COMMAND_ACK's result."""
+    sent, deadline = False, time.monotonic() + 240.0
+    while time.monotonic() < deadline:
+        msg = gcs.recv_match(type=["LOCAL_POSITION_NED", "COMMAND_ACK"], blocking=True, timeout=1.0)
+        if msg is None:
+            continue
+        if msg.get_type() == "LOCAL_POSITION_NED" and msg.time_boot_ms >= at_s * 1000 and not sent:
+            sent = True
+            gcs.mav.command_long_send(FC_SYSTEM_ID, FC_COMPONENT_ID, m.MAV_CMD_INJECT_FAILURE, 0,
+                                      m.FAILURE_UNIT_SYSTEM_MOTOR, m.FAILURE_TYPE_OFF, 4, 0, 0, 0, 0)
+        elif msg.get_type() == "COMMAND_ACK" and msg.command == m.MAV_CMD_INJECT_FAILURE:
+            return msg.result
+    raise AssertionError("the flight controller never acknowledged the injected failure")
 
 
 @pytest.fixture(scope="module")
@@ -74,6 +87,12 @@ def flight(tmp_path_factory):
         assert gcs.wait_heartbeat(timeout=30) is not None, "no HEARTBEAT from the SITL"
         result = _upload(gcs, MISSION)            # at t = 0: the SITL waits for the companion's first setpoint
         thread.start()
+        injected = _inject_at(gcs, FAULT_AT_S)  # from the ground station, on the leg to the second waypoint
+        announced = []
+        while server.poll() is None:
+            msg = gcs.recv_match(type="STATUSTEXT", blocking=True, timeout=0.5)
+            if msg is not None and msg.severity <= m.MAV_SEVERITY_CRITICAL:
+                announced.append((msg.get_srcComponent(), msg.text))
         _, stderr = server.communicate(timeout=300)
     finally:
         server.kill() if server.poll() is None else None
@@ -83,12 +102,15 @@ def flight(tmp_path_factory):
         close_app(app)
         gcs.close()
     assert server.returncode == 0, stderr
-    return result, tlog
+    assert injected == m.MAV_RESULT_ACCEPTED
+    return result, tlog, announced
 
 
-def test_an_uploaded_mission_is_flown_through_a_rotor_loss_and_lands_with_its_progress_reported(flight):
-    result, tlog = flight
+def test_an_uploaded_mission_is_flown_through_a_failure_injected_from_the_ground_and_lands_with_progress_reported(flight):
+    result, tlog, announced = flight
     assert result == m.MAV_MISSION_ACCEPTED
+    assert any(src == FC_COMPONENT_ID and text.startswith("thrust loss rotor 4") for src, text in announced), \
+        f"the ground station never saw the fault announced as the FC's: {announced}"
     msgs = tlog_messages(tlog)
     fc = [x for x in msgs if x.get_srcComponent() == FC_COMPONENT_ID]
     ours = [x for x in msgs if x.get_srcComponent() == COMPANION_COMPONENT_ID]
