@@ -24,6 +24,7 @@ from pymavlink import mavutil
 from m4.log_limit import RepeatFilter
 from m4.mavlink import m4_generated as mavlink
 from m4.mavlink.frame_packer import x25_crc
+from m4.mavlink.packing import fast_pack
 
 DIALECT = "m4"
 sys.modules[f"{_v20.__name__}.{DIALECT}"] = mavlink
@@ -38,6 +39,8 @@ logging.getLogger(mavlink.__name__).addFilter(RepeatFilter())
 if mavlink.mcrf4xx is None:
     mavlink.mcrf4xx = x25_crc
     mavlink.x25crc = mavlink._x25crc_fast
+# Every frame sent is packed (and signed) by m4/mavlink/packing.py: pymavlink's bytes, faster.
+mavlink.MAVLink_message._pack = fast_pack
 
 FC_SYSTEM_ID = 1
 FC_COMPONENT_ID = 1                                  # MAV_COMP_ID_AUTOPILOT1
