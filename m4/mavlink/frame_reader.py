@@ -6,10 +6,14 @@ frame of seven messages. A datagram from a MAVLink 2 peer is whole frames back t
 this reader splits it by the frames' own lengths and decodes each with a plan made once per
 message type, into the very objects pymavlink's decode builds (fields, buffers, CRC, header).
 
-Only the plain case is read here: a parser holding no partial frame, no signing and no
-callbacks on it, and every frame of the datagram unsigned MAVLink 2 of a known message with
-a good CRC. Anything else (a frame cut short, garbage, MAVLink 1, a signed or unknown
-message, a bad CRC) goes to pymavlink's parser unchanged, the datagram whole, so garbage is
+Only the plain case is read here: a parser holding no partial frame and no callbacks on it,
+and every frame of the datagram MAVLink 2 of a known message with a good CRC, unsigned on a
+link without a key or signed on a link with one. A signed frame is judged as pymavlink's
+decode judges it (the link's `check_signature`, m4/mavlink/signing.py, then the unsigned
+allow-list), with the same counters, and a refused one comes back as the same BAD_DATA.
+Anything else (a frame cut short, garbage, MAVLink 1, an unsigned frame where a key asks for
+signatures, a signed one without a key, an unknown message, a bad CRC) goes to pymavlink's
+parser unchanged, the datagram whole, before any signature of it was checked, so garbage is
 counted and signatures are judged exactly as before.
 """
 
@@ -25,6 +29,9 @@ _CRC = struct.Struct("<H")
 _HEADER_LEN = mavlink.HEADER_LEN_V2
 _CRC_LEN = 2
 _MAGIC = mavlink.PROTOCOL_MARKER_V2
+_SIGNED = mavlink.MAVLINK_IFLAG_SIGNED
+_SIGNATURE_LEN = mavlink.MAVLINK_SIGNATURE_BLOCK_LEN
+_SIGNATURE_REFUSED = "Invalid signature"      # pymavlink's BAD_DATA reason
 
 
 class _Plan:
@@ -70,37 +77,68 @@ def read_datagram(mav: mavlink.MAVLink, data: bytes) -> list:
         return mav.parse_buffer(data) or []
     mav.total_bytes_received += len(data)
     mav.total_packets_received += len(frames)
-    return [_decode(frame, plan) for frame, plan in frames]
+    return [_decode(frame, plan) if not signed else _decode_signed(mav, frame, plan) for frame, plan, signed in frames]
 
 
-def _plain_frames(mav: mavlink.MAVLink, data: bytes) -> list[tuple[bytearray, _Plan]] | None:
-    """Each frame of `data` with its plan; None when any of it is not the plain case."""
-    if mav.buf_len() != 0 or mav.signing.secret_key is not None or mav.callback is not None:
+def _plain_frames(mav: mavlink.MAVLink, data: bytes) -> list[tuple[bytearray, _Plan, bool]] | None:
+    """Each frame of `data` with its plan and whether it is signed; None when any of it is not
+    the plain case."""
+    if mav.buf_len() != 0 or mav.callback is not None:
         return None
+    flags = 0 if mav.signing.secret_key is None else _SIGNED       # the one flag every frame must carry
+    tail = _CRC_LEN + (_SIGNATURE_LEN if flags else 0)
     frames, start, end = [], 0, len(data)
     while start < end:
-        if end - start < _HEADER_LEN + _CRC_LEN or data[start] != _MAGIC or data[start + 2] != 0:
-            return None                        # cut short, not MAVLink 2, signed or unknown flags
-        stop = start + _HEADER_LEN + data[start + 1] + _CRC_LEN
+        if end - start < _HEADER_LEN + tail or data[start] != _MAGIC or data[start + 2] != flags:
+            return None                        # cut short, not MAVLink 2, unknown flags, signed or not as it may not be
+        stop = start + _HEADER_LEN + data[start + 1] + tail
         plan = _plan(data[start + 7] | data[start + 8] << 8 | data[start + 9] << 16)
         if stop > end or plan is None:
             return None
         frame = bytearray(data[start:stop])
-        if _CRC.unpack_from(frame, len(frame) - _CRC_LEN)[0] != x25_crc(bytes(frame[1:-_CRC_LEN]) + plan.crc_extra):
+        crc_at = len(frame) - tail
+        if _CRC.unpack_from(frame, crc_at)[0] != x25_crc(bytes(frame[1:crc_at]) + plan.crc_extra):
             return None
-        frames.append((frame, plan))
+        frames.append((frame, plan, bool(flags)))
         start = stop
     return frames
 
 
-def _decode(frame: bytearray, plan: _Plan):
-    """What pymavlink's `MAVLink.decode` returns for this unsigned frame."""
+def _decode(frame: bytearray, plan: _Plan, signature_len: int = 0):
+    """What pymavlink's `MAVLink.decode` returns for this frame, its signature (if any) accepted."""
     _, length, incompat_flags, compat_flags, seq, system, component, id_low, id_high = _HEADER.unpack_from(frame)
     message_id = id_low | id_high << 16
-    msg = plan.message_class(*plan.arguments(frame[_HEADER_LEN:-_CRC_LEN]))
+    crc_at = len(frame) - _CRC_LEN - signature_len
+    msg = plan.message_class(*plan.arguments(frame[_HEADER_LEN:crc_at]))
     msg._signed = False
     msg._msgbuf = frame
-    msg._payload = frame[6:-_CRC_LEN]           # sic: pymavlink's slice
-    msg._crc = _CRC.unpack_from(frame, len(frame) - _CRC_LEN)[0]
+    msg._payload = frame[6:crc_at]              # sic: pymavlink's slice
+    msg._crc = _CRC.unpack_from(frame, crc_at)[0]
     msg._header = mavlink.MAVLink_header(message_id, incompat_flags, compat_flags, length, seq, system, component)
+    return msg
+
+
+def _decode_signed(mav: mavlink.MAVLink, frame: bytearray, plan: _Plan):
+    """pymavlink's decode of a signed frame on a link with a key: the signature checked, then the
+    unsigned allow-list for a frame it refuses, the counters moved; BAD_DATA if refused."""
+    signing = mav.signing
+    signing.sig_count += 1
+    system, component = frame[5], frame[6]
+    good = mav.check_signature(frame, system, component)
+    if good:
+        signing.goodsig_count += 1
+    else:
+        signing.badsig_count += 1
+        allowed = signing.allow_unsigned_callback is not None and signing.allow_unsigned_callback(mav, plan.message_class.id)
+        if allowed:
+            signing.unsigned_count += 1
+        elif signing.allow_unsigned_callback is not None:
+            signing.reject_count += 1
+        if not allowed:
+            mav.total_receive_errors += 1
+            return mavlink.MAVLink_bad_data(frame, _SIGNATURE_REFUSED)
+    msg = _decode(frame, plan, _SIGNATURE_LEN)
+    if good:
+        msg._signed = True
+        msg._link_id = frame[-_SIGNATURE_LEN]
     return msg

@@ -88,6 +88,34 @@ def test_signed_frames_are_judged_by_pymavlink():
     assert [m.get_type() for m in got] == ["HEARTBEAT"] and got[0].get_signed() and _same(got[0], expected[0])
 
 
+@given(st.lists(_messages, min_size=1, max_size=6), st.sampled_from([KEY, bytes(32)]), st.booleans())
+def test_signed_datagrams_read_as_pymavlink_reads_them(msgs, sender_key, replayed):
+    """Signed with the key (good), with another (refused but HEARTBEAT), or sent twice (the
+    second a replay): the same messages, BAD_DATA and signing counters as pymavlink's."""
+    data = _datagram(msgs, key=sender_key)
+    theirs, ours = new_mav(None, 1, 191), new_mav(None, 1, 191)
+    setup_signing(theirs, KEY)
+    setup_signing(ours, KEY)
+    for datagram in (data, data) if replayed else (data,):
+        expected, got = theirs.parse_buffer(datagram) or [], read_datagram(ours, datagram)
+        assert [m.get_type() for m in got] == [m.get_type() for m in expected]
+        assert all(_same(a, b) if a.get_type() != "BAD_DATA" else (a.data, a.reason) == (b.data, b.reason)
+                   for a, b in zip(got, expected))
+    counters = ("total_packets_received", "total_bytes_received", "total_receive_errors")
+    assert [getattr(ours, c) for c in counters] == [getattr(theirs, c) for c in counters]
+    wall_clock = ("_timestamp",)                    # our own timestamp follows the wall clock (signing.py)
+    assert ({k: v for k, v in vars(ours.signing).items() if k not in wall_clock}
+            == {k: v for k, v in vars(theirs.signing).items() if k not in wall_clock})
+
+
+def test_a_signed_datagram_is_read_without_pymavlinks_parser():
+    mav = new_mav(None, 1, 191)
+    setup_signing(mav, KEY)
+    mav.parse_buffer = None                     # the fast path never calls it
+    msgs = read_datagram(mav, _datagram([mavlink.MAVLink_attitude_message(20, 0.1, 0.2, 0.3, 0, 0, 0)] * 3, key=KEY))
+    assert [(m.get_type(), m.get_signed(), m.time_boot_ms) for m in msgs] == [("ATTITUDE", True, 20)] * 3
+
+
 def test_a_frame_cut_by_one_datagram_is_finished_by_the_next():
     data = _datagram([mavlink.MAVLink_heartbeat_message(18, 8, 0, 0, 4, 3)] * 2)
     mav = new_mav(None, 1, 191)
