@@ -16,14 +16,14 @@ def test_a_row_counts_losses_in_flight_only_and_the_worst_whole_second():
                      _nmpc(1.9, 40.0, 7, 30.0)],
             "link": [{"t_s": 0.5, "connected": True}, {"t_s": 1.0, "connected": False},
                      {"t_s": 1.2, "connected": True}, {"t_s": 2.0, "connected": False}]}   # the SITL's end
-    cells = [c.strip() for c in flight_row(8, "normal priority", metrics, feed).strip("|").split("|")]
-    assert cells == ["8", "normal priority", "**no**", "1.23 m", "73.4 deg", "2 Hz (25)", "7", "1",
+    cells = [c.strip() for c in flight_row(8, 100.0, "normal priority", metrics, feed).strip("|").split("|")]
+    assert cells == ["8", "100 Hz", "normal priority", "**no**", "1.23 m", "73.4 deg", "2 Hz (25)", "7", "1",
                      "1.2 / 97.5 ms", "25 / 300 ms"]
     assert len(cells) == HEADER.splitlines()[0].count("|") - 1
 
 
 def test_bad_arguments_are_one_line_and_exit_2(capsys):
-    for argv in (["--priority", "95"], ["--hogs", "-1"], ["--scenario", "no-such-scenario"]):
+    for argv in (["--priority", "95"], ["--hogs", "-1"], ["--rate-hz", "500"], ["--scenario", "no-such-scenario"]):
         assert main(argv) == 2
         captured = capsys.readouterr()
         assert len(captured.err.strip().splitlines()) == 1 and "error" in captured.err
