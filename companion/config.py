@@ -30,7 +30,7 @@ from typing import Any, NamedTuple
 from m4.airframe import ROTOR_COUNT, Airframe, load_airframe
 from companion.core.disturbance import DisturbanceEstimator
 from companion.core.fault_detector import FaultDetectorConfig
-from companion.core.nmpc_config import NmpcConfig, NmpcWeights
+from companion.core.nmpc_config import SCHEMES, NmpcConfig, NmpcWeights
 from companion.core.reference import ReferenceConfig
 from companion.core.touchdown import TouchdownConfig
 from companion.core.upset import UpsetConfig
@@ -52,6 +52,10 @@ HORIZON_MAX = 40
 # 0.1 s for the next plan, the sag and tilt grow (24 N cap: 0.22 m against 0.13 m) and the
 # landing comes down at 0.25 m/s against 0.06 m/s (docs/results.md, "Control rate").
 DEFAULT_RATE_HZ = 50.0
+# The real-time iteration's slowest rate: it flies every built-in scenario at 25 Hz as at 50 Hz, and at 10 Hz it
+# loses 5 of the 12 that the converged SQP flies (one Gauss-Newton step is flown for a whole 0.1 s stage after a
+# rotor loss; docs/performance.md). Below it the [nmpc] scheme defaults to "sqp" and "rti" is refused.
+RTI_RATE_MIN_HZ = 25.0
 # The rate feedback the FC closes around the plan (m4.setpoint, companion.core.rate_feedback):
 # its bandwidth. Above ~1/(4 x the FC's 4 ms loop) it would ring on the FC's own loop delay.
 DEFAULT_RATE_FEEDBACK_BANDWIDTH_RAD_S = 20.0
@@ -279,8 +283,14 @@ def nmpc_config(t: Table, control_period_s: float, bounds: dict[type, dict[str, 
     """The [nmpc] table (and its [nmpc.weights]) as the NMPC's own settings."""
     weights = _settings(t.table("weights"), NmpcWeights, bounds)
     budget = t.number("time_budget_share", COMPANION_TIME_BUDGET_SHARE, lo=0.0, hi=1.0)
+    rti_holds = 1.0 / control_period_s >= RTI_RATE_MIN_HZ - 1e-9
+    scheme = t.string("scheme", "rti" if rti_holds else "sqp", choices=SCHEMES)
+    if scheme == "rti" and not rti_holds:
+        raise ConfigError(f'{t.where} scheme = "rti" needs a control rate of at least {RTI_RATE_MIN_HZ:g} Hz '
+                          f"(at 10 Hz it lost 5 of the 12 built-in flights the SQP flies), got "
+                          f'{1.0 / control_period_s:g} Hz: use scheme = "sqp", or leave it out')
     config = _settings(t, NmpcConfig, bounds, weights=weights, control_period_s=control_period_s,
-                       time_budget_share=budget)
+                       time_budget_share=budget, scheme=scheme)
     span_s = config.horizon * config.dt_s
     if not control_period_s <= span_s <= PLAN_SPAN_MAX_S:
         raise ConfigError(f"{t.where} horizon x dt_s (the plan's span) must lie within the control period "

@@ -188,6 +188,17 @@ def test_the_telemetry_timeout_is_at_least_3_control_periods(tmp_path):
     assert load_config(write(tmp_path, "[control]\nrate_hz = 10.0\n")).link.telemetry_timeout_s == 0.3
 
 
+def test_the_real_time_iteration_flies_from_25_hz_and_the_sqp_below(tmp_path):
+    assert load_config(write(tmp_path, "")).nmpc.scheme == "rti"
+    assert load_config(write(tmp_path, "[control]\nrate_hz = 25.0\n")).nmpc.scheme == "rti"
+    assert load_config(write(tmp_path, "[control]\nrate_hz = 10.0\n")).nmpc.scheme == "sqp"
+    assert load_config(write(tmp_path, "[control]\nrate_hz = 50.0\n[nmpc]\nscheme = \"sqp\"\n")).nmpc.scheme == "sqp"
+    with pytest.raises(ConfigError, match=r'\[nmpc\] scheme = "rti" needs a control rate of at least 25 Hz .* got 10 Hz'):
+        load_config(write(tmp_path, "[control]\nrate_hz = 10.0\n[nmpc]\nscheme = \"rti\"\n"))
+    with pytest.raises(ConfigError, match=r"\[nmpc\] scheme must be one of sqp, rti; got 'acados'"):
+        load_config(write(tmp_path, "[nmpc]\nscheme = \"acados\"\n"))
+
+
 def test_the_plan_reaches_the_next_solve_and_no_further_than_4_s(tmp_path):
     for text in ("[nmpc]\nhorizon = 40\ndt_s = 0.2",                                # an 8 s plan
                  "[control]\nrate_hz = 10.0\n[nmpc]\nhorizon = 5\ndt_s = 0.01"):   # 50 ms: ends before the next solve
