@@ -14,6 +14,7 @@ from __future__ import annotations
 import logging
 import os
 import sys
+from pathlib import Path
 
 os.environ["MAVLINK20"] = "1"
 
@@ -21,10 +22,13 @@ os.environ["MAVLINK20"] = "1"
 import pymavlink.dialects.v20 as _v20
 from pymavlink import mavutil
 
+from m4.bytecode_cache import load_module
 from m4.log_limit import RepeatFilter
-from m4.mavlink import m4_generated as mavlink
 from m4.mavlink.frame_packer import x25_crc
-from m4.mavlink.packing import fast_pack
+
+# 35 000 lines: its bytecode cached even where Python may not cache it (m4/bytecode_cache.py)
+mavlink = load_module(f"{__package__}.m4_generated", Path(__file__).with_name("m4_generated.py"))
+from m4.mavlink.packing import fast_pack  # it wraps the dialect loaded above
 
 DIALECT = "m4"
 sys.modules[f"{_v20.__name__}.{DIALECT}"] = mavlink
