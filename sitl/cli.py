@@ -2,7 +2,7 @@
 
     m4-sitl serve [--scenario SCENARIO] [--mavlink URL]... [--realtime] [--viewer] [--tlog PATH] [--truth-log PATH]
                   [--signing-key FILE] [--signing-state FILE] [--params FILE] [--companion SYS:COMP] [--seed N]
-                  [--duration S] [--lockstep-timeout S] [--link-delay-ms MS] [--link-loss P]
+                  [--duration S] [--lockstep-timeout S] [--link-delay-ms MS] [--link-loss P] [--start-fd FD]
     m4-sitl physics --autopilot ardupilot [--scenario SCENARIO] [--port N] [--truth-log PATH] [--seed N] [--duration S]
     m4-sitl fly-ardupilot SCENARIO [--out DIR] [--speedup N] [--instance I] [--companion]
     m4-sitl list
@@ -24,6 +24,7 @@ line on stderr and exits with 2; so does an install without the `sim` extra (eve
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 from pathlib import Path
@@ -69,6 +70,10 @@ def _add_serve(sub) -> None:
                    help="wall-clock wait for a setpoint before going on in failsafe (default 5)")
     add_link_arguments(p, "with --realtime the same on the wall clock; only the first --mavlink link (the "
                           "companion's)")
+    p.add_argument("--start-fd", type=int, metavar="FD",
+                   help="an open file descriptor: once the plant is built and the links are open, wait for a line "
+                        "on it before serving (end of file first: exit without serving); for a supervisor that "
+                        "starts the companion alongside, e.g. m4-sitl fly")
     p.set_defaults(func=_serve)
 
 
@@ -92,11 +97,29 @@ def _serve(args) -> int:
                                Path(f"{args.signing_key}.timestamps") if args.signing_key else None),
                            params_path=args.params or (Path(f"{args.signing_key}.params.toml") if args.signing_key
                                                        else None))
+    if args.start_fd is not None:
+        _check_fd(args.start_fd)
     try:
         server = Server(options)
     except ServeError as e:
         raise BadInput(str(e)) from None
+    if args.start_fd is not None and not _told_to_start(args.start_fd):
+        server.close()
+        return 0
     return _run_until_stopped(server, ServeError)
+
+
+def _check_fd(fd: int) -> None:
+    try:
+        os.fstat(fd)
+    except OSError as e:
+        raise BadInput(f"--start-fd {fd}: {e.strerror}") from None
+
+
+def _told_to_start(fd: int) -> bool:
+    """Wait for a line on `fd` (True) or its end (False: the supervisor called the flight off)."""
+    with os.fdopen(fd, "rb") as start:
+        return bool(start.readline())
 
 
 def _run_until_stopped(server, *errors: type[Exception]) -> int:

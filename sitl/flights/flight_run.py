@@ -18,9 +18,11 @@ itself, in simulated time (`m4-sitl serve --link-delay-ms --link-loss`, sitl/lin
 deterministic, the losses drawn from the seed, whatever the machine's load); with `realtime`
 through a loopback proxy (sitl/links/netem_proxy.py) on the wall clock, as a real link would be.
 
-Order: the feed recorder listens, the companion starts, builds its NMPC, opens its link and
-says so on a pipe (`m4-companion run --ready-fd`), then the SITL starts, flies the scenario's duration and exits; the companion is then
-stopped with SIGTERM. Each flight takes its own free loopback ports, so flights can run side
+Order: the feed recorder listens, the companion starts, and so does the SITL alongside
+(`m4-sitl serve --start-fd`: it builds its plant and opens its link while the companion builds
+its NMPC, then waits); the companion opens its link and says so on a pipe (`m4-companion run
+--ready-fd`), the SITL is told to start, flies the scenario's duration and exits; the companion
+is then stopped with SIGTERM. Each flight takes its own free loopback ports, so flights can run side
 by side. Anything that keeps the flight from starting raises FlightError with one line.
 """
 
@@ -203,7 +205,6 @@ def run_flight(scenario: Scenario, scenario_text: str, out_dir: Path, options: F
             companion = _start(stack, [*cmd, "--ready-fd", str(ready_w)], files.companion_log, pass_fds=(ready_w,))
         finally:
             os.close(ready_w)                    # the companion holds the only writing end now
-        _await_ready(companion, ready_r, files.companion_log)
         sitl_port = port
         if options.link is not None and options.realtime:
             impairment = Impairment(delay_ms=options.link.delay_ms, loss=options.link.loss)
@@ -218,9 +219,17 @@ def run_flight(scenario: Scenario, scenario_text: str, out_dir: Path, options: F
         if options.link is not None and not options.realtime:
             cmd += ["--link-delay-ms", f"{options.link.delay_ms:g}", "--link-loss", f"{options.link.loss:g}"]
         cmd += ["--realtime"] * options.realtime + ["--viewer"] * options.viewer
-        sitl = _start(stack, cmd, files.sitl_log)
+        # The SITL builds its plant while the companion builds its NMPC, and serves once told to.
+        start_r, start_w = os.pipe()
+        try:
+            sitl = _start(stack, [*cmd, "--start-fd", str(start_r)], files.sitl_log, pass_fds=(start_r,))
+        finally:
+            os.close(start_r)
+        stack.callback(os.close, start_w)      # first on the way out: a SITL still waiting reads the end, exits
         if options.sitl_priority:
             _real_time(sitl, options.sitl_priority)
+        _await_ready(companion, ready_r, files.companion_log)
+        _say_start(start_w)
         while sitl.poll() is None:
             time.sleep(POLL_S)
             if progress is not None and recorder is not None and recorder.latest_t_s is not None:
@@ -238,6 +247,12 @@ def _start(stack: contextlib.ExitStack, cmd: list[str], log_path: Path, pass_fds
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=log, stdin=subprocess.DEVNULL, pass_fds=pass_fds)
     stack.callback(_stop, proc)
     return proc
+
+
+def _say_start(fd: int) -> None:
+    """Tell the waiting SITL to serve (a SITL that has stopped already is found stopped after)."""
+    with contextlib.suppress(BrokenPipeError):
+        os.write(fd, b"start\n")
 
 
 def _real_time(proc: subprocess.Popen, priority: int) -> None:

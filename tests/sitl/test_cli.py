@@ -79,6 +79,41 @@ def test_serve_runs_a_scenario_to_the_duration_and_exits_0(tmp_path):
     assert tlog.exists()
 
 
+def _serve_waiting(start: bytes) -> tuple[subprocess.CompletedProcess, list[bytes]]:
+    """`serve --start-fd` given `start` on its pipe, then the pipe's end; what it said, and sent."""
+    read_end, write_end = os.pipe()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as listener:
+        listener.bind(("127.0.0.1", 0))
+        cmd = [sys.executable, "-m", "sitl.cli", "serve", "--duration", "0.1", "--lockstep-timeout", "0.1",
+               "--mavlink", f"udpout:127.0.0.1:{listener.getsockname()[1]}", "--start-fd", str(read_end)]
+        proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, pass_fds=(read_end,))
+        os.close(read_end)
+        os.write(write_end, start)
+        os.close(write_end)
+        _, err = proc.communicate(timeout=60.0)
+        listener.setblocking(False)
+        sent = []
+        while True:
+            try:
+                sent.append(listener.recv(65535))
+            except BlockingIOError:
+                return subprocess.CompletedProcess(cmd, proc.returncode, "", err), sent
+
+
+def test_serve_told_to_start_on_its_start_fd_serves():
+    proc, sent = _serve_waiting(b"start\n")
+    assert proc.returncode == 0 and "stopped at t=0.100 s" in proc.stderr and sent
+
+
+def test_serve_whose_start_fd_ends_unsaid_exits_without_serving():
+    proc, sent = _serve_waiting(b"")
+    assert proc.returncode == 0 and "serving" not in proc.stderr and not sent
+
+
+def test_a_start_fd_that_is_not_open_is_one_error_line():
+    assert "--start-fd 999: Bad file descriptor" in _one_error_line(_run("serve", "--start-fd", "999"))
+
+
 def test_viewer_without_a_display_is_one_error_line():
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     proc = subprocess.run([sys.executable, "-m", "sitl.cli", "serve", "--viewer", "--mavlink", "udpin:127.0.0.1:0"],

@@ -73,3 +73,30 @@ def test_both_ends_of_a_flight_sign_with_the_flights_own_key(tmp_path):
     files.companion_config.write_text(companion_config_text(FlightOptions(), 14550, None))
     key, _ = load_config(files.companion_config).link.signing_files()
     assert key == files.signing_key
+
+
+def test_the_sitl_starts_alongside_the_companion_and_waits_on_its_start_pipe(tmp_path, monkeypatch):
+    """By the time fly waits for the companion's ready line, the SITL is started too, waiting on
+    its start pipe."""
+    from m4.scenario import load_scenario
+    from sitl import scenarios
+    from sitl.flights import flight_run
+
+    started: list[list[str]] = []
+    at_ready: list[list[str]] = []
+
+    def start(stack, cmd, log_path, pass_fds=()):
+        started.append(cmd)
+        return _start(stack, [sys.executable, "-c", "import time; time.sleep(30)"], log_path)
+
+    def ready(*_):
+        at_ready.extend(started)
+        raise FlightError("the companion did not start: stand-in")
+
+    monkeypatch.setattr(flight_run, "_start", start)
+    monkeypatch.setattr(flight_run, "_await_ready", ready)
+    path = scenarios.scenario_path("hover-rotor-loss")
+    with pytest.raises(FlightError, match="stand-in"):
+        flight_run.run_flight(load_scenario(path), path.read_text(), tmp_path / "flight",
+                              flight_run.FlightOptions(record_feed=False))
+    assert [cmd[2] for cmd in at_ready] == ["companion.cli", "sitl.cli"] and "--start-fd" in at_ready[1]
