@@ -123,7 +123,7 @@ class EscTelemetry:
         if self._noise:
             voltage_v += self._rng.normal(0.0, af.esc_voltage_noise_v)
             current_a += self._rng.normal(0.0, af.esc_current_noise_a)
-        return (int(np.clip(self._temperature_c[i], 0, 255)), _u16(100.0 * voltage_v), _u16(100.0 * current_a),
+        return (int(min(max(self._temperature_c[i], 0), 255)), _u16(100.0 * voltage_v), _u16(100.0 * current_a),
                 _u16(self._consumed_mah[i]))
 
     def report(self, now_ms: int) -> EscReport:

@@ -42,6 +42,9 @@ def _order(msg_id: int) -> tuple[int, int]:
     return (1, msg_id)
 
 
+_ORDER = {msg_id: _order(msg_id) for msg_id in (*_FIRST, *FRAME)}     # the usual ones' keys, once
+
+
 class StreamSchedule:
     def __init__(self, intervals_ms: dict[int, int] | None = None):
         self._defaults = dict(DEFAULT_INTERVALS_MS if intervals_ms is None else intervals_ms)
@@ -83,4 +86,4 @@ class StreamSchedule:
                 ids.add(msg_id)
                 iv = self._interval_ms[msg_id]
                 self._next_ms[msg_id] = (now_ms // iv + 1) * iv
-        return sorted(ids, key=_order)
+        return sorted(ids, key=_ORDER.get) if ids <= _ORDER.keys() else sorted(ids, key=_order)

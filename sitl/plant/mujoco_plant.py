@@ -108,6 +108,7 @@ class Plant:
         self._servo_period_steps = round(REFERENCE_PERIOD_S / self.physics_dt_s)
         self._servo_countdown = 0
         self._contact_height_m = _reach_m(airframe) + _CONTACT_CHECK_MARGIN_M
+        self._contact_off: bool | None = None      # None: the option not yet set by the gate
         self._gate_contact()
         d.act[self._hip_act] = self._hips.pos_rad
         d.ctrl[self._hip_ctrl] = d.ctrl[self._rate_ctrl] = 0.0
@@ -254,11 +255,13 @@ class Plant:
         self._drag.update(self._air_world_m_s)
 
     def _gate_contact(self) -> None:
-        opt = self.model.opt
-        if self.data.qpos[self._pos.stop - 1] > self._contact_height_m:
-            opt.disableflags |= _CONTACT_BIT
-        else:
-            opt.disableflags &= ~_CONTACT_BIT
+        """Contacts off above the contact height, on below it (MuJoCo's option written only when
+        that changes: a write through the bindings costs more than the test)."""
+        off = bool(self.data.qpos[self._pos.stop - 1] > self._contact_height_m)
+        if off != self._contact_off:
+            self._contact_off = off
+            opt = self.model.opt
+            opt.disableflags = opt.disableflags | _CONTACT_BIT if off else opt.disableflags & ~_CONTACT_BIT
 
     def _update_servo_reference(self) -> None:
         d, hips = self.data, self._hips
