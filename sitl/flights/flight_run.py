@@ -230,8 +230,7 @@ def run_flight(scenario: Scenario, scenario_text: str, out_dir: Path, options: F
             _real_time(sitl, options.sitl_priority)
         _await_ready(companion, ready_r, files.companion_log)
         _say_start(start_w)
-        while sitl.poll() is None:
-            time.sleep(POLL_S)
+        while not _exited(sitl, POLL_S):       # at once when it exits, not at the next poll
             if progress is not None and recorder is not None and recorder.latest_t_s is not None:
                 progress(recorder.latest_t_s)
         if sitl.returncode != 0:
@@ -247,6 +246,14 @@ def _start(stack: contextlib.ExitStack, cmd: list[str], log_path: Path, pass_fds
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=log, stdin=subprocess.DEVNULL, pass_fds=pass_fds)
     stack.callback(_stop, proc)
     return proc
+
+
+def _exited(proc: subprocess.Popen, within_s: float) -> bool:
+    try:
+        proc.wait(within_s)
+    except subprocess.TimeoutExpired:
+        return False
+    return True
 
 
 def _say_start(fd: int) -> None:
