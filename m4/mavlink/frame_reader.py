@@ -22,7 +22,6 @@ from __future__ import annotations
 import struct
 
 from m4.mavlink.dialect import mavlink
-from m4.mavlink.frame_packer import x25_crc
 
 _HEADER = struct.Struct("<cBBBBBBHB")       # pymavlink's MAVLink 2 header, magic included
 _CRC = struct.Struct("<H")
@@ -97,7 +96,7 @@ def _plain_frames(mav: mavlink.MAVLink, data: bytes) -> list[tuple[bytearray, _P
             return None
         frame = bytearray(data[start:stop])
         crc_at = len(frame) - tail
-        if _CRC.unpack_from(frame, crc_at)[0] != x25_crc(bytes(frame[1:crc_at]) + plan.crc_extra):
+        if _CRC.unpack_from(frame, crc_at)[0] != mavlink.mcrf4xx(bytes(frame[1:crc_at]) + plan.crc_extra, 0xFFFF):
             return None
         frames.append((frame, plan, bool(flags)))
         start = stop
