@@ -117,9 +117,12 @@ def _check_fd(fd: int) -> None:
 
 
 def _told_to_start(fd: int) -> bool:
-    """Wait for a line on `fd` (True) or its end (False: the supervisor called the flight off)."""
+    """Wait for a line on `fd` (True) or its end, or Ctrl-C (False: the flight is called off)."""
     with os.fdopen(fd, "rb") as start:
-        return bool(start.readline())
+        try:
+            return bool(start.readline())
+        except KeyboardInterrupt:
+            return False
 
 
 def _run_until_stopped(server, *errors: type[Exception]) -> int:
