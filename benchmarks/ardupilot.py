@@ -1,7 +1,8 @@
 """The same scenarios flown by the companion through ArduCopter and the M4 applet, and through
 the project's flight controller, judged on the plant's truth alike.
 
-    python -m benchmarks.ardupilot [--out DIR] [--scenario NAME]... [--speedup N] [--instance I] [--judge-only]
+    python -m benchmarks.ardupilot [--out DIR] [--scenario NAME]... [--speedup N] [--instance I] [--priority P]
+                                   [--project DIR] [--judge-only]
 
 Each scenario is flown twice: `m4-sitl fly-ardupilot NAME --companion` (ArduCopter 4.6.3
 SITL, the applet, the companion at 50 Hz on the wall clock from the handover on) and
@@ -10,8 +11,12 @@ a figure DIR/NAME.png with both flights' altitude and tilt on the scenario's clo
 Markdown table, a row a flight: ground contact before the landing (when), altitude loss and
 largest tilt after the first fault (the whole flight without one), the touchdown's vertical
 speed, the fault the companion announced and how long after the plant's fault, and the
-machine's load average when the flight through ArduCopter started (load.txt). `--judge-only`
-judges the flights already in DIR without flying.
+machine's load average when the flight through ArduCopter started, and its SCHED_FIFO priority
+(load.txt). `--priority P` flies the companion, arducopter and the physics in SCHED_FIFO at P from
+the handover on (sitl/ardupilot/flight.py), so a busy machine does not starve the companion on
+its wall clock. `--project DIR` takes the project's FC flights from DIR/NAME (as
+`/work/flights/fly_all.sh` writes them) instead of flying them. `--judge-only` judges the
+flights already in DIR without flying.
 """
 
 from __future__ import annotations
@@ -88,34 +93,40 @@ def figure(path: Path, name: str, flights: list[tuple[str, Truth, float]], fault
     plt.close(fig)
 
 
-def announced(companion_log: Path, fault_physics_s: float) -> str:
+def announced(companion_log: Path, t0_physics_s: float, fault_s: float | None) -> str:
     """The companion's first fault announcement and its time after the plant's fault (its log
-    runs on ArduPilot's clock, which is the physics')."""
+    runs on ArduPilot's clock, which is the physics'); with no fault (fault_s None), a false one
+    and when on the scenario's clock."""
     found = re.search(r"t=([\d.]+) s: (thrust loss rotor \d)", companion_log.read_text())
-    return "" if found is None else f"{found.group(2)} after {float(found.group(1)) - fault_physics_s:.2f} s"
+    if found is None:
+        return ""
+    t_s = float(found.group(1)) - t0_physics_s
+    return f"{found.group(2)} after {t_s - fault_s:.2f} s" if fault_s is not None else \
+        f"false: {found.group(2)} at {t_s:.1f} s"
 
 
-def fly_both(name: str, out: Path, speedup: float, instance: int) -> None:
+def fly_ardupilot_one(name: str, out: Path, speedup: float, instance: int, priority: int) -> None:
     scenario = scenarios.resolve(name)
     (out / "ardupilot" / name).mkdir(parents=True, exist_ok=True)
-    (out / "ardupilot" / name / "load.txt").write_text(f"{os.getloadavg()[0]:.0f}\n")
+    fifo = f", SCHED_FIFO {priority}" if priority else ""
+    (out / "ardupilot" / name / "load.txt").write_text(f"{os.getloadavg()[0]:.1f}{fifo}\n")
     fly_ardupilot(ArduFlightOptions(scenario=scenario, out_dir=out / "ardupilot" / name, speedup=speedup,
-                                    instance=instance, companion=True, scenario_file=scenarios.scenario_path(name)),
+                                    instance=instance, companion=True, scenario_file=scenarios.scenario_path(name),
+                                    priority=priority),
                   log=lambda _: None)
-    fly(name, out / "project" / name, figures=False, progress=False)
 
 
-def judge(name: str, out: Path) -> list[str]:
-    """The two rows of one scenario, and its figure."""
+def judge(name: str, out: Path, project_root: Path) -> list[str]:
+    """The two rows of one scenario (the project FC's flight from project_root/NAME), and its figure."""
     scenario = scenarios.resolve(name)
-    ardu_dir, project_dir = out / "ardupilot" / name, out / "project" / name
+    ardu_dir, project_dir = out / "ardupilot" / name, project_root / name
     ardu, project = (json.loads((d / "metrics.json").read_text()) for d in (ardu_dir, project_dir))
     t0_s = ardu["scenario_t0_physics_s"]
     ardu_truth, project_truth = load_truth(ardu_dir / "truth.npz"), load_truth(project_dir / "truth.npz")
     fault = next(iter(project["faults"]), None)
     project_said = "" if fault is None or fault["detected_at_s"] is None else \
         f"thrust loss rotor {fault['detected_rotor']} after {fault['latency_s']:.2f} s"
-    ardu_said = "" if not scenario.faults else announced(ardu_dir / "companion.log", t0_s + scenario.faults[0].at_s)
+    ardu_said = announced(ardu_dir / "companion.log", t0_s, scenario.faults[0].at_s if scenario.faults else None)
     figure(out / f"{name}.png", name, [("ArduCopter + M4 applet", ardu_truth, t0_s), ("project FC", project_truth, 0.0)],
            [f.at_s for f in scenario.faults])
     return [row("ArduCopter + applet", name, judged(ardu_truth, scenario, t0_s), ardu_said,
@@ -129,13 +140,25 @@ def main() -> None:
     p.add_argument("--scenario", action="append", help=f"default: {', '.join(DEFAULT_SCENARIOS)}")
     p.add_argument("--speedup", type=float, default=10.0, help="arducopter --speedup until the handover")
     p.add_argument("--instance", type=int, default=6, help="arducopter -I")
+    p.add_argument("--priority", type=int, default=0, metavar="P",
+                   help="SCHED_FIFO priority 1..99 from the handover on (default 0: normal)")
+    p.add_argument("--project", type=Path, metavar="DIR",
+                   help="the project FC's flights, DIR/NAME (default: fly them into --out/project)")
     p.add_argument("--judge-only", action="store_true", help="judge the flights in --out without flying")
     args = p.parse_args()
+    if not 0 <= args.priority <= 99:
+        p.error(f"--priority {args.priority}: a SCHED_FIFO priority is 1..99 (0: normal)")
+    project_root = args.project or args.out / "project"
+    names = args.scenario or DEFAULT_SCENARIOS
+    if args.project is not None and (missing := [n for n in names if not (args.project / n / "truth.npz").is_file()]):
+        p.error(f"--project {args.project}: no flight of {', '.join(missing)} there (NAME/truth.npz)")
     rows = []
-    for name in args.scenario or DEFAULT_SCENARIOS:
+    for name in names:
         if not args.judge_only:
-            fly_both(name, args.out, args.speedup, args.instance)
-        rows += judge(name, args.out)
+            fly_ardupilot_one(name, args.out, args.speedup, args.instance, args.priority)
+            if args.project is None:
+                fly(name, project_root / name, figures=False, progress=False)
+        rows += judge(name, args.out, project_root)
         print(*rows[-2:], sep="\n", flush=True)
     print("\n| scenario | flown by | ground contact before the landing | altitude loss (m) | tilt max (deg) | "
           "touchdown (m/s) | fault announced | load |")

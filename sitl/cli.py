@@ -4,7 +4,7 @@
                   [--signing-key FILE] [--signing-state FILE] [--params FILE] [--companion SYS:COMP] [--seed N]
                   [--duration S] [--lockstep-timeout S] [--link-delay-ms MS] [--link-loss P] [--start-fd FD]
     m4-sitl physics --autopilot ardupilot [--scenario SCENARIO] [--port N] [--truth-log PATH] [--seed N] [--duration S]
-    m4-sitl fly-ardupilot SCENARIO [--out DIR] [--speedup N] [--instance I] [--companion]
+    m4-sitl fly-ardupilot SCENARIO [--out DIR] [--speedup N] [--instance I] [--companion] [--priority P]
     m4-sitl list
     m4-sitl fly SCENARIO [--out DIR] [--controller nmpc|fixed-posture] [--seed N] [--port N] [--rate-hz HZ]
                 [--realtime] [--viewer] [--link-delay-ms MS] [--link-loss P]
@@ -186,6 +186,9 @@ def _add_fly_ardupilot(sub) -> None:
     p.add_argument("--companion", action="store_true",
                    help="the companion flies through the M4 Lua applet once the robot holds its start point "
                         "(real time from then on)")
+    p.add_argument("--priority", type=int, default=0, metavar="P",
+                   help="with --companion: the companion, arducopter and the physics in SCHED_FIFO at P (1..99) "
+                        "from the handover on, against a busy machine (default 0: normal priority)")
     p.set_defaults(func=_fly_ardupilot)
 
 
@@ -198,7 +201,8 @@ def _fly_ardupilot(args) -> int:
     try:
         metrics = fly_ardupilot(ArduFlightOptions(scenario=scenario, out_dir=out, speedup=args.speedup,
                                                   instance=args.instance, companion=args.companion,
-                                                  scenario_file=scenarios.scenario_path(args.scenario)), log=log)
+                                                  scenario_file=scenarios.scenario_path(args.scenario),
+                                                  priority=args.priority), log=log)
     except (FlightError, OSError) as e:
         raise BadInput(str(e)) from None
     print(summary_line(metrics))

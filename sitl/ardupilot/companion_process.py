@@ -18,12 +18,12 @@ from pathlib import Path
 from sitl.flights.flight_run import COMPANION_LOG_DIR, _await_ready, _start
 
 
-def companion_config_text(port: int) -> str:
+def companion_config_text(port: int, priority: int = 0) -> str:
     return "\n".join([
         "# The companion's configuration for a flight through ArduCopter (written by m4-sitl fly-ardupilot).",
         "[control]",
         "# the M4 applet on ArduPilot runs the rate feedback, not the shortfall cover",
-        "shortfall_cover = false", "",
+        "shortfall_cover = false", *[f"realtime_priority = {priority}"] * bool(priority), "",
         "[link]", f'fc_url = "tcpin:127.0.0.1:{port}"',
         "# the applet receives M4_SETPOINT through ArduPilot's bad-CRC path, where no signature is checked",
         "signing = false", "",
@@ -31,10 +31,11 @@ def companion_config_text(port: int) -> str:
 
 
 def start_companion(stack: contextlib.ExitStack, out_dir: Path, port: int, scenario_path: Path,
-                    has_mission: bool) -> subprocess.Popen:
-    """The companion started and ready (NMPC built, listening); stopped when `stack` closes."""
+                    has_mission: bool, priority: int = 0) -> subprocess.Popen:
+    """The companion started and ready (NMPC built, listening); stopped when `stack` closes. Its
+    control loop in SCHED_FIFO at `priority` (0: normal)."""
     config = out_dir / "companion.toml"
-    config.write_text(companion_config_text(port))
+    config.write_text(companion_config_text(port, priority))
     cmd = [sys.executable, "-m", "companion.cli", "run", "--config", str(config)]
     if has_mission:
         cmd += ["--mission", str(scenario_path)]

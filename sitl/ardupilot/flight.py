@@ -15,6 +15,14 @@ With the companion (`companion=True`) the companion starts first (sitl/ardupilot
 and arducopter's SERIAL1 connects to it. Boot and takeoff go as above; once the robot holds
 its start point, SIM_SPEEDUP goes to 1 (the companion runs on the wall clock), M4_ENABLE to 1,
 and the scenario's clock starts when the applet says it flies the companion's setpoints.
+
+With `priority` P (1..99) the companion's control loop runs in SCHED_FIFO at P once its NMPC is
+built, and every thread of arducopter and of this process (the physics) from the handover on,
+when the flight goes real time: a busy machine then delays them by a context switch, not a
+time slice. None of the three busy-waits (the physics and arducopter block on their sockets,
+the companion on its link until its next step is due), so they leave the cores to others
+between steps. Before the handover, at `speedup`, they run at normal priority: there they run
+flat out and would take a core.
 """
 
 from __future__ import annotations
@@ -49,6 +57,7 @@ GUIDED = 4                          # ArduCopter's custom mode number
 EKF_READY_TEXT = "EKF3 IMU0 is using GPS"
 APPLET_FLYING_TEXT = "m4: flying companion setpoints"
 CONNECT_TIMEOUT_S = 30.0
+PRIORITY_MAX = 99                # Linux's SCHED_FIFO range is 1..99
 AFTER_DISARM_MS = 2000           # the flight ends this long after ArduPilot disarms (a crash)
 
 
@@ -66,9 +75,14 @@ class ArduFlightOptions:
     timeout_s: float = 600.0        # wall clock for the whole flight
     companion: bool = False         # the companion flies through the M4 applet
     scenario_file: Path | None = None   # the scenario's file: the companion's mission (with companion)
+    priority: int = 0               # SCHED_FIFO priority from the handover on, 1..99 (0: normal; with companion)
 
 
 def fly_ardupilot(options: ArduFlightOptions, log=print) -> dict:
+    if not 0 <= options.priority <= PRIORITY_MAX:
+        raise FlightError(f"priority {options.priority}: a SCHED_FIFO priority is 1..{PRIORITY_MAX} (0: normal)")
+    if options.priority and not options.companion:
+        raise FlightError("a real-time priority is for a flight with the companion (it starts at the handover)")
     binary = sitl_binary()
     if not binary.is_file():
         raise FlightError(f"no ArduCopter SITL at {binary} (set ARDUPILOT_SITL)")
@@ -86,7 +100,8 @@ def fly_ardupilot(options: ArduFlightOptions, log=print) -> dict:
             text = options.scenario_file.read_text()
             (out / "scenario.toml").write_text(text)
             port = free_port(socket.SOCK_STREAM)
-            start_companion(stack, out, port, out / "scenario.toml", "mission" in tomllib.loads(text))
+            start_companion(stack, out, port, out / "scenario.toml", "mission" in tomllib.loads(text),
+                            options.priority)
             command += ["--serial1", f"tcpclient:127.0.0.1:{port}"]
         server = PhysicsServer(PhysicsOptions(scenario=options.scenario, port=DEFAULT_PORT + 10 * options.instance,
                                               truth_log_path=out / "truth.npz", start_on_hold=not options.companion),
@@ -98,6 +113,7 @@ def fly_ardupilot(options: ArduFlightOptions, log=print) -> dict:
         try:
             _fly(options, server, sitl, texts, log)
         finally:
+            real_time(os.getpid(), 0)
             sitl.kill()
             sitl.wait()
             server.stop()
@@ -156,7 +172,11 @@ def _fly(options: ArduFlightOptions, server: PhysicsServer, sitl: subprocess.Pop
             pump(lambda: physics.start_held_ms is not None)
             for name, value in (("SIM_SPEEDUP", 1.0), ("M4_ENABLE", 1.0)):
                 link.mav.param_set_send(target, 1, name.encode(), value, mavlink.MAV_PARAM_TYPE_REAL32)
-            log(f"t={physics.now_ms / 1000:.3f} s: real time, the applet engaged (M4_ENABLE 1)")
+            if options.priority:
+                for pid in (sitl.pid, os.getpid()):
+                    real_time(pid, options.priority)
+            log(f"t={physics.now_ms / 1000:.3f} s: real time, the applet engaged (M4_ENABLE 1)"
+                + f", SCHED_FIFO {options.priority}" * bool(options.priority))
             pump(lambda: any(text == APPLET_FLYING_TEXT for _, text in texts))
             physics.start_scenario()
         pump(lambda: physics.scenario_t0_ms is not None)
@@ -165,6 +185,18 @@ def _fly(options: ArduFlightOptions, server: PhysicsServer, sitl: subprocess.Pop
                                                   and physics.now_ms >= state["disarmed_ms"] + AFTER_DISARM_MS))
     finally:
         link.close()
+
+
+def real_time(pid: int, priority: int) -> None:
+    """Every thread of process `pid` in SCHED_FIFO at `priority`, or back to normal with 0."""
+    policy = os.SCHED_FIFO if priority else os.SCHED_OTHER
+    for tid in os.listdir(f"/proc/{pid}/task"):
+        try:
+            os.sched_setscheduler(int(tid), policy, os.sched_param(priority))
+        except ProcessLookupError:
+            continue                        # a thread that has ended since
+        except OSError as e:
+            raise FlightError(f"cannot give process {pid} real-time priority {priority}: {e.strerror}") from None
 
 
 def _connect(port: int, sitl: subprocess.Popen, sitl_log: Path):
