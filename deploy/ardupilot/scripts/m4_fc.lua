@@ -6,6 +6,8 @@
 -- Out: overrides of the motors (outputs 1..4) and hips (outputs 9..12) while a setpoint is
 --      fresh; a telemetry frame to the companion at every run while engaged: ATTITUDE and
 --      LOCAL_POSITION_NED (EKF3) and DEBUG_FLOAT_ARRAY "M4FC" (hips, thrusts), one instant.
+--      The position's origin is on the floor, as the contract's: EKF3 sets its origin where the
+--      robot stood at boot, with its hull centre HULL_STANDING_M above the floor.
 -- Rules (docs/flight-controller.md, as far as Lua allows): a setpoint is refused when it
 -- answers an instant in the future, older than max(150 ms, 2 periods), older than the one in
 -- use, has a period outside 1..1000 ms, a value that is not finite, or comes while disarmed or
@@ -38,6 +40,7 @@ local THRUST_MIN_N, THRUST_MAX_N = 0.0, 30.0
 local HIP_MIN_RAD, HIP_MAX_RAD = 0.0, 1.5707963267948966
 local HIP_NOMINAL_RAD = 0.7853981633974483
 local HIP_RATE_MAX_RAD_S = 6.0
+local HULL_STANDING_M = 0.075        -- the hull centre above the floor when the robot stands (half the hull's height)
 local PWM_MIN, PWM_MAX = 1000, 2000  -- MOT_PWM_MIN/MAX and SERVO9..12_MIN/MAX
 local MOTOR_OUT, HIP_OUT = 0, 8      -- first output (0-based) of motors 1..4 and hips 1..4
 local HIP_FUNCTION = 94              -- Script1..4 on SERVO9..12
@@ -282,8 +285,8 @@ local function send_frame(now)
   end
   mavlink:send_chan(chan, ATTITUDE_ID, string.pack("<I4ffffff", now, ahrs:get_roll(), ahrs:get_pitch(),
     ahrs:get_yaw(), gyro:x(), gyro:y(), gyro:z()))
-  mavlink:send_chan(chan, LOCAL_POSITION_NED_ID, string.pack("<I4ffffff", now, pos:x(), pos:y(), pos:z(),
-    vel:x(), vel:y(), vel:z()))
+  mavlink:send_chan(chan, LOCAL_POSITION_NED_ID, string.pack("<I4ffffff", now, pos:x(), pos:y(),
+    pos:z() - HULL_STANDING_M, vel:x(), vel:y(), vel:z()))
   local volts, data = pack_voltage(), {}
   for i = 1, 4 do
     local pwm = SRV_Channels:get_output_pwm_chan(MOTOR_OUT + i - 1) or PWM_MIN

@@ -15,6 +15,7 @@ import pytest
 from companion.autopilot_profile import ARDUPILOT
 from m4.airframe import load_airframe
 from m4.mavlink import COMPANION_COMPONENT_ID, mavlink, new_mav
+from m4.mission_plan import ground_com_height_m
 from sitl.plant.thrusters import Thrusters
 
 lua53 = pytest.importorskip("lupa.lua53")
@@ -197,7 +198,8 @@ def test_the_frame_sent_is_one_instant_the_companion_reads(applet):
     attitude = struct.unpack("<Iffffff", sent[0][2])
     position = struct.unpack("<Iffffff", sent[1][2])
     np.testing.assert_allclose(attitude, (1015, 0.01, -0.02, 1.5, 0.1, 0.2, 0.3), rtol=1e-6)
-    np.testing.assert_allclose(position, (1015, 1.0, 2.0, -2.0, 0.5, 0.0, -0.1), rtol=1e-6)
+    standing_m = AF.body_box_size_m[2] / 2           # EKF3's origin: the hull centre of the robot standing at boot
+    np.testing.assert_allclose(position, (1015, 1.0, 2.0, -2.0 - standing_m, 0.5, 0.0, -0.1), rtol=1e-6)
     time_usec, array_id, name = struct.unpack_from("<QH10s", sent[2][2])
     data = struct.unpack_from("<58f", sent[2][2], 20)
     frame = mavlink.MAVLink_debug_float_array_message(time_usec, name, array_id, list(data))
@@ -227,7 +229,8 @@ def test_the_applets_motor_model_is_the_airframes():
     text = APPLET.read_text()
     for name, value in (("K_T", AF.thrust_coefficient_n_s2), ("K_Q", AF.drag_torque_coefficient_n_m_s2),
                         ("K_E", AF.motor_back_emf_v_s_rad), ("R_OHM", AF.motor_resistance_ohm),
-                        ("I0_A", AF.motor_no_load_current_a), ("HIP_RATE_MAX_RAD_S", AF.hip_rate_max_rad_s)):
+                        ("I0_A", AF.motor_no_load_current_a), ("HIP_RATE_MAX_RAD_S", AF.hip_rate_max_rad_s),
+                        ("HULL_STANDING_M", ground_com_height_m(AF) + AF.com_offset_frd_m([AF.nominal_hip_rad] * 4)[2])):
         lua = Applet().lua
         lua.execute(text.split("local PARAM_KEY")[0] + f"\nRESULT = {name}")
         assert lua.globals().RESULT == pytest.approx(value, rel=1e-12), name
