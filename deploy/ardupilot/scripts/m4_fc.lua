@@ -15,10 +15,12 @@
 -- timeout and ArduCopter's mode flies (the HOLD of the contract); after 2 s of stale setpoints
 -- the script switches to LAND. The rate feedback of the contract runs at every run of the
 -- script (thrust_n + rate_gain x (planned rates - gyro)); the shortfall cover does not.
+-- The companion's STATUSTEXT at CRITICAL or above (its fault announcement) is said again as
+-- ArduPilot's own, for ground stations that print the autopilot's texts alone.
 -- Engage: parameter M4_ENABLE = 1 (the pilot or ground station sets it once airborne).
 
 local SETPOINT_ID, SETPOINT_CRC_EXTRA = 48000, 204
-local HEARTBEAT_ID = 0
+local HEARTBEAT_ID, STATUSTEXT_ID = 0, 253
 local COMPANION_SYS, COMPANION_COMP = 1, 191
 local ATTITUDE_ID, LOCAL_POSITION_NED_ID, DEBUG_FLOAT_ARRAY_ID = 30, 32, 350
 local SETPOINT_PAYLOAD_MAX = 225
@@ -53,6 +55,7 @@ local enable = Parameter("M4_ENABLE")
 mavlink:init(2, 10)
 mavlink:register_rx_msgid(SETPOINT_ID)
 mavlink:register_rx_msgid(HEARTBEAT_ID)
+mavlink:register_rx_msgid(STATUSTEXT_ID)
 
 local chan = nil                     -- the companion's MAVLink channel (from its HEARTBEAT)
 local sp = nil                       -- the setpoint in use: {t, period, thrust{}, hip{}, cut, applied, fb}
@@ -205,12 +208,25 @@ local function on_setpoint(msg, now)
   counts.applied = counts.applied + 1
 end
 
+-- The companion's STATUSTEXT at CRITICAL or above (its fault, a crash) said again as ArduPilot's
+-- own, as the project's FC does: ground stations print the autopilot's texts (MAVProxy no other).
+local function relay_text(msg)
+  local severity, len = msg:byte(13), msg:byte(4)
+  if severity > MAV_SEVERITY_CRITICAL then
+    return
+  end
+  local text = msg:sub(14, math.min(12 + len, 63))
+  gcs:send_text(severity, text:match("^[^\0]*"))
+end
+
 local function receive(now)
   local msg, from = mavlink:receive_chan()
   while msg do
     local id = msg:byte(10) | (msg:byte(11) << 8) | (msg:byte(12) << 16)
     if id == SETPOINT_ID then
       on_setpoint(msg, now)
+    elseif id == STATUSTEXT_ID and msg:byte(8) == COMPANION_SYS and msg:byte(9) == COMPANION_COMP then
+      relay_text(msg)
     elseif id == HEARTBEAT_ID and msg:byte(8) == COMPANION_SYS and msg:byte(9) == COMPANION_COMP then
       if chan ~= from then
         chan = from

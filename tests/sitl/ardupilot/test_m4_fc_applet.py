@@ -27,7 +27,7 @@ COMPANION_CHANNEL = 1
 
 FAKE_ARDUPILOT = """
 NOW, ARMED, MODE, VOLTAGE = 1000, true, 4, %r
-INBOX, SENT, TEXTS, OVERRIDES, OUTPUTS, PARAMS = {}, {}, {}, {}, {}, {}
+INBOX, SENT, TEXTS, SEVERITIES, OVERRIDES, OUTPUTS, PARAMS = {}, {}, {}, {}, {}, {}, {}
 function millis() return {toint = function() return NOW end} end
 param = {add_table = function() return true end,
          add_param = function(_, _, _, name, value) PARAMS["M4_" .. name] = value; return true end}
@@ -47,7 +47,7 @@ ahrs = {get_roll = function() return 0.01 end, get_pitch = function() return -0.
         get_yaw = function() return 1.5 end, get_gyro = function() return v3(0.1, 0.2, 0.3) end,
         get_relative_position_NED_origin = function() return v3(1.0, 2.0, -2.0) end,
         get_velocity_NED = function() return v3(0.5, 0.0, -0.1) end}
-gcs = {send_text = function(_, _, text) TEXTS[#TEXTS + 1] = text end}
+gcs = {send_text = function(_, severity, text) TEXTS[#TEXTS + 1] = text; SEVERITIES[#TEXTS] = severity end}
 """ % VOLTAGE_V
 
 
@@ -208,6 +208,23 @@ def test_the_frame_sent_is_one_instant_the_companion_reads(applet):
     np.testing.assert_allclose(thrusters.thrust_cmd_n, [12.0] * 4, atol=0.05)
     np.testing.assert_allclose(thrusters.thrust_limit_n, [AF.thrust_max_n] * 4)
     assert all(0.7 < h < AF.nominal_hip_rad for h in joints.hip_angle_rad)     # on its way to 0.7 at the rate limit
+
+
+@pytest.mark.parametrize("severity, sender, relayed", [
+    (mavlink.MAV_SEVERITY_CRITICAL, COMPANION_COMPONENT_ID, True),
+    (mavlink.MAV_SEVERITY_EMERGENCY, COMPANION_COMPONENT_ID, True),
+    (mavlink.MAV_SEVERITY_WARNING, COMPANION_COMPONENT_ID, False),
+    (mavlink.MAV_SEVERITY_CRITICAL, 190, False),
+])
+def test_the_companions_fault_announcement_is_said_again_as_ardupilots_own(applet, severity, sender, relayed):
+    """As the project's FC: ground stations print the autopilot's texts (MAVProxy no other)."""
+    text = "thrust loss rotor 4 (thrust bounds now 30.0, 30.0, 30.0, 3.2 N)"[:50]
+    applet.run(1010, raw_message(mavlink.MAVLink_statustext_message(severity, text.encode()), comp_id=sender))
+    said = [(t, applet.g.SEVERITIES[i + 1]) for i, t in enumerate(applet.texts())]
+    assert ((text, severity) in said) == relayed
+    applet.run(1015, raw_message(mavlink.MAVLink_statustext_message(severity, b"thrust loss rotor 2"), comp_id=sender))
+    assert (("thrust loss rotor 2", severity) in [(t, applet.g.SEVERITIES[i + 1]) for i, t in
+                                                 enumerate(applet.texts())]) == relayed      # shorter: no trailing bytes
 
 
 def test_nothing_is_sent_before_the_companion_is_heard_or_while_disengaged():
