@@ -31,11 +31,12 @@ import contextlib
 import json
 import os
 import shutil
-import subprocess
 import socket
+import subprocess
 import threading
 import time
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -76,6 +77,8 @@ class ArduFlightOptions:
     companion: bool = False         # the companion flies through the M4 applet
     scenario_file: Path | None = None   # the scenario's file: the companion's mission (with companion)
     priority: int = 0               # SCHED_FIFO priority from the handover on, 1..99 (0: normal; with companion)
+    before_arming: Callable[[], None] | None = None   # called once EKF3 uses GPS: a ground station of the
+    #                                   caller's may select GUIDED and arm there (the flight then finds it so)
 
 
 def fly_ardupilot(options: ArduFlightOptions, log=print) -> dict:
@@ -158,6 +161,8 @@ def _fly(options: ArduFlightOptions, server: PhysicsServer, sitl: subprocess.Pop
 
     try:
         pump(lambda: any(text == EKF_READY_TEXT for _, text in texts))
+        if options.before_arming is not None:
+            options.before_arming()
         target = link.target_system
         while not (state["armed"] and state["mode"] == GUIDED):
             link.mav.command_long_send(target, 1, mavlink.MAV_CMD_DO_SET_MODE, 0,

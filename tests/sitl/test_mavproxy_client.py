@@ -5,12 +5,7 @@ sets them with its `mode` command."""
 
 from __future__ import annotations
 
-import os
 import socket
-import subprocess
-import sys
-import threading
-import time
 
 import pytest
 
@@ -19,6 +14,7 @@ from m4.mavlink import mavlink
 from m4.scenario import Scenario
 from sitl.serve import ServeOptions
 from sitl.standin_companion import StandInCompanion, served
+from tests.support.mavproxy_console import MavProxy
 
 pytestmark = pytest.mark.flight
 m = mavlink
@@ -30,49 +26,12 @@ def _free_udp_port() -> int:
         return s.getsockname()[1]
 
 
-class _MavProxy:
-    """mavproxy.py on udpin:127.0.0.1:PORT: its console lines kept, commands written to its stdin."""
-
-    def __init__(self, port: int, cwd):
-        self.lines: list[str] = []
-        self.process = subprocess.Popen(
-            [sys.executable, "-m", "MAVProxy.mavproxy", f"--master=udpin:127.0.0.1:{port}", "--nodtr",
-             "--default-modules=link,mode"], cwd=cwd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
-        threading.Thread(target=self._read, daemon=True).start()
-
-    def _read(self) -> None:
-        for line in self.process.stdout:
-            self.lines.append(line)
-
-    def command(self, text: str) -> None:
-        self.process.stdin.write(text + "\n")
-        self.process.stdin.flush()
-
-    def wait_for(self, text: str, timeout_s: float) -> bool:
-        deadline = time.monotonic() + timeout_s
-        while not any(text in line for line in list(self.lines)):
-            if time.monotonic() > deadline:
-                return False
-            time.sleep(0.05)
-        return True
-
-    def close(self) -> str:
-        self.process.stdin.close()          # MAVProxy ends at the end of its input
-        try:
-            self.process.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            self.process.kill()
-            self.process.wait()
-        return "".join(self.lines)
-
-
 def test_mavproxy_prints_the_fault_and_sets_the_fcs_modes(tmp_path):
     port = _free_udp_port()
     companion = StandInCompanion()
     options = ServeOptions(scenario=Scenario(name="hover", duration_s=120.0), realtime=True)
     with served(companion, options, more_urls=(f"udpout:127.0.0.1:{port}",)) as server:
-        mavproxy = _MavProxy(port, tmp_path)
+        mavproxy = MavProxy(f"udpin:127.0.0.1:{port}", tmp_path)
         try:
             online = mavproxy.wait_for("online system 1", 60.0)
             companion.send(m.MAVLink_statustext_message(m.MAV_SEVERITY_CRITICAL, b"thrust loss rotor 4 (motor)"))
