@@ -2,7 +2,7 @@
 the project's flight controller, judged on the plant's truth alike.
 
     python -m benchmarks.ardupilot [--out DIR] [--scenario NAME]... [--speedup N] [--instance I] [--priority P]
-                                   [--project DIR] [--judge-only]
+                                   [--project DIR] [--no-cover] [--judge-only]
 
 Each scenario is flown twice: `m4-sitl fly-ardupilot NAME --companion` (ArduCopter 4.6.3
 SITL, the applet, the companion at 50 Hz on the wall clock from the handover on) and
@@ -15,8 +15,9 @@ machine's load average when the flight through ArduCopter started, and its SCHED
 (load.txt). `--priority P` flies the companion, arducopter and the physics in SCHED_FIFO at P from
 the handover on (sitl/ardupilot/flight.py), so a busy machine does not starve the companion on
 its wall clock. `--project DIR` takes the project's FC flights from DIR/NAME (as
-`/work/flights/fly_all.sh` writes them) instead of flying them. `--judge-only` judges the
-flights already in DIR without flying.
+`/work/flights/fly_all.sh` writes them) instead of flying them. `--no-cover` flies without the
+applet's shortfall cover (the companion asks for none). `--judge-only` judges the flights
+already in DIR without flying.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import argparse
 import json
 import os
 import re
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -105,14 +107,14 @@ def announced(companion_log: Path, t0_physics_s: float, fault_s: float | None) -
         f"false: {found.group(2)} at {t_s:.1f} s"
 
 
-def fly_ardupilot_one(name: str, out: Path, speedup: float, instance: int, priority: int) -> None:
+def fly_ardupilot_one(name: str, out: Path, speedup: float, instance: int, priority: int, cover: bool) -> None:
     scenario = scenarios.resolve(name)
     (out / "ardupilot" / name).mkdir(parents=True, exist_ok=True)
     fifo = f", SCHED_FIFO {priority}" if priority else ""
     (out / "ardupilot" / name / "load.txt").write_text(f"{os.getloadavg()[0]:.1f}{fifo}\n")
     fly_ardupilot(ArduFlightOptions(scenario=scenario, out_dir=out / "ardupilot" / name, speedup=speedup,
                                     instance=instance, companion=True, scenario_file=scenarios.scenario_path(name),
-                                    priority=priority),
+                                    priority=priority, shortfall_cover=cover),
                   log=lambda _: None)
 
 
@@ -129,7 +131,8 @@ def judge(name: str, out: Path, project_root: Path) -> list[str]:
     ardu_said = announced(ardu_dir / "companion.log", t0_s, scenario.faults[0].at_s if scenario.faults else None)
     figure(out / f"{name}.png", name, [("ArduCopter + M4 applet", ardu_truth, t0_s), ("project FC", project_truth, 0.0)],
            [f.at_s for f in scenario.faults])
-    return [row("ArduCopter + applet", name, judged(ardu_truth, scenario, t0_s), ardu_said,
+    cover = tomllib.loads((ardu_dir / "companion.toml").read_text())["control"].get("shortfall_cover", True)
+    return [row(f"ArduCopter + applet ({'rate feedback, cover' if cover else 'rate feedback, no cover'})", name, judged(ardu_truth, scenario, t0_s), ardu_said,
                 (ardu_dir / "load.txt").read_text().strip()),
             row("project FC (lockstep)", name, judged(project_truth, scenario, 0.0), project_said, "-")]
 
@@ -144,6 +147,7 @@ def main() -> None:
                    help="SCHED_FIFO priority 1..99 from the handover on (default 0: normal)")
     p.add_argument("--project", type=Path, metavar="DIR",
                    help="the project FC's flights, DIR/NAME (default: fly them into --out/project)")
+    p.add_argument("--no-cover", action="store_true", help="no shortfall cover in the applet")
     p.add_argument("--judge-only", action="store_true", help="judge the flights in --out without flying")
     args = p.parse_args()
     if not 0 <= args.priority <= 99:
@@ -155,7 +159,7 @@ def main() -> None:
     rows = []
     for name in names:
         if not args.judge_only:
-            fly_ardupilot_one(name, args.out, args.speedup, args.instance, args.priority)
+            fly_ardupilot_one(name, args.out, args.speedup, args.instance, args.priority, not args.no_cover)
             if args.project is None:
                 fly(name, project_root / name, figures=False, progress=False)
         rows += judge(name, args.out, project_root)

@@ -3,8 +3,8 @@
 It listens on tcp 127.0.0.1:PORT and arducopter connects its SERIAL1 to it (`--serial1
 tcpclient:...`), so the companion starts first and has built its NMPC before SITL boots. Its
 configuration (companion.toml in the flight's folder) is the one for ArduPilot with the M4
-applet: signing off (the applet cannot check signatures: docs/ardupilot.md), and no
-shortfall cover asked for (the applet runs the rate feedback alone).
+applet: signing off (the applet cannot check signatures: docs/ardupilot.md), the shortfall
+cover asked for or not (the applet runs it on its gyro's measure, and the rate feedback).
 """
 
 from __future__ import annotations
@@ -18,12 +18,13 @@ from pathlib import Path
 from sitl.flights.flight_run import COMPANION_LOG_DIR, _await_ready, _start
 
 
-def companion_config_text(port: int, priority: int = 0) -> str:
+def companion_config_text(port: int, priority: int = 0, shortfall_cover: bool = True) -> str:
     return "\n".join([
         "# The companion's configuration for a flight through ArduCopter (written by m4-sitl fly-ardupilot).",
         "[control]",
-        "# the M4 applet on ArduPilot runs the rate feedback, not the shortfall cover",
-        "shortfall_cover = false", *[f"realtime_priority = {priority}"] * bool(priority), "",
+        "# the M4 applet runs the rate feedback, and the shortfall cover on its gyro's measure",
+        f"shortfall_cover = {str(shortfall_cover).lower()}", *[f"realtime_priority = {priority}"] * bool(priority),
+        "",
         "[link]", f'fc_url = "tcpin:127.0.0.1:{port}"',
         "# the applet receives M4_SETPOINT through ArduPilot's bad-CRC path, where no signature is checked",
         "signing = false", "",
@@ -31,11 +32,11 @@ def companion_config_text(port: int, priority: int = 0) -> str:
 
 
 def start_companion(stack: contextlib.ExitStack, out_dir: Path, port: int, scenario_path: Path,
-                    has_mission: bool, priority: int = 0) -> subprocess.Popen:
+                    has_mission: bool, priority: int = 0, shortfall_cover: bool = True) -> subprocess.Popen:
     """The companion started and ready (NMPC built, listening); stopped when `stack` closes. Its
-    control loop in SCHED_FIFO at `priority` (0: normal)."""
+    control loop in SCHED_FIFO at `priority` (0: normal); the applet's shortfall cover asked for or not."""
     config = out_dir / "companion.toml"
-    config.write_text(companion_config_text(port, priority))
+    config.write_text(companion_config_text(port, priority, shortfall_cover))
     cmd = [sys.executable, "-m", "companion.cli", "run", "--config", str(config)]
     if has_mission:
         cmd += ["--mission", str(scenario_path)]

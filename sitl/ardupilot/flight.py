@@ -77,6 +77,7 @@ class ArduFlightOptions:
     companion: bool = False         # the companion flies through the M4 applet
     scenario_file: Path | None = None   # the scenario's file: the companion's mission (with companion)
     priority: int = 0               # SCHED_FIFO priority from the handover on, 1..99 (0: normal; with companion)
+    shortfall_cover: bool = True    # the companion asks the applet for the shortfall cover (with companion)
     before_arming: Callable[[], None] | None = None   # called once EKF3 uses GPS: a ground station of the
     #                                   caller's may select GUIDED and arm there (the flight then finds it so)
 
@@ -104,7 +105,7 @@ def fly_ardupilot(options: ArduFlightOptions, log=print) -> dict:
             (out / "scenario.toml").write_text(text)
             port = free_port(socket.SOCK_STREAM)
             start_companion(stack, out, port, out / "scenario.toml", "mission" in tomllib.loads(text),
-                            options.priority)
+                            options.priority, options.shortfall_cover)
             command += ["--serial1", f"tcpclient:127.0.0.1:{port}"]
         server = PhysicsServer(PhysicsOptions(scenario=options.scenario, port=DEFAULT_PORT + 10 * options.instance,
                                               truth_log_path=out / "truth.npz", start_on_hold=not options.companion),

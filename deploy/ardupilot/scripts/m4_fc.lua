@@ -14,7 +14,10 @@
 -- not engaged. It is fresh until t + max(3 P, 300 ms): the overrides end then by their own
 -- timeout and ArduCopter's mode flies (the HOLD of the contract); after 2 s of stale setpoints
 -- the script switches to LAND. The rate feedback of the contract runs at every run of the
--- script (thrust_n + rate_gain x (planned rates - gyro)); the shortfall cover does not.
+-- script (thrust_n + rate_gain x (planned rates - gyro)), and so does the shortfall cover on the
+-- gyro's measure (sitl/fc/gyro_shortfall.py: the roll and pitch acceleration the robot lacks,
+-- explained by the rotors that fall short; + shortfall_gain x shortfall). The ESCs' measure is
+-- not run: the cover rests on the gyro alone.
 -- The companion's STATUSTEXT at CRITICAL or above (its fault announcement) is said again as
 -- ArduPilot's own, for ground stations that print the autopilot's texts alone.
 -- Engage: parameter M4_ENABLE = 1 (the pilot or ground station sets it once airborne).
@@ -25,6 +28,10 @@ local COMPANION_SYS, COMPANION_COMP = 1, 191
 local ATTITUDE_ID, LOCAL_POSITION_NED_ID, DEBUG_FLOAT_ARRAY_ID = 30, 32, 350
 local SETPOINT_PAYLOAD_MAX = 225
 local RATE_GAIN_MAX_N_PER_RAD_S = 50.0
+local SHORTFALL_GAIN_MAX = 4.0       -- N per N short (m4/setpoint.py)
+local EFFECTIVENESS_MAX_RAD_S2_PER_N = 100.0
+local CUTOFF_RAD_S, DAMPING = 188.0, 0.7   -- the gyro measure's differentiating filter (30 Hz, Butterworth)
+local DEADBAND_N = 1.5               -- shortfalls below this are the models' errors and the gyro's noise
 local RUN_MS = 5
 local MAX_AGE_MIN_MS, MAX_AGE_PERIODS = 150, 2
 local STALE_MIN_MS, STALE_PERIODS = 300, 3
@@ -36,6 +43,7 @@ local MAV_SEVERITY_CRITICAL, MAV_SEVERITY_WARNING, MAV_SEVERITY_INFO = 2, 4, 6
 local K_T = 4.4e-05                  -- thrust coefficient, N/(rad/s)^2
 local K_Q = 8.8e-07                  -- drag torque coefficient, N m/(rad/s)^2
 local K_E = 0.013641852265019601     -- back-EMF constant, V s/rad
+local TAU_S = 0.03                   -- the rotor speed's time constant
 local R_OHM = 0.07860005933989143    -- winding resistance
 local I0_A = 1.0                     -- no-load current
 local THRUST_MIN_N, THRUST_MAX_N = 0.0, 30.0
@@ -64,7 +72,7 @@ local landed_by_us = false
 local hip_est = {HIP_NOMINAL_RAD, HIP_NOMINAL_RAD, HIP_NOMINAL_RAD, HIP_NOMINAL_RAD}
 local hip_rate_est = {0.0, 0.0, 0.0, 0.0}
 local last_run_ms = nil
-local counts = {crc = 0, refused = 0, applied = 0, frames = 0, runs = 0}
+local counts = {crc = 0, refused = 0, applied = 0, frames = 0, runs = 0, covering = 0}
 local last_refusal = ""
 local REPORT_MS = 10000              -- how often the script reports its counts (STATUSTEXT)
 local next_report_ms = nil
@@ -147,6 +155,21 @@ local function rate_feedback(fields)
   return fields
 end
 
+-- The shortfall cover a setpoint asks for ({gain[16], effectiveness[8]}: gain rotor by rotor per
+-- rotor short, the roll and pitch acceleration per newton rotor by rotor); nil when it asks for
+-- none (all gains zero) or cannot be used (not finite, too large). Without a usable effectiveness
+-- the gyro cannot measure, and the cover does nothing.
+local function shortfall_cover(fields)
+  local any_gain, any_effect = false, false
+  for i = 1, 24 do
+    local limit = i <= 16 and SHORTFALL_GAIN_MAX or EFFECTIVENESS_MAX_RAD_S2_PER_N
+    if not finite(fields[i]) or math.abs(fields[i]) > limit then return nil end
+    if i <= 16 then any_gain = any_gain or fields[i] ~= 0.0 else any_effect = any_effect or fields[i] ~= 0.0 end
+  end
+  if not (any_gain and any_effect) then return nil end
+  return {gain = {table.unpack(fields, 1, 16)}, effect = {table.unpack(fields, 17, 24)}}
+end
+
 -- Rotor i's thrust change from the rate feedback, the setpoint in force for in_force_ms.
 local function feedback_n(fb, i, in_force_ms, period_ms, gyro)
   local held_s = math.min(math.max(in_force_ms, 0), period_ms) / 1000.0
@@ -182,7 +205,7 @@ local function on_setpoint(msg, now)
     return
   end
   local payload = msg:sub(13, 12 + len) .. string.rep("\0", SETPOINT_PAYLOAD_MAX - len)
-  local v = {string.unpack("<I4ffffffffffffI2BBB" .. string.rep("f", 18), payload)}
+  local v = {string.unpack("<I4ffffffffffffI2BBB" .. string.rep("f", 42), payload)}
   local t, period, flags = v[1], v[14], v[17]
   local values = {table.unpack(v, 2, 13)}
   if v[15] ~= 1 or v[16] ~= 1 then
@@ -203,7 +226,7 @@ local function on_setpoint(msg, now)
     say(MAV_SEVERITY_INFO, "flying companion setpoints")
   end
   sp = {t = t, period = period, thrust = thrust, hip = hip, cut = (flags & 1) ~= 0, applied = now,
-        fb = rate_feedback({table.unpack(v, 18, 35)})}
+        fb = rate_feedback({table.unpack(v, 18, 35)}), cover = shortfall_cover({table.unpack(v, 36, 59)})}
   stale_since, last_refusal = nil, ""
   counts.applied = counts.applied + 1
 end
@@ -235,6 +258,115 @@ local function receive(now)
     end
     msg, from = mavlink:receive_chan()
   end
+end
+
+-- The gyro measure (sitl/fc/gyro_shortfall.py): what the outputs give and what the plan's thrusts
+-- would (each through the motor's lag), the roll and pitch acceleration expected from them and
+-- the plan, and the gyro's, both through one second-order differentiating filter; what the robot
+-- lacks, explained by the rotors that fall short. It runs at every run, whoever flies.
+local meter = {commanded = nil, planned = nil, value = nil, rate = nil}
+local shortfall_n = nil              -- rotors 1..4, N beyond DEADBAND_N; nil: no measure
+
+local function motor_speeds(speeds, thrust_n, decay)
+  local out = {}
+  for i = 1, 4 do
+    local target = math.sqrt(math.max(thrust_n[i], 0.0) / K_T)
+    out[i] = speeds == nil and target or target + (speeds[i] - target) * decay
+  end
+  return out
+end
+
+-- y'' = w^2 (u - y) - 2 zeta w y', the input held over dt_s, solved exactly, channel by channel.
+local function filter(u, dt_s)
+  if meter.value == nil then
+    meter.value, meter.rate = {table.unpack(u)}, {0.0, 0.0, 0.0, 0.0}
+    return
+  end
+  local sigma = DAMPING * CUTOFF_RAD_S
+  local wd = CUTOFF_RAD_S * math.sqrt(1.0 - DAMPING * DAMPING)
+  local decay, c, s = math.exp(-sigma * dt_s), math.cos(wd * dt_s), math.sin(wd * dt_s)
+  for k = 1, #u do
+    local e, v = meter.value[k] - u[k], meter.rate[k]
+    meter.value[k] = u[k] + decay * (e * c + (v + sigma * e) / wd * s)
+    meter.rate[k] = decay * (v * c - (CUTOFF_RAD_S * CUTOFF_RAD_S * e + sigma * v) / wd * s)
+  end
+end
+
+-- The s >= 0 of least total with effect @ s = lacking: one rotor, or the two whose effects
+-- bracket it; zeros where none do.
+local function rotor_shortfall_n(effect, lacking)
+  local best, best_total = nil, math.huge
+  for i = 1, 3 do
+    for j = i + 1, 4 do
+      local a, b, c, d = effect[2 * i - 1], effect[2 * j - 1], effect[2 * i], effect[2 * j]
+      local det = a * d - b * c
+      local scale = math.max(math.abs(a), math.abs(b), math.abs(c), math.abs(d))
+      if math.abs(det) > 1e-6 * scale * scale then
+        local s_i = (lacking[1] * d - b * lacking[2]) / det
+        local s_j = (a * lacking[2] - c * lacking[1]) / det
+        if s_i >= 0.0 and s_j >= 0.0 and s_i + s_j < best_total then
+          best, best_total = {i, s_i, j, s_j}, s_i + s_j
+        end
+      end
+    end
+  end
+  local out = {0.0, 0.0, 0.0, 0.0}
+  if best ~= nil then
+    out[best[1]], out[best[3]] = best[2], best[4]
+  end
+  return out
+end
+
+local function measure(now, dt_s)
+  local volts, gyro = pack_voltage(), ahrs:get_gyro()
+  if gyro == nil then
+    return
+  end
+  local commanded = {}
+  for i = 1, 4 do
+    local pwm = SRV_Channels:get_output_pwm_chan(MOTOR_OUT + i - 1) or PWM_MIN
+    commanded[i] = thrust_for((pwm - PWM_MIN) / (PWM_MAX - PWM_MIN), volts)
+  end
+  local flown = (sp ~= nil and stale_since == nil and not sp.cut) and sp or nil
+  local decay = math.exp(-dt_s / TAU_S)
+  meter.commanded = motor_speeds(meter.commanded, commanded, decay)
+  meter.planned = motor_speeds(meter.planned, flown and flown.thrust or commanded, decay)
+  local expected = {0.0, 0.0}
+  if flown and flown.fb ~= nil and now - flown.applied < flown.period then
+    expected = {flown.fb[4], flown.fb[5]}
+  end
+  local effect = flown and flown.cover and flown.cover.effect
+  if effect then
+    for i = 1, 4 do
+      local more_n = K_T * (meter.commanded[i] ^ 2 - meter.planned[i] ^ 2)
+      expected[1] = expected[1] + effect[2 * i - 1] * more_n
+      expected[2] = expected[2] + effect[2 * i] * more_n
+    end
+  end
+  filter({gyro:x(), gyro:y(), expected[1], expected[2]}, dt_s)
+  if not effect then
+    shortfall_n = nil
+    return
+  end
+  shortfall_n = rotor_shortfall_n(effect, {meter.value[3] - meter.rate[1], meter.value[4] - meter.rate[2]})
+  for i = 1, 4 do
+    shortfall_n[i] = math.max(shortfall_n[i] - DEADBAND_N, 0.0)
+  end
+end
+
+-- The other rotors' cover for the rotors' shortfall: rotor i's change.
+local function cover_n(cover, i)
+  if shortfall_n == nil then
+    return 0.0
+  end
+  local change = 0.0
+  for j = 1, 4 do
+    change = change + cover.gain[4 * (i - 1) + j] * shortfall_n[j]
+  end
+  if change ~= 0.0 then
+    counts.covering = counts.covering + 1
+  end
+  return change
 end
 
 -- Outputs: the setpoint while fresh (overrides that end by themselves when it goes stale).
@@ -271,8 +403,12 @@ local function drive(now)
   for i = 1, 4 do
     local thrust = sp.thrust[i]
     if sp.fb ~= nil and gyro ~= nil then
-      thrust = clamp(thrust + feedback_n(sp.fb, i, now - sp.applied, sp.period, gyro), THRUST_MIN_N, THRUST_MAX_N)
+      thrust = thrust + feedback_n(sp.fb, i, now - sp.applied, sp.period, gyro)
     end
+    if sp.cover ~= nil then
+      thrust = thrust + cover_n(sp.cover, i)
+    end
+    thrust = clamp(thrust, THRUST_MIN_N, THRUST_MAX_N)
     local pwm = PWM_MIN + math.floor(throttle_for(thrust, volts) * (PWM_MAX - PWM_MIN) + 0.5)
     SRV_Channels:set_output_pwm_chan_timeout(MOTOR_OUT + i - 1, pwm, fresh_ms)
     local hip_pwm = PWM_MIN + math.floor((sp.hip[i] - HIP_MIN_RAD) / (HIP_MAX_RAD - HIP_MIN_RAD)
@@ -318,26 +454,30 @@ local function send_frame(now)
   counts.frames = counts.frames + 1
 end
 
--- Every REPORT_MS: runs a second, frames sent, setpoints applied, refused and with a bad CRC.
+-- Every REPORT_MS: runs a second, frames sent, setpoints applied, refused and with a bad CRC,
+-- and rotor outputs the cover changed (each text within STATUSTEXT's 50 characters).
 local function report(now)
   if next_report_ms == nil then
     next_report_ms = now + REPORT_MS
   elseif now >= next_report_ms then
     say(MAV_SEVERITY_INFO, string.format("%.0f runs/s, %d frames, %d setpoints", counts.runs * 1000 / (now -
       next_report_ms + REPORT_MS), counts.frames, counts.applied))
-    say(MAV_SEVERITY_INFO, string.format("%d refused, %d with a bad CRC", counts.refused, counts.crc))
-    counts = {crc = 0, refused = 0, applied = 0, frames = 0, runs = 0}
+    say(MAV_SEVERITY_INFO, string.format("%d refused, %d bad CRC, %d covered", counts.refused, counts.crc,
+      counts.covering))
+    counts = {crc = 0, refused = 0, applied = 0, frames = 0, runs = 0, covering = 0}
     next_report_ms = now + REPORT_MS
   end
 end
 
 local function update()
   local now = millis():toint()
+  local dt_s = last_run_ms == nil and 0.0 or (now - last_run_ms) / 1000.0
   counts.runs = counts.runs + 1
   report(now)
+  measure(now, dt_s)                 -- what the last run's outputs and setpoint gave, before a new one
   receive(now)
   drive(now)
-  track_hips(last_run_ms == nil and 0.0 or (now - last_run_ms) / 1000.0)
+  track_hips(dt_s)
   last_run_ms = now
   if chan ~= nil and enable:get() == 1 and arming:is_armed() then
     send_frame(now)

@@ -16,6 +16,8 @@ from companion.autopilot_profile import ARDUPILOT
 from m4.airframe import load_airframe
 from m4.mavlink import COMPANION_COMPONENT_ID, mavlink, new_mav
 from m4.mission_plan import ground_com_height_m
+from m4.setpoint import ShortfallCover
+from sitl.fc.gyro_shortfall import GyroShortfallMeter
 from sitl.plant.thrusters import Thrusters
 
 lua53 = pytest.importorskip("lupa.lua53")
@@ -26,7 +28,7 @@ VOLTAGE_V = 16.0
 COMPANION_CHANNEL = 1
 
 FAKE_ARDUPILOT = """
-NOW, ARMED, MODE, VOLTAGE = 1000, true, 4, %r
+NOW, ARMED, MODE, VOLTAGE, GYRO = 1000, true, 4, %r, {0.1, 0.2, 0.3}
 INBOX, SENT, TEXTS, SEVERITIES, OVERRIDES, OUTPUTS, PARAMS = {}, {}, {}, {}, {}, {}, {}
 function millis() return {toint = function() return NOW end} end
 param = {add_table = function() return true end,
@@ -44,7 +46,7 @@ battery = {voltage = function() return VOLTAGE end}
 local function v3(x, y, z) return {x = function() return x end, y = function() return y end,
                                   z = function() return z end} end
 ahrs = {get_roll = function() return 0.01 end, get_pitch = function() return -0.02 end,
-        get_yaw = function() return 1.5 end, get_gyro = function() return v3(0.1, 0.2, 0.3) end,
+        get_yaw = function() return 1.5 end, get_gyro = function() return v3(GYRO[1], GYRO[2], GYRO[3]) end,
         get_relative_position_NED_origin = function() return v3(1.0, 2.0, -2.0) end,
         get_velocity_NED = function() return v3(0.5, 0.0, -0.1) end}
 gcs = {send_text = function(_, severity, text) TEXTS[#TEXTS + 1] = text; SEVERITIES[#TEXTS] = severity end}
@@ -137,6 +139,32 @@ def test_the_rate_feedback_adds_gain_x_planned_less_measured_rates_at_every_run(
     applet.run(1025)
     expected = 15.0 + gain @ (np.array([0.015, 0.5, 0.0]) - [0.1, 0.2, 0.3])
     np.testing.assert_allclose(thrusts_driven_n(applet), expected, atol=0.05)
+
+
+def test_the_shortfall_cover_measures_a_lost_rotor_on_the_gyro_as_the_project_fc_does(applet):
+    """Rotor 1 stops giving 8 N at 20 ms: the gyro shows the roll and pitch acceleration it took.
+    At every 4 ms run the applet drives what the project FC's gyro measure (sitl/fc/gyro_shortfall.py)
+    and the cover (m4/setpoint.py) give on the same gyro, outputs and setpoint, and it names rotor 1."""
+    effect = np.array([[-3.0, 3.0, 3.0, -3.0], [3.0, -3.0, 3.0, -3.0]])      # roll, pitch per N: quad X, FRD
+    gain = np.full((4, 4), 0.5) - np.eye(4) * 0.5
+    sp = setpoint(1005, thrust_n=(14.0,) * 4, shortfall_gain=gain.ravel().tolist(),
+                  effectiveness_frd_rad_s2_per_n=effect.T.ravel().tolist())
+    cover = ShortfallCover.from_fields(sp.shortfall_gain, sp.effectiveness_frd_rad_s2_per_n)
+    meter = GyroShortfallMeter(AF, 0.004)
+    rates = np.array([0.1, 0.2, 0.3])
+    applet.g.GYRO = applet.lua.table(*rates)
+    applet.run(1008, raw_message(sp))
+    meter.update(rates, [0.0] * 4, [0.0] * 4, [0.0, 0.0], None)          # before the setpoint: nothing driven
+    for now_ms in range(1012, 1100, 4):
+        if now_ms > 1028:
+            rates[:2] += -effect[:, 0] * 8.0 * 0.004                          # rotor 1 short by 8 N
+        applet.g.GYRO = applet.lua.table(*rates)
+        driven = thrusts_driven_n(applet)
+        applet.run(now_ms)
+        shortfall = meter.update(rates, driven, [14.0] * 4, [0.0, 0.0], cover.effectiveness_frd_rad_s2_per_n)
+        np.testing.assert_allclose(thrusts_driven_n(applet), 14.0 + cover.thrust_change_n(shortfall), atol=0.1)
+    assert shortfall[0] > 3.0 and shortfall[1:] == [0.0, 0.0, 0.0]           # the gyro here does not see the cover
+    assert min(thrusts_driven_n(applet)[1:]) > 16.0                        # the others cover it
 
 
 def test_a_frame_whose_crc_fails_is_dropped(applet):

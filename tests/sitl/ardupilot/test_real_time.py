@@ -12,7 +12,12 @@ import pytest
 
 from sitl import scenarios
 from sitl.ardupilot.companion_process import companion_config_text
-from sitl.ardupilot.flight import ArduFlightOptions, FlightError, fly_ardupilot, real_time
+from sitl.ardupilot.flight import (
+    ArduFlightOptions,
+    FlightError,
+    fly_ardupilot,
+    real_time,
+)
 
 THREADS = "import threading, time; [threading.Thread(target=time.sleep, args=(30,)).start() for _ in range(3)]; " \
           "print('up', flush=True); time.sleep(30)"
