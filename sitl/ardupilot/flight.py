@@ -117,7 +117,8 @@ def fly_ardupilot(options: ArduFlightOptions, log=print) -> dict:
         try:
             _fly(options, server, sitl, texts, log)
         finally:
-            real_time(os.getpid(), 0)
+            if options.priority:
+                real_time(os.getpid(), 0)       # the figures and files after the flight at normal priority
             sitl.kill()
             sitl.wait()
             server.stop()
