@@ -9,7 +9,7 @@ flies the scenario once per control rate (default 50 Hz) without figures and pri
   feed and flight log), from their own stop lines in sitl.log and companion.log;
 - their sum against the period's budget for the target;
 - the wall time per step, and the companion's part of it: from reading the telemetry frame
-  to sending its setpoint (its mean, from companion.log).
+  to sending its setpoint (its mean, median and p99, from companion.log).
 In lockstep the two processes take turns: the SITL steps while the companion waits for the
 frame, the companion answers while the SITL waits for the setpoint (only the companion's
 publishing and logging after the send overlap the SITL's step). So the wall time per step is
@@ -39,6 +39,7 @@ TARGET_FACTOR = 10.0
 _SITL_CPU = re.compile(r"CPU ([0-9.]+) s \(")
 _COMPANION_CPU = re.compile(r"CPU ([0-9.]+) ms per step")
 _COMPANION_ANSWER = re.compile(r"setpoint sent ([0-9.]+) ms on average")
+_ANSWER_QUANTILES = re.compile(r"on average, median ([0-9.]+) ms, p99 ([0-9.]+) ms")
 
 
 @dataclass(frozen=True)
@@ -47,6 +48,7 @@ class LoopCosts:
     sitl_cpu_s: float             # the SITL's loop, the whole flight
     companion_cpu_ms: float       # per control step
     answer_ms: float              # the companion's mean time from telemetry read to setpoint sent
+    answer_quantiles_ms: tuple[float, float] | None    # its median and p99 (None: the companion does not say)
 
 
 def loop_costs(files: FlightFiles) -> LoopCosts | None:
@@ -54,7 +56,10 @@ def loop_costs(files: FlightFiles) -> LoopCosts | None:
     found = [_last_match(pattern, path) for pattern, path in ((_SITL_CPU, files.sitl_log),
                                                               (_COMPANION_CPU, files.companion_log),
                                                               (_COMPANION_ANSWER, files.companion_log))]
-    return None if None in found else LoopCosts(*found)
+    if None in found:
+        return None
+    quantiles = _ANSWER_QUANTILES.findall(files.companion_log.read_text(errors="replace"))
+    return LoopCosts(*found, tuple(float(v) for v in quantiles[-1]) if quantiles else None)
 
 
 def _last_match(pattern: re.Pattern, path: Path) -> float | None:
@@ -79,12 +84,14 @@ def bench_line(scenario: str, rate_hz: float, out_dir: Path, priority: int = 0, 
         return "\n".join([*lines, "  CPU per step: not found in sitl.log / companion.log"])
     sitl_ms = 1e3 * costs.sitl_cpu_s / (m["duration_s"] * rate_hz)
     both_ms = sitl_ms + costs.companion_cpu_ms
+    quantiles = "" if costs.answer_quantiles_ms is None else \
+        " (median {:.2f} ms, p99 {:.2f} ms)".format(*costs.answer_quantiles_ms)
     lines += [f"  CPU per step: SITL {sitl_ms:.2f} ms + companion {costs.companion_cpu_ms:.2f} ms = {both_ms:.2f} ms "
               f"(budget for {TARGET_FACTOR:g}x: {period_ms / TARGET_FACTOR:.2f} ms)",
               f"  CPU per simulated second: SITL {sitl_ms * rate_hz / 1e3:.3f} s, companion "
               f"{costs.companion_cpu_ms * rate_hz / 1e3:.3f} s",
               f"  wall per step {period_ms / factor:.2f} ms, of which the companion's answer (telemetry read to "
-              f"setpoint sent) {costs.answer_ms:.2f} ms; the rest is the SITL's step and the hand-offs (the "
+              f"setpoint sent) {costs.answer_ms:.2f} ms{quantiles}; the rest is the SITL's step and the hand-offs (the "
               "companion's publishing after its send overlaps the SITL's step)"]
     return "\n".join(lines)
 

@@ -2,7 +2,9 @@
 setpoint sent), the overruns (answers that took longer than the control period), and the rate
 achieved (answers in the last second), the mean answer time, and the process's CPU time per step between the first
 and the last answer (`cpu_ms_per_step`, time.process_time: what the loop costs, whatever else
-runs on the machine). `report(now_s)` gives an OverrunReport at most every REPORT_S
+runs on the machine), and the answer's quantiles (`answer_quantile_ms`: median, p99) from a
+histogram of fixed size (ANSWER_BIN_S wide, up to ANSWER_RANGE_S; slower answers in its last
+bin, said as the slowest), so a flight of any length keeps the same memory. `report(now_s)` gives an OverrunReport at most every REPORT_S
 when something overran since the last one, so a slow computer is said (in the log, and to the
 ground station as a STATUSTEXT warning), not flooded.
 """
@@ -14,8 +16,12 @@ import time
 from collections import deque
 from dataclasses import dataclass
 
+import numpy as np
+
 REPORT_S = 5.0
 RATE_WINDOW_S = 1.0
+ANSWER_BIN_S = 1e-5              # the answer's histogram: 10 us bins
+ANSWER_RANGE_S = 0.1             # up to 100 ms; slower answers in the last bin
 
 
 @dataclass(frozen=True)
@@ -52,6 +58,7 @@ class LoopTiming:
         self._cpu_steps = 0                             # answers after the first
         self._answers_total = 0
         self._took_total_s = 0.0
+        self._took_bins = np.zeros(round(ANSWER_RANGE_S / ANSWER_BIN_S), dtype=np.int64)
 
     def answered(self, started_s: float, now_s: float) -> None:
         """An answer to telemetry read at started_s went out at now_s."""
@@ -63,6 +70,7 @@ class LoopTiming:
         took_s = now_s - started_s
         self._answers_total += 1
         self._took_total_s += took_s
+        self._took_bins[min(max(int(took_s / ANSWER_BIN_S), 0), len(self._took_bins) - 1)] += 1
         self.slowest_s = max(self.slowest_s, took_s)
         if took_s > self.period_s:
             self.overruns += 1
@@ -76,6 +84,17 @@ class LoopTiming:
     def mean_answer_ms(self) -> float | None:
         """Mean time from telemetry read to setpoint sent (None: no answer yet)."""
         return 1e3 * self._took_total_s / self._answers_total if self._answers_total else None
+
+    def answer_quantile_ms(self, q: float) -> float | None:
+        """The q-quantile (0 < q <= 1) of the time from telemetry read to setpoint sent, to a bin's
+        width: the upper edge of the bin it falls in (the slowest answer when that is the last
+        bin); None: no answer yet."""
+        if not self._answers_total:
+            return None
+        i = int(np.searchsorted(np.cumsum(self._took_bins), q * self._answers_total))
+        if i >= len(self._took_bins) - 1:
+            return 1e3 * self.slowest_s
+        return 1e3 * (i + 1) * ANSWER_BIN_S
 
     @property
     def cpu_ms_per_step(self) -> float | None:

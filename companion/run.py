@@ -126,7 +126,8 @@ def run(args: argparse.Namespace) -> int:
         lead, timing = app.fc.delay.lead_s, app.timing
         logging.getLogger("m4-companion").info(
             "stopped%s after %d setpoints (%s); %d link losses; slowest solve %.1f ms; %d steps over the period; "
-            "setpoint lead %s; telemetry read to setpoint sent %s on average; CPU %s per step",
+            "setpoint lead %s; telemetry read to setpoint sent %s on average, median %s, p99 %s; CPU %s per step",
             "".join(f" by {name}" for name in stopped_by[:1]), c.answered, app.end(), c.link_losses, c.solve_ms_max, timing.overruns, _ms(None if lead is None else 1e3 * lead, 0),
-            _ms(timing.mean_answer_ms, 2), _ms(timing.cpu_ms_per_step, 2))
+            _ms(timing.mean_answer_ms, 2), _ms(timing.answer_quantile_ms(0.5), 2), _ms(timing.answer_quantile_ms(0.99), 2),
+            _ms(timing.cpu_ms_per_step, 2))
     return 0

@@ -73,3 +73,16 @@ def test_a_slow_control_step_over_real_sockets_is_counted_logged_once_and_publis
     finally:
         fc.close()
         link.close()
+
+
+def test_the_answers_median_and_p99_to_a_bin_and_the_slowest_beyond_the_histogram():
+    timing = LoopTiming(0.02)
+    assert timing.answer_quantile_ms(0.5) is None
+    for k in range(100):                       # 1.00, 1.01, ..., 1.99 ms
+        timing.answered(float(k), k + 1e-3 + k * 1e-5 + 1e-7)
+    assert timing.answer_quantile_ms(0.5) == pytest.approx(1.50, abs=0.011)
+    assert timing.answer_quantile_ms(0.99) == pytest.approx(1.99, abs=0.011)
+    timing.answered(200.0, 200.5)              # 500 ms: beyond the histogram
+    timing.answered(201.0, 201.3)
+    assert timing.answer_quantile_ms(1.0) == pytest.approx(500.0)
+    assert timing.answer_quantile_ms(0.5) == pytest.approx(1.51, abs=0.011)

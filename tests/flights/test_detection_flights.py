@@ -33,6 +33,8 @@ def test_the_rotor_is_found_within_the_target_and_the_robot_survives(tmp_path, s
     assert _confirmed_messages(tmp_path)[-1] == message       # the kind as the evidence settles it
     costs = loop_costs(FlightFiles(tmp_path))                 # what python -m benchmarks.fly reads
     assert costs is not None and costs.sitl_cpu_s > 0.0 and 0.0 < costs.answer_ms and 0.0 < costs.companion_cpu_ms
+    median_ms, p99_ms = costs.answer_quantiles_ms
+    assert 0.0 < median_ms <= p99_ms
 
 
 DAMAGE_SCENARIO = """
