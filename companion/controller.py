@@ -194,7 +194,7 @@ class Controller:
         self.applied = AppliedThrust(self.period_s)
         self.ramp = TakeoverRamp(self.period_s)
         self._hip_goal: HipGoal | None = None
-        self._solved: tuple[float, float, np.ndarray, np.ndarray] | None = None   # (time_s, lead_s, bound, d)
+        self._solved: tuple[float, float, np.ndarray, np.ndarray, bool] | None = None   # (time_s, lead_s, bound, d, confirmed)
         self._last_step_s: float | None = None
         self._takeover = True             # the next step takes control from the FC's own controller
 
@@ -320,7 +320,7 @@ class Controller:
                      shortfall_cover=self.rate_feedback.cover(x_plan[rom.HIP], fault.state is FaultState.CONFIRMED))
         self.sent.add(SentCommand(time_s, x, np.concatenate([sp.thrust_n, res.u[rom.HIP_ACCEL]]), sp.rate_feedback,
                                   sp.shortfall_cover))
-        self._solved = (time_s, lead_s, fault.thrust_bound_n, d)
+        self._solved = (time_s, lead_s, fault.thrust_bound_n, d, fault.state is FaultState.CONFIRMED)
         return ControlStep(time_s=time_s, setpoint=sp, state=x_plan, fault=fault, fault_confirmed_now=confirmed_now,
                            disturbance=d, lead_s=lead_s, reference=x_ref, nmpc=res, took_over=took_over,
                            followed=followed)
@@ -328,13 +328,16 @@ class Controller:
     def prepare(self) -> None:
         """After the last step's setpoint was sent: the NMPC prepares the next step's solve (the
         real-time iteration's preparation; nothing with the SQP, or when the last step solved
-        nothing: what was prepared before is dropped). The next step is expected one period on,
-        at the same lead."""
+        nothing: what was prepared before is dropped), and the FC's rate feedback and cover are
+        designed for the hip goal the next step starts from. The next step is expected one
+        period on, at the same lead, with the same bounds."""
         solved, self._solved = self._solved, None
         if solved is None or self.flight is None:
             self.nmpc.unprepare()
             return
-        time_s, lead_s, thrust_bound_n, d = solved
+        time_s, lead_s, thrust_bound_n, d, confirmed = solved
+        if self._hip_goal is not None:
+            self.rate_feedback.prepare(self._hip_goal.angle_rad, thrust_bound_n, confirmed)
         c = self.nmpc.config
         x_ref = self._reference(time_s + self.period_s, lead_s, c.horizon, c.dt_s)
         self.nmpc.prepare(x_ref, thrust_bound_n, d)

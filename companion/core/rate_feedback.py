@@ -27,6 +27,11 @@ acceleration a newton of its thrust gives at the planned posture (the inverse in
 measures on its gyro what the robot lacks of the planned angular acceleration and explains
 it by the rotors that fall short, which is how it covers a rotor without ESC telemetry.
 
+Each step's gain and cover are kept for the posture (and live rotors, confirmed fault) they
+were designed at: `prepare`, called after the send, designs them for the posture the next
+step is expected to start from (the controller's hip goal), so that step's answer finds them
+ready instead of solving for them between the state's arrival and the setpoint's send.
+
 Pure logic: no clock, no I/O.
 """
 
@@ -54,6 +59,14 @@ class RateFeedbackDesign:
         arms = rom.thruster_positions(af, hip) - ca.repmat(com, 1, ROTOR_COUNT)
         self._geometry = BufferedFunction(ca.Function("m4_rate_feedback_geometry", [hip], [arms, inertia]))
         self._last: tuple[bytes, tuple[np.ndarray, np.ndarray]] | None = None   # the gain's and the cover's posture
+        self._gain: tuple[bytes, np.ndarray | None] | None = None         # the last gain, by posture and live rotors
+        self._cover: tuple[bytes, ShortfallCover | None] | None = None    # the last cover, by posture and fault
+
+    def prepare(self, hip_rad, thrust_bound_n, fault_confirmed: bool) -> None:
+        """Design the gain and the cover for a step expected at posture hip_rad with these bounds
+        (off the critical path: the step that comes there finds them designed)."""
+        self.gain(hip_rad, thrust_bound_n)
+        self.cover(hip_rad, fault_confirmed)
 
     def gain(self, hip_rad, thrust_bound_n) -> np.ndarray | None:
         """(4, 3) thrust change per rotor per unit rate error (N per rad/s) at posture hip_rad;
@@ -61,6 +74,12 @@ class RateFeedbackDesign:
         cannot take)."""
         live = np.asarray(thrust_bound_n, dtype=float) > LIVE_SHARE * self.af.hover_thrust_per_rotor_n
         hip = np.asarray(hip_rad, dtype=float)
+        key = hip.tobytes() + live.tobytes()
+        if self._gain is None or self._gain[0] != key:
+            self._gain = (key, self._design_gain(hip, live))
+        return self._gain[1]
+
+    def _design_gain(self, hip: np.ndarray, live: np.ndarray) -> np.ndarray | None:
         if self.bandwidth_rad_s <= 0 or live.sum() < 3 or not np.isfinite(hip).all():
             return None
         allocation, inertia = self._allocation(hip)
@@ -75,6 +94,12 @@ class RateFeedbackDesign:
         """The other rotors' cover for each rotor's shortfall at posture hip_rad; None when
         switched off, a fault is confirmed, or the posture cannot keep sum and torque."""
         hip = np.asarray(hip_rad, dtype=float)
+        key = hip.tobytes() + bytes([fault_confirmed])
+        if self._cover is None or self._cover[0] != key:
+            self._cover = (key, self._design_cover(hip, fault_confirmed))
+        return self._cover[1]
+
+    def _design_cover(self, hip: np.ndarray, fault_confirmed: bool) -> ShortfallCover | None:
         if not self.shortfall_cover or fault_confirmed or not np.isfinite(hip).all():
             return None
         allocation, inertia = self._allocation(hip)

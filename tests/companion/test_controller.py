@@ -376,3 +376,27 @@ def test_the_fcs_land_is_flown_from_where_the_robot_is():
     assert out.followed is FcMode.LAND and c.flight.reference.landing_started(0.02)
     end = out.reference[-1]
     assert end[rom.P][:2] == pytest.approx((3.0, 1.0)) and end[rom.P][2] > -2.0 and end[rom.V][2] > 0.0
+
+
+def test_after_prepare_the_next_step_finds_the_fcs_rate_feedback_and_cover_designed(monkeypatch):
+    """prepare() designs them for the hip goal the next step starts from: that step's answer
+    designs nothing, and sends what a step designing them itself sends."""
+    c = controller()
+    x = rom.hover_state(AF)
+    x[rom.EULER] = (0.2, -0.1, 0.0)
+    step(c, 0.0, x)
+    c.prepare()
+    fresh = controller()
+    step(fresh, 0.0, x)
+    designed = []
+    for name in ("_design_gain", "_design_cover"):
+        design = getattr(type(c.rate_feedback), name)
+        monkeypatch.setattr(type(c.rate_feedback), name,
+                            lambda self, *a, _design=design, _name=name: designed.append(_name) or _design(self, *a))
+    sp = step(c, PERIOD, x).setpoint
+    assert designed == []
+    assert sp.rate_feedback is not None and sp.shortfall_cover is not None
+    expected = step(fresh, PERIOD, x).setpoint
+    assert designed == ["_design_gain", "_design_cover"]              # no prepare(): designed in the step
+    assert np.array_equal(sp.rate_feedback.gain_n_per_rad_s, expected.rate_feedback.gain_n_per_rad_s)
+    assert np.array_equal(sp.shortfall_cover.gain, expected.shortfall_cover.gain)

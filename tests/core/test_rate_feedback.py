@@ -131,3 +131,17 @@ def test_the_fc_side_reads_the_effectiveness_by_rotor_and_leaves_an_unusable_one
     for unusable in (np.zeros(8), np.r_[np.nan, np.ones(7)], np.full(8, 2 * EFFECTIVENESS_MAX_RAD_S2_PER_N)):
         cover = ShortfallCover.from_fields(gain, unusable)
         assert cover is not None and cover.effectiveness_frd_rad_s2_per_n is None
+
+
+def test_a_prepared_design_is_the_one_its_posture_gets_and_another_posture_gets_its_own():
+    design = RateFeedbackDesign(AF, BW, shortfall_cover=True)
+    hip, lost = np.radians([87.0, 2.0, 53.0, 23.0]), ALL_LIVE.copy()
+    lost[3] = AF.thrust_min_n
+    design.prepare(hip, ALL_LIVE, False)
+    gain, cover = design.gain(hip.copy(), ALL_LIVE), design.cover(hip.copy(), False)
+    assert design.gain(hip, ALL_LIVE) is gain and design.cover(hip, False) is cover
+    fresh = RateFeedbackDesign(AF, BW, shortfall_cover=True)
+    for posture, bound in ((hip, lost), (hip + 0.01, ALL_LIVE)):
+        assert np.array_equal(design.gain(posture, bound), fresh.gain(posture, bound))
+    assert design.cover(hip, True) is None
+    assert np.array_equal(design.cover(hip + 0.01, False).gain, fresh.cover(hip + 0.01, False).gain)
