@@ -54,7 +54,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -302,7 +302,8 @@ class CompanionApp:
         self.fc.send_setpoint(t_ms, self.period_ms, step.setpoint, sent_s, step.fault,
                               self.controller.mission_progress(t_s))
         self.timing.answered(read_s, sent_s)
-        self.controller.prepare()                  # the NMPC's next QP, off the critical path
+        if (fault := self.controller.prepare()) is not None:    # the NMPC's next QP, off the critical path
+            step = replace(step, fault=fault)      # the frame as the detector read it after the send
         if (report := self.timing.report(sent_s)) is not None:
             log.warning("t=%.3f s: %s", t_s, report.text)
             self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, report.statustext)

@@ -37,6 +37,15 @@ The real-time iteration ([nmpc] scheme = "rti"): `step` is its feedback (one QP)
 called once the setpoint has left, is its preparation for the next step, at the state the plan
 predicts then, along the reference from then, with this step's bounds and disturbance.
 
+The detector after the send: a frame that cannot move the NMPC's bounds (the detector healthy,
+the frame too soon after the last for one vote to confirm: FaultDetector.settles_nothing) is
+read by the detector in `prepare`, after the setpoint left, instead of before the solve; any
+other frame (a suspicion that may confirm, a confirmed fault, new limits) is read before it,
+so a fault confirmed at a frame bounds that frame's setpoint. The setpoint and the bounds are
+the same either way; the fault status sent with the setpoint is the one it was planned under
+(a suspicion raised by that frame goes out with the next), and `prepare` returns the status
+after the frame for the log and the feed.
+
 Takeover: at the flight's first step and after a gap in which our setpoints went stale at the
 FC (its failsafe flew; FC_STALE_PERIODS, FC_STALE_MIN_S: the FC contract), the thrusts ramp
 from what the FC reports commanding (companion.core.takeover), and, when the FC says its
@@ -197,6 +206,7 @@ class Controller:
         self._solved: tuple[float, float, np.ndarray, np.ndarray, bool] | None = None   # (time_s, lead_s, bound, d, confirmed)
         self._last_step_s: float | None = None
         self._takeover = True             # the next step takes control from the FC's own controller
+        self._deferred: tuple | None = None   # a frame for the detector after the send: update()'s arguments
 
     @property
     def started(self) -> bool:
@@ -245,6 +255,7 @@ class Controller:
     def resume(self) -> None:
         """After a gap in the telemetry (link loss): the previous plan, state and hip goal are
         stale. The disturbance estimate is kept (it describes the robot, not the moment)."""
+        self._detect_deferred()
         self.nmpc.reset()
         self.sent.clear()
         self.applied.clear()
@@ -257,6 +268,7 @@ class Controller:
         self.resume()
         self.disturbance.reset()
         self.detector = self._new_detector()
+        self._deferred = None
         self.flight = None
         self._last_step_s = None
         self._takeover = True
@@ -264,12 +276,14 @@ class Controller:
     def retune_detector(self, config: FaultDetectorConfig) -> None:
         """The detector's thresholds changed in flight (a parameter): from its next frame on, and
         for a detector built anew after an FC reboot."""
+        self._detect_deferred()               # a frame before the change is read by the thresholds it came under
         self.settings = replace(self.settings, fault_detector=config)
         self.detector.retune(config)
 
     def restore_fault(self, rotor: int, thrust_max_estimate_n: float, detected_at_s: float) -> None:
         """A fault confirmed by an earlier run of the companion (the FC kept it): the detector
         starts from it; the next step confirms it (bound, reference hold, announcement)."""
+        self._detect_deferred()
         self.detector.restore(rotor, thrust_max_estimate_n, detected_at_s)
 
     def step(self, time_s: float, x_measured, esc: EscSample | None = None, thrust_limit_n=None,
@@ -282,6 +296,7 @@ class Controller:
         yet (None, or not finite) is planned as 0, and the disturbance estimate waits for it
         (_estimate_disturbance)."""
         af = self.af
+        self._detect_deferred()               # the last frame first, had no prepare() read it
         self._note_gap(time_s)
         lead_known = lead_s is not None and bool(np.isfinite(lead_s))
         lead_s = max(float(lead_s), 0.0) if lead_known else 0.0
@@ -325,22 +340,26 @@ class Controller:
                            disturbance=d, lead_s=lead_s, reference=x_ref, nmpc=res, took_over=took_over,
                            followed=followed)
 
-    def prepare(self) -> None:
-        """After the last step's setpoint was sent: the NMPC prepares the next step's solve (the
-        real-time iteration's preparation; nothing with the SQP, or when the last step solved
-        nothing: what was prepared before is dropped), and the FC's rate feedback and cover are
-        designed for the hip goal the next step starts from. The next step is expected one
-        period on, at the same lead, with the same bounds."""
+    def prepare(self) -> FaultStatus | None:
+        """After the last step's setpoint was sent: the detector reads that step's frame if it
+        was left for now (its status after the frame is returned; None: it was read before the
+        solve), the NMPC prepares the next step's solve (the real-time iteration's preparation;
+        nothing with the SQP, or when the last step solved nothing: what was prepared before is
+        dropped), and the FC's rate feedback and cover are designed for the hip goal the next
+        step starts from. The next step is expected one period on, at the same lead, with the
+        same bounds."""
+        status = self._detect_deferred()
         solved, self._solved = self._solved, None
         if solved is None or self.flight is None:
             self.nmpc.unprepare()
-            return
+            return status
         time_s, lead_s, thrust_bound_n, d, confirmed = solved
         if self._hip_goal is not None:
             self.rate_feedback.prepare(self._hip_goal.angle_rad, thrust_bound_n, confirmed)
         c = self.nmpc.config
         x_ref = self._reference(time_s + self.period_s, lead_s, c.horizon, c.dt_s)
         self.nmpc.prepare(x_ref, thrust_bound_n, d)
+        return status
 
     # ------------------------------------------------------------------------------------------
     def _note_gap(self, time_s: float) -> None:
@@ -411,7 +430,8 @@ class Controller:
         return replace(ours, input=u)
 
     def _detect(self, time_s, x, usable, in_force, esc, limit_n) -> tuple[FaultStatus, bool]:
-        """The detector's status after this frame; True at each new confirmation in a flight."""
+        """The detector's status after this frame (before it, for a frame left for after the send);
+        True at each new confirmation in a flight."""
         if not usable or in_force is None:
             return self.detector.status, False
         if self._on_ground_in_landing(time_s, x):
@@ -420,7 +440,22 @@ class Controller:
         cap = self.af.thrust_max_n
         if limit_n is not None and np.isfinite(limit_n).any():          # already a (4,) array (_thrust_telemetry)
             cap = float(np.clip(np.nanmax(limit_n), self.af.thrust_min_n, self.af.thrust_max_n))
-        status = self.detector.update(time_s, x, in_force.thrust_n, np.full(ROTOR_COUNT, cap), esc)
+        frame = (time_s, x, in_force.thrust_n, np.full(ROTOR_COUNT, cap), esc)
+        if self.detector.settles_nothing(time_s, frame[3]):
+            self._deferred = frame
+            return self.detector.status, False
+        return self._detected(self.detector.update(*frame))
+
+    def _detect_deferred(self) -> FaultStatus | None:
+        """The frame left for after the send, read now (None: none was left)."""
+        frame, self._deferred = self._deferred, None
+        if frame is None:
+            return None
+        status, _ = self._detected(self.detector.update(*frame))    # it cannot confirm (settles_nothing)
+        return status
+
+    def _detected(self, status: FaultStatus) -> tuple[FaultStatus, bool]:
+        """The detector's new status, and True at each new confirmation in a flight."""
         flight = self.flight
         if flight is not None and status.state is FaultState.HEALTHY:
             flight.fault_announced = False    # recovered: the next confirmation is a new fault

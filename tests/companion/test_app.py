@@ -301,6 +301,9 @@ class ScriptedDetector:
                            message=f"thrust loss rotor 4 ({kind.name.lower()})" if confirmed else "",
                            deficit_n=np.zeros(4))
 
+    def settles_nothing(self, *_args) -> bool:
+        return False                           # every frame may confirm: read before the solve
+
     def update(self, time_s: float, *_args, **_kwargs) -> FaultStatus:
         self.status = self._status(time_s)
         return self.status

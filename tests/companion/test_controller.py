@@ -16,7 +16,7 @@ from m4.fc_mode import FcMode
 from companion.config import parse_config
 from companion.controller import Controller, ControllerSettings
 from companion.core import rom
-from companion.core.esc_evidence import EscSample
+from companion.core.esc_evidence import EscSample, PropellerModel
 from companion.core.control_types import FaultState, safe_setpoint, thrust_bounds
 from companion.core.fault_detector import FaultDetector
 from companion.core.nmpc import Nmpc
@@ -400,3 +400,42 @@ def test_after_prepare_the_next_step_finds_the_fcs_rate_feedback_and_cover_desig
     assert designed == ["_design_gain", "_design_cover"]              # no prepare(): designed in the step
     assert np.array_equal(sp.rate_feedback.gain_n_per_rad_s, expected.rate_feedback.gain_n_per_rad_s)
     assert np.array_equal(sp.shortfall_cover.gain, expected.shortfall_cover.gain)
+
+
+class _EveryFrameBeforeTheSolve(FaultDetector):
+    def settles_nothing(self, *_args) -> bool:
+        return False
+
+
+def _rotor_4_lost(c: Controller, steps: int = 25):
+    """The ROM flown by the controller's setpoints, step then prepare as the app calls them;
+    rotor 4 delivers nothing from 0.1 s. Each step's (setpoint, confirmed now, status prepare()
+    returned)."""
+    plant = rom.build_rom(AF, PERIOD, substeps=4).step
+    x, out, answers = rom.hover_state(AF), None, []
+    for k in range(steps):
+        if out is not None:
+            sp = out.setpoint
+            u = sp.thrust_n * np.array([1.0, 1.0, 1.0, 0.0 if k * PERIOD > 0.1 else 1.0])
+            x = np.array(plant(x, np.r_[u, np.zeros(4)], np.zeros(rom.ND))).ravel()
+            x[rom.HIP], x[rom.HIP_RATE] = sp.hip_rad + sp.hip_rate_rad_s * PERIOD, sp.hip_rate_rad_s
+        out = step(c, k * PERIOD, x, None, [AF.thrust_max_n] * 4)
+        answers.append((out.setpoint, out.fault_confirmed_now, c.prepare()))
+    return answers
+
+
+def test_a_healthy_frame_is_read_after_the_send_and_the_setpoints_and_the_confirmation_stay_the_same():
+    """The detector reads a frame that cannot move the bounds after the send (prepare() returns
+    its status then); the setpoints, and the step at which the fault is confirmed and bounds
+    the NMPC, are those of a controller that reads every frame before the solve."""
+    late = _rotor_4_lost(controller())
+    _NMPC.reset()
+    early = _rotor_4_lost(Controller(SETTINGS, nmpc=_NMPC, new_detector=lambda: _EveryFrameBeforeTheSolve(
+        AF, SETTINGS.fault_detector, PropellerModel.from_airframe(AF), SETTINGS.nmpc.codegen)))
+    read_after = [k for k, (_, _, status) in enumerate(late) if status is not None]
+    assert read_after and read_after[0] <= 1 and all(status is None for _, _, status in early)
+    confirmed = [k for k, (_, now, _) in enumerate(late) if now]
+    assert confirmed == [k for k, (_, now, _) in enumerate(early) if now] and len(confirmed) == 1
+    assert all(k < confirmed[0] for k in read_after)
+    for (a, _, _), (b, _, _) in zip(late, early):
+        assert np.array_equal(a.thrust_n, b.thrust_n) and np.array_equal(a.hip_rad, b.hip_rad)
