@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import gc
 import logging
 import os
 import signal
@@ -118,6 +119,7 @@ def run(args: argparse.Namespace) -> int:
     if args.ready_fd is not None:
         _say_ready(args.ready_fd, ready)
     _say_outputs(config, app.flight_log)
+    gc.freeze()       # what was built to fly (NMPC, dialect, links) is never garbage: no collection walks it mid-flight
     try:
         app.run()
     finally:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import logging
 import os
 import re
@@ -224,3 +225,15 @@ def test_a_scenario_given_as_the_mission_is_checked_whole_before_the_companion_s
     mission.write_text(scenario.replace("rotor = 4", "rotor = 7"))          # a malformed [[fault]]
     code, lines = run_cli(capsys, "--fc", "udpin:127.0.0.1:0", "--mission", str(mission))
     assert code == 2 and len(lines) == 1 and "[[fault]] #1 rotor must be <= 4" in lines[0], lines
+
+
+def test_what_was_built_before_the_loop_is_frozen_out_of_the_garbage_collector(monkeypatch, capsys, signed):
+    """A full collection walks every object alive: with the NMPC, the dialect and the links built,
+    hundreds of milliseconds on this machine, in the middle of some control step."""
+    frozen = []
+    monkeypatch.setattr(CompanionApp, "run", lambda self: frozen.append(gc.get_freeze_count()))
+    try:
+        code, _ = run_cli(capsys, "--fc", "udpin:127.0.0.1:0", *signed)
+    finally:
+        gc.unfreeze()
+    assert code == 0 and frozen and frozen[0] > 10_000
