@@ -99,6 +99,7 @@ class EscReading:
     thrust_n: np.ndarray                   # (4,) k_t omega^2, 0 when unloaded; NaN when the ESC says nothing
     condition: tuple[RotorCondition, ...]  # (4,)
     battery_ceiling_n: float               # what a full command gives at the reported voltage (inf: unknown)
+    voltage_v: float                       # the ESCs' median voltage (NaN: unknown)
 
 
 def read_escs(sample: EscSample, expected_n: np.ndarray, model: PropellerModel,
@@ -109,7 +110,8 @@ def read_escs(sample: EscSample, expected_n: np.ndarray, model: PropellerModel,
     current = _reported(sample.current_a, _CURRENT_MAX_A)
     voltage = _reported(sample.voltage_v, _VOLTAGE_MAX_V)
     volts = [v for v in voltage.tolist() if math.isfinite(v) and v > 0]
-    ceiling = model.ceiling_n(_median(volts)) if volts else math.inf
+    volts_v = _median(volts) if volts else math.nan
+    ceiling = model.ceiling_n(volts_v) if volts else math.inf
     expected_rpm = model.rpm(np.minimum(expected_n, ceiling))
     turning = np.isfinite(rpm) & (rpm >= th.speed_min_rpm)
     current = np.where(current > 0.0, current, np.nan)     # a turning motor draws current: 0 is "not polled yet"
@@ -127,7 +129,8 @@ def read_escs(sample: EscSample, expected_n: np.ndarray, model: PropellerModel,
             unloaded |= load_i < th.unloaded_load_share * _median(others)
         conditions.append(_condition(share_i, unloaded, th) if math.isfinite(rpm_i) else RotorCondition.NORMAL)
     thrust = np.where([c is RotorCondition.UNLOADED for c in conditions], 0.0, thrust)
-    return EscReading(rpm=rpm, thrust_n=thrust, condition=tuple(conditions), battery_ceiling_n=ceiling)
+    return EscReading(rpm=rpm, thrust_n=thrust, condition=tuple(conditions), battery_ceiling_n=ceiling,
+                      voltage_v=volts_v)
 
 
 def _reported(values, most: float) -> np.ndarray:

@@ -56,6 +56,7 @@ from m4.airframe import ROTOR_COUNT, Airframe
 from m4.fault_kind import FaultKind
 from companion.core import rom
 from companion.core.control_types import FaultState, FaultStatus
+from companion.core.damaged_rotor import damaged_ceiling_n
 from companion.core.esc_evidence import EscReading, EscSample, PropellerModel, RotorCondition, read_escs
 from companion.core.fault_residual import (
     CHANNELS,
@@ -72,6 +73,7 @@ _NOISE_CHI2_MARGIN = 3.0
 _STOPPED_SHARE = 0.1      # an ESC whose speed heads for less than this share of the asked thrust: a stopped motor
 _LOST_SHARE = 0.25        # a damaged propeller sized below this share of its command may be a lost one
 _LAG_SPANS = 3.0          # the lag is undone in the sizing over spans up to this many motor time constants
+_DAMAGE_AVERAGE_S = 0.3   # a damaged propeller's sizing after confirmation averages its evidence over this long
 _KIND_OF_CONDITION = {RotorCondition.STOPPED: FaultKind.MOTOR, RotorCondition.UNLOADED: FaultKind.PROPELLER,
                       RotorCondition.SLOW: FaultKind.DEGRADED, RotorCondition.NORMAL: FaultKind.DEGRADED}
 
@@ -174,6 +176,7 @@ class FaultDetector:
         self._esc_thrust_n = np.zeros(ROTOR_COUNT)     # its speed-implied thrusts
         self._esc_rpm: np.ndarray | None = None
         self._esc_heading_n = np.zeros(ROTOR_COUNT)    # the level those thrusts head to through the lag
+        self._esc_voltage_v = math.nan                 # its voltage
         self._run: _Run | None = None
         self._window: deque[tuple[float, IntervalFit]] = deque()
         self._bias_per_s = np.zeros(len(CHANNELS))
@@ -188,6 +191,7 @@ class FaultDetector:
         self._suspect_since_s = 0.0
         self._estimate_n = math.inf                # ceiling of the confirmed rotor
         self._effectiveness = 1.0                  # thrust per command of the confirmed rotor
+        self._overspeed: float | None = None       # a damaged propeller's ESC thrust k_t w^2 over its command
 
     def retune(self, config: FaultDetectorConfig) -> None:
         """Decide by `config`'s thresholds from the next frame on (a parameter set in flight); the
@@ -318,6 +322,7 @@ class FaultDetector:
         # Overspeed is judged against the most the rotor may have been asked: a rotor slowing
         # down after a command drop still turns faster than the lagged model says.
         reading = read_escs(esc, np.maximum(self._cmd_lag_high_n, self._asked_n), self._propeller)
+        self._esc_voltage_v = reading.voltage_v
         self._esc_thrust_n = np.where(np.isfinite(reading.thrust_n), reading.thrust_n, self._cmd_lag_n)
         # The rotor speed follows its first-order lag: speed = heading + decay (previous - heading).
         rpm = np.where(np.isfinite(reading.rpm), reading.rpm, self._propeller.rpm(self._esc_thrust_n))
@@ -420,9 +425,9 @@ class FaultDetector:
         fast_s = {_Path.ESC: c.direct_confirm_s, _Path.SATURATED: c.saturated_confirm_s}.get(evidence.path)
         fast = fast_s is not None and self._run is not None and self._run.covered_s >= fast_s - 1e-9
         if fast or time_s - self._suspect_since_s >= c.confirm_s - 1e-9:
-            self._confirm(time_s, evidence)
+            self._confirm(time_s, evidence, reading)
 
-    def _confirm(self, time_s: float, evidence: _Evidence) -> None:
+    def _confirm(self, time_s: float, evidence: _Evidence, reading: EscReading | None) -> None:
         i = self._index
         self._state, self._detected_at_s, self._kind = FaultState.CONFIRMED, time_s, evidence.kind
         delivered, expected = evidence.delivered_n[i], evidence.expected_n[i]
@@ -430,7 +435,8 @@ class FaultDetector:
             self._estimate_n = self._af.thrust_min_n
         elif self._kind is FaultKind.DAMAGE and expected > self._c.deficit_min_n:
             self._effectiveness = float(np.clip(delivered / expected, 0.0, 1.0))
-            self._estimate_n = self._effectiveness * self._limit_n[i]
+            self._overspeed = self._esc_overspeed(reading)
+            self._estimate_n = self._damage_ceiling_n()
             self._lag_n[i] *= self._effectiveness    # the same speed, less thrust at once: no lag to wait for
         else:
             self._estimate_n = self._clip(delivered)
@@ -452,10 +458,7 @@ class FaultDetector:
             self._kind, self._effectiveness, self._estimate_n = later, 1.0, self._af.thrust_min_n
         delivered, expected = evidence.delivered_n[i], evidence.expected_n[i]
         if self._kind is FaultKind.DAMAGE:
-            if evidence.short[i] and expected > c.deficit_min_n:
-                share = self._effectiveness * delivered / expected
-                self._effectiveness += c.estimate_gain * (share - self._effectiveness)
-                self._estimate_n = self._effectiveness * self._limit_n[i]
+            self._refine_damage(evidence, dt, reading)
             return
         asked = min(float(np.clip(cmd[i], self._af.thrust_min_n, self._limit_n[i])), self._estimate_n + c.probe_n)
         at_ceiling = asked >= self._estimate_n - c.saturation_margin_n
@@ -470,6 +473,43 @@ class FaultDetector:
         self._healthy_s = self._healthy_s + dt if near_hover and not evidence.short[i] else 0.0
         if self._estimate_n >= self._limit_n[i] - c.probe_n or self._healthy_s >= c.recover_s - 1e-9:
             self._clear()
+
+    def _refine_damage(self, evidence: _Evidence, dt: float, reading: EscReading | None) -> None:
+        """A damaged propeller's effectiveness falls at once on a clear deficit (estimate_gain a
+        frame) and follows what it delivers either way over _DAMAGE_AVERAGE_S once the evidence
+        window is full (the confirmation's short span reads it low); its ESC's overspeed is
+        averaged alike. Its ceiling follows both (companion.core.damaged_rotor)."""
+        c, i = self._c, self._index
+        delivered, expected = evidence.delivered_n[i], evidence.expected_n[i]
+        average = min(dt / _DAMAGE_AVERAGE_S, 1.0)
+        if expected > c.deficit_min_n:
+            gain = c.estimate_gain if evidence.short[i] else average if self._window_full(dt) else 0.0
+            share = min(self._effectiveness * delivered / expected, 1.0)
+            self._effectiveness = max(self._effectiveness + gain * (share - self._effectiveness), 0.0)
+        if (overspeed := self._esc_overspeed(reading)) is not None:
+            self._overspeed = overspeed if self._overspeed is None else (
+                self._overspeed + average * (overspeed - self._overspeed))
+        self._estimate_n = self._damage_ceiling_n()
+
+    def _window_full(self, dt: float) -> bool:
+        return len(self._window) * dt >= self._c.window_s - 1e-9
+
+    def _esc_overspeed(self, reading: EscReading | None) -> float | None:
+        """The confirmed rotor's thrust k_t w^2 at its ESC's speed over its command through the
+        lag, (w / w_asked)^2 (None: no new ESC speed, or too little asked to tell)."""
+        i = self._index
+        if reading is None or not math.isfinite(reading.rpm[i]) or self._cmd_lag_n[i] <= self._c.deficit_min_n:
+            return None
+        return float(self._propeller.thrust_n(reading.rpm[i]) / self._cmd_lag_n[i])
+
+    def _damage_ceiling_n(self) -> float:
+        """A damaged propeller's most: with its ESC's speed, its thrust coefficient's share
+        (effectiveness over overspeed) at the speed a full command reaches on its lighter load;
+        without, the effectiveness times the limit (a limit below the airframe's: that too)."""
+        i = self._index
+        if self._overspeed is None or self._overspeed <= 0 or self._limit_n[i] < self._af.thrust_max_n:
+            return self._clip(self._effectiveness * self._limit_n[i])
+        return self._clip(damaged_ceiling_n(self._af, self._effectiveness / self._overspeed, self._esc_voltage_v))
 
     def _clip(self, thrust_n: float) -> float:
         return float(np.clip(thrust_n, self._af.thrust_min_n, self._limit_n[self._index]))
