@@ -11,7 +11,12 @@
   the FC sent its ESC (M4_THRUSTER_STATUS: clamped, or its failsafe's; solid) and the limit it
   knows (dotted; no FC measures delivered thrust); the hips commanded against measured; each
   ESC's speed and current (ESC_TELEMETRY_1_TO_4);
-- yaw_rate: the body yaw rate alone.
+- yaw_rate: the body yaw rate alone;
+- wind, when the log holds the companion's disturbance estimate or the simulator's air is given:
+  the air's velocity at the robot (the simulator's truth: no robot measures it), the force the
+  companion estimated its model misses (NAMED_VALUE_FLOAT dist_*: what the robot itself knows,
+  the wind's push among mass and thrust errors), and with the air the hull's speed over the
+  ground and through it.
 Every time plot marks each fault (red dashed line), its detection (black solid line) and the
 latency between them (shaded), named in the legend; a confirmation of the companion's that
 detects no known fault (the log does not carry the fault's instant) is a black line too. Legends sit to the right of their panel, outside the data.
@@ -41,6 +46,7 @@ DPI = 110
 POSITION_NAMES = ("north", "east", "altitude")
 ZOOM_BEFORE_S, ZOOM_AFTER_S = 0.2, 1.0
 FIGURES = ("trajectory", "velocities_rates", "actuators", "yaw_rate")
+NED_NAMES = ("north", "east", "down")
 
 
 def _fault_label(f: dict) -> str:
@@ -213,9 +219,50 @@ def yaw_rate_figure(path: Path, title: str, record: FlightRecord, marks: Marks) 
     return _finish(fig, axes, marks, path, title)
 
 
-def draw(record: FlightRecord, out_dir: Path, title: str, faults: list[dict], fmt: str = "png") -> list[Path]:
-    """Every figure of FIGURES as out_dir/<name>.<fmt>; `faults`: analysis.flight_metrics.detections().
-    The companion's confirmations come from the record."""
+def disturbance_force_ned_n(record: FlightRecord) -> Series | None:
+    """The companion's disturbance force estimate, NED N (None: its log holds none)."""
+    axes = [record.named.get(f"dist_{axis}") for axis in "ned"]
+    if any(a is None or not len(a) for a in axes):
+        return None
+    t = axes[0].time_s
+    return Series(t, np.column_stack([np.interp(t, a.time_s, a.values[:, 0]) for a in axes]))
+
+
+def wind_figure(path: Path, title: str, record: FlightRecord, marks: Marks, air: Series | None) -> Path:
+    """The air (truth, when given), the companion's disturbance estimate, the hull's speeds."""
+    estimate = disturbance_force_ned_n(record)
+    fig, axes = _figure(1 + 2 * (air is not None), 9 if air is not None else 4)
+    panels = iter(axes)
+    if air is not None:
+        ax = next(panels)
+        for i, name in enumerate(NED_NAMES):
+            ax.plot(air.time_s, air.values[:, i], label=name)
+        ax.set_ylabel("air velocity (m/s, NED)")
+        ax.set_title("the air at the robot: the simulator's truth (no robot measures it)", fontsize=9)
+    ax = next(panels)
+    if estimate is None:
+        ax.text(0.5, 0.5, "no disturbance estimate in this log", transform=ax.transAxes, ha="center", va="center")
+    else:
+        for i, name in enumerate(NED_NAMES):
+            ax.plot(estimate.time_s, estimate.values[:, i], label=name)
+    ax.set_ylabel("force (N, NED)")
+    ax.set_title("what the companion estimated its model misses (wind, mass and thrust errors): "
+                 "what the robot knows", fontsize=9)
+    if air is not None:
+        ax = next(panels)
+        vel = record.velocity_ned_m_s
+        air_then = np.column_stack([np.interp(vel.time_s, air.time_s, air.values[:, i]) for i in range(3)])
+        ax.plot(vel.time_s, np.linalg.norm(vel.values, axis=1), label="over the ground")
+        ax.plot(vel.time_s, np.linalg.norm(vel.values - air_then, axis=1), label="through the air (truth's air)")
+        ax.set_ylabel("hull speed (m/s)")
+    return _finish(fig, axes, marks, path, title)
+
+
+def draw(record: FlightRecord, out_dir: Path, title: str, faults: list[dict], fmt: str = "png",
+         air: Series | None = None) -> list[Path]:
+    """Every figure of FIGURES as out_dir/<name>.<fmt>, and wind.<fmt> when the record has the
+    companion's disturbance estimate or `air` (the simulator's truth) is given; `faults`:
+    analysis.flight_metrics.detections(). The companion's confirmations come from the record."""
     if fmt not in FORMATS:
         raise ValueError(f"unknown figure format {fmt!r}; choose from {', '.join(FORMATS)}")
     out_dir = Path(out_dir)
@@ -223,4 +270,7 @@ def draw(record: FlightRecord, out_dir: Path, title: str, faults: list[dict], fm
     draw_one = {"trajectory": trajectory_figure, "velocities_rates": velocities_rates_figure,
                 "actuators": actuators_figure, "yaw_rate": yaw_rate_figure}
     marks = (faults, record.confirmations())
-    return [draw_one[name](out_dir / f"{name}.{fmt}", title, record, marks) for name in FIGURES]
+    paths = [draw_one[name](out_dir / f"{name}.{fmt}", title, record, marks) for name in FIGURES]
+    if air is not None or disturbance_force_ned_n(record) is not None:
+        paths.append(wind_figure(out_dir / f"wind.{fmt}", title, record, marks, air))
+    return paths

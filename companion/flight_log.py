@@ -8,8 +8,9 @@ link), so that any tlog tool (mavlogdump, MAVExplorer, `m4-companion plot`) read
 - NAMED_VALUE_FLOAT at each answered telemetry instant (time_boot_ms: the FC's): `nmpc_ms`
   (solve time), `nmpc_iter`, `nmpc_cost`, `nmpc_ok` (1/0), `nmpc_fb` (fallback 1/0),
   `step_ms` (from the frame's arrival to the setpoint sent: the companion's latency),
-  `com_n`/`com_e`/`com_d` (the centre of mass it planned from, NED m) and
-  `ref_n`/`ref_e`/`ref_d` (the mission reference there).
+  `com_n`/`com_e`/`com_d` (the centre of mass it planned from, NED m),
+  `ref_n`/`ref_e`/`ref_d` (the mission reference there) and `dist_n`/`dist_e`/`dist_d` (the
+  disturbance force it estimated and planned with, NED N: wind, mass and thrust errors).
 - The detector's state is M4_FAULT_STATUS and the fault announcement STATUSTEXT: both go out
   on the link, so they are in the log already.
 
@@ -142,7 +143,8 @@ class FlightLog:
         if self._thread is None:
             return
         values = [(b"step_ms", latency_s * 1e3), (b"com_n", step.state[0]), (b"com_e", step.state[1]),
-                  (b"com_d", step.state[2])]
+                  (b"com_d", step.state[2]), (b"dist_n", step.disturbance[0]), (b"dist_e", step.disturbance[1]),
+                  (b"dist_d", step.disturbance[2])]
         if step.reference is not None:
             values += [(b"ref_n", step.reference[0, 0]), (b"ref_e", step.reference[0, 1]),
                        (b"ref_d", step.reference[0, 2])]

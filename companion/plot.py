@@ -5,8 +5,11 @@ laptop without MuJoCo: `pip install "m4-fault-recovery[plot]"`.
     m4-companion plot FLIGHT.tlog [--out DIR] [--format png|pdf|svg] [--fault AT_S:ROTOR[:LOSS]]...
 
 Writes DIR/metrics.json (analysis.flight_metrics: fly's keys where both have them) and
-DIR/{trajectory, velocities_rates, actuators, yaw_rate}.FORMAT (analysis.figures); DIR
-defaults to a folder beside the tlog, named after it. The faults are the tlog's own (the
+DIR/{trajectory, velocities_rates, actuators, yaw_rate}.FORMAT (analysis.figures), and
+DIR/wind.FORMAT when the log holds the companion's disturbance estimate: beside it, for a
+simulated flight, the air's velocity from the simulator's truth.npz in the tlog's folder or
+the one above (`m4-sitl fly --out DIR`'s layout; analysis.sim_truth). DIR defaults to a
+folder beside the tlog, named after it. The faults are the tlog's own (the
 flight controller's announcements, accepted commands: analysis.tlog_reader) and the
 companion's confirmations; `--fault` adds one the log does not carry (a rotor cut by hand),
 at AT_S seconds of the flight controller's clock: a degraded motor, LOSS as in a scenario
@@ -57,6 +60,7 @@ def run(args: argparse.Namespace) -> int:
     from analysis.figures import draw
     from analysis.flight_metrics import telemetry_metrics
     from analysis.measures import rounded
+    from analysis.sim_truth import air_velocity, truth_beside
     from analysis.tlog_reader import read_tlog
     from m4.airframe import load_airframe
 
@@ -71,6 +75,8 @@ def run(args: argparse.Namespace) -> int:
             return _error(f"{args.tlog}: not a tlog (no MAVLink packet in it)")
         faults = sorted([*record.injected, *args.fault], key=lambda f: f.at_s)
         metrics = rounded(telemetry_metrics(record, faults, load_airframe()))
+        truth = truth_beside(args.tlog)
+        air = None if truth is None else air_velocity(truth)
     except (OSError, ValueError) as e:
         return _error(f"{args.tlog}: {e}")
     if record.unread_bytes:
@@ -82,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         out.mkdir(parents=True, exist_ok=True)
         (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
-        paths = draw(record, out, args.tlog.name, metrics["faults"], args.format)
+        paths = draw(record, out, args.tlog.name, metrics["faults"], args.format, air=air)
     except OSError as e:
         return _error(f"--out {out}: cannot write there ({e.strerror or e})")
     print(f"{args.tlog}: {record.duration_s:.1f} s of flight -> {out}/metrics.json, "

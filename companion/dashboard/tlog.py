@@ -82,7 +82,8 @@ def _nmpc(t_s: float, wall_s: float, decided: dict[str, float]) -> dict[str, Any
     ok = bool(decided.get("nmpc_ok", 0.0))
     return nmpc_payload(t_s, wall_s, solve_ms=decided.get("nmpc_ms", math.nan),
                         iterations=int(decided.get("nmpc_iter", 0)), status="logged", cost=decided.get("nmpc_cost"),
-                        ok=ok, fallback=bool(decided.get(_NMPC_LAST)), dt_s=None, predicted_p_ned_m=_NO_PATH)
+                        ok=ok, fallback=bool(decided.get(_NMPC_LAST)), dt_s=None, predicted_p_ned_m=_NO_PATH,
+                        disturbance_force_ned_n=[decided.get(f"dist_{axis}", math.nan) for axis in "ned"])
 
 
 def _state(attitude, latest: dict[str, Any], wall_s: float, propeller: PropellerModel) -> dict[str, Any]:

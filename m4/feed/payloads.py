@@ -100,7 +100,8 @@ def fault_payload(t_s: float | None, wall_time_unix_s: float, *, state: str | in
 def nmpc_payload(t_s: float | None, wall_time_unix_s: float, *, solve_ms: float, iterations: int,
                  status: str, cost: float, ok: bool, fallback: bool, dt_s: float,
                  predicted_p_ned_m, lead_s: float | None = None, overruns: int = 0,
-                 rate_hz: float | None = None) -> dict[str, Any]:
+                 rate_hz: float | None = None, disturbance_force_ned_n=None,
+                 disturbance_torque_frd_n_m=None) -> dict[str, Any]:
     """One NMPC solve: time, iterations, solver status, cost, and the predicted positions.
 
     predicted_p_ned_m has one NED position per shooting node (k = 0..N), dt_s apart, from
@@ -108,6 +109,8 @@ def nmpc_payload(t_s: float | None, wall_time_unix_s: float, *, solve_ms: float,
     `fallback` is true when the setpoint did not come from this solve; status "time_budget":
     the solve stopped iterating to keep its deadline. overruns: control steps so far that took
     longer than the control period; rate_hz: control steps in the last second.
+    disturbance_force_ned_n, disturbance_torque_frd_n_m: the companion's estimate of what its
+    model does not explain (wind, mass and thrust errors), handed to this solve; None: unknown.
     """
     predicted = np.asarray(predicted_p_ned_m, dtype=float)
     if predicted.ndim != 2 or predicted.shape[1] != 3:
@@ -125,6 +128,8 @@ def nmpc_payload(t_s: float | None, wall_time_unix_s: float, *, solve_ms: float,
         "lead_ms": _optional_ms("lead_s", lead_s),
         "overruns": _count("overruns", overruns),
         "rate_hz": _optional_float("rate_hz", rate_hz),
+        "disturbance_force_ned_n": _optional_floats("disturbance_force_ned_n", disturbance_force_ned_n, 3),
+        "disturbance_torque_frd_n_m": _optional_floats("disturbance_torque_frd_n_m", disturbance_torque_frd_n_m, 3),
     }
 
 
@@ -197,6 +202,10 @@ def _floats(name: str, value, length: int, scale: float = 1.0) -> list[float | N
     if array.size != length:
         raise ValueError(f"{name} must have {length} values, got {array.size}")
     return [v * scale if math.isfinite(v) else None for v in array.tolist()]
+
+
+def _optional_floats(name: str, value, length: int) -> list[float | None]:
+    return [None] * length if value is None else _floats(name, value, length)
 
 
 def _optional_float(name: str, value) -> float | None:

@@ -6,8 +6,9 @@
   put them, their detection where sitl.flights.metrics found it;
 - snapshots.png: drawings of the robot from above and from the side at a few instants (the
   simulator's truth);
-- wind.png, when the scenario has [wind]: the air's velocity at the robot (truth) and the
-  robot's speed over the ground and through the air;
+- wind.png (analysis.figures): the companion's disturbance estimate; when the scenario has
+  [wind], above it the air's velocity at the robot (truth) and below it the robot's speed over
+  the ground and through the air;
 - model_matching.png (sitl.flights.model_matching): the reduced-order model's open-loop prediction
   against the plant after rotor 4 stops.
 """
@@ -23,7 +24,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from analysis.figures import ROTOR_COLOURS, draw
-from analysis.tlog_reader import read_tlog
+from analysis.tlog_reader import Series, read_tlog
 from m4.airframe import ROTOR_COUNT, Airframe
 from m4.attitude import rotation_ned_from_frd
 from sitl.flights.flight_run import FlightFiles
@@ -117,30 +118,6 @@ def model_matching_figure(path: Path, result: MatchResult) -> Path:
     return path
 
 
-def wind_figure(path: Path, title: str, truth: Truth, faults: list[dict]) -> Path:
-    t, air = truth.time_s, truth.wind_ned_m_s
-    fig, axes = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
-    for i, name in enumerate(("north", "east", "down")):
-        axes[0].plot(t, air[:, i], label=name)
-    axes[0].set_ylabel("air velocity over the ground,\nNED (m/s)")
-    axes[1].plot(t, np.linalg.norm(truth.vel_ned_m_s, axis=1), label="over the ground")
-    axes[1].plot(t, np.linalg.norm(truth.vel_ned_m_s - air, axis=1), label="through the air")
-    axes[1].set_ylabel("hull speed (m/s)")
-    for ax in axes:
-        for f in faults:
-            ax.axvline(f["at_s"], color="red", ls="--", lw=1)
-            if f["detected_at_s"] is not None:
-                ax.axvline(f["detected_at_s"], color="k", lw=1)
-        ax.legend(ncol=3, fontsize=8)
-        ax.grid(alpha=0.3)
-    axes[-1].set_xlabel("time (s)")
-    fig.suptitle(title + "   (fault red dashed, detection black)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=DPI)
-    plt.close(fig)
-    return path
-
-
 def flight_tlog(files: FlightFiles) -> Path:
     """The tlog the figures are drawn from: the companion's newest flight log, else the SITL's."""
     logs = sorted(files.companion_tlogs.glob("flight-*.tlog")) if files.companion_tlogs.is_dir() else []
@@ -150,9 +127,8 @@ def flight_tlog(files: FlightFiles) -> Path:
 def flight_figures(files: FlightFiles, title: str, af: Airframe, truth: Truth, faults: list[dict]) -> list[Path]:
     """Every figure of a flown flight into its folder; `faults`: metrics.json's."""
     fault_s = faults[0]["at_s"] if faults else None
-    paths = draw(read_tlog(flight_tlog(files)), files.out_dir, title, faults)
+    air = None if truth.wind_ned_m_s is None else Series(truth.time_s, truth.wind_ned_m_s)
+    paths = draw(read_tlog(flight_tlog(files)), files.out_dir, title, faults, air=air)
     paths.append(snapshots_figure(files.out_dir / "snapshots.png", title, af, truth, fault_s,
                                   {f["rotor"] for f in faults if f["loss"] >= 1.0}))
-    if truth.wind_ned_m_s is not None:
-        paths.append(wind_figure(files.out_dir / "wind.png", title, truth, faults))
     return paths

@@ -48,9 +48,10 @@ class _Tlog:
 ROTOR_4_LOST = (m.MAV_CMD_M4_ROTOR_LOSS, 4, 1, m.M4_FAULT_KIND_DEGRADED)
 
 
-def _flight(path, yaw_rad=0.0, vel_ned=(0.0, 0.0, 0.0), injection=ROTOR_4_LOST, announced=()):
+def _flight(path, yaw_rad=0.0, vel_ned=(0.0, 0.0, 0.0), injection=ROTOR_4_LOST, announced=(), disturbance=False):
     """injection: (command, its first three params) sent at 1 s and accepted (None: no command);
-    announced: (k, text) the FC says at step k, before that step's frame."""
+    announced: (k, text) the FC says at step k, before that step's frame; disturbance: the
+    companion logs its disturbance estimate (a 3 N push from the north after 0.5 s)."""
     log = _Tlog(path)
     for k in range(151):
         t_s = k * 0.02
@@ -74,7 +75,10 @@ def _flight(path, yaw_rad=0.0, vel_ned=(0.0, 0.0, 0.0), injection=ROTOR_4_LOST, 
         confirmed = t_s >= DETECTED_S
         log.send(191, m.MAVLink_m4_fault_status_message(t_ms, 4 if confirmed else 0, [30.0] * 3 + [0.0 if confirmed
                                                         else 30.0], 1060 if confirmed else 0, 2 if confirmed else 0))
-        for name, value in (("nmpc_ms", 1.0 + k % 3), ("ref_d", -2.0), ("step_ms", 2.0), ("nmpc_ok", 1.0)):
+        named = [("nmpc_ms", 1.0 + k % 3), ("ref_d", -2.0), ("step_ms", 2.0), ("nmpc_ok", 1.0)]
+        if disturbance:
+            named += [("dist_n", 3.0 if t_s >= 0.5 else 0.0), ("dist_e", 0.0), ("dist_d", 0.0)]
+        for name, value in named:
             log.send(191, m.MAVLink_named_value_float_message(t_ms, name.encode(), value))
         if k == 50 and injection is not None:
             command, *params = injection
@@ -233,6 +237,47 @@ def test_a_confirmation_is_drawn_without_a_fault_and_a_fault_stands_apart_from_i
               if ax.get_title() == "around the fault"]
     low, high = zoom.get_xlim()
     assert (DETECTED_S - FAULT_S) / (high - low) > 0.04     # 6 ms apart on a 1 s window: 40 px on 1000
+
+
+def test_a_windy_simulated_flight_draws_the_air_as_truth_beside_the_companions_estimate(tmp_path, monkeypatch,
+                                                                                        capsys):
+    """m4-sitl fly's layout: truth.npz in the folder above the companion's log. The wind figure
+    draws the simulator's air (so labelled) and the companion's disturbance estimate."""
+    import matplotlib.pyplot as plt
+
+    tlog = _flight(tmp_path / "companion-log" / "flight-1.tlog", disturbance=True)
+    t = np.arange(0.0, 3.0, 0.01)
+    np.savez(tmp_path / "truth.npz", time_s=t, wind_ned_m_s=np.column_stack([-5.0 - np.sin(t), 0 * t, 0 * t]))
+    seen = []
+    monkeypatch.setattr(plt, "close", lambda fig: seen.append(fig))
+    assert main(["plot", str(tlog), "--out", str(tmp_path / "out")]) == 0
+    assert "wind.png" in capsys.readouterr().out and (tmp_path / "out" / "wind.png").stat().st_size > 0
+    [air, estimate, speed] = next(fig.axes for fig in seen if "air velocity (m/s, NED)" in
+                                  [ax.get_ylabel() for ax in fig.axes])
+    assert "simulator's truth" in air.get_title() and air.get_lines()[0].get_ydata().min() < -5.5
+    assert estimate.get_ylabel() == "force (N, NED)" and "companion" in estimate.get_title()
+    assert estimate.get_lines()[0].get_ydata().max() == pytest.approx(3.0)
+    assert speed.get_ylabel() == "hull speed (m/s)"
+
+
+def test_a_real_flights_log_draws_the_companions_estimate_alone(tmp_path, monkeypatch):
+    import matplotlib.pyplot as plt
+
+    tlog = _flight(tmp_path / "flight.tlog", disturbance=True)
+    seen = []
+    monkeypatch.setattr(plt, "close", lambda fig: seen.append(fig))
+    assert main(["plot", str(tlog), "--out", str(tmp_path / "out")]) == 0
+    [estimate] = next(fig.axes for fig in seen if "force (N, NED)" in [ax.get_ylabel() for ax in fig.axes])
+    assert len(estimate.get_lines()) >= 3
+
+
+def test_a_truth_beside_the_log_that_numpy_cannot_read_says_so_in_one_line(tlog, tmp_path, capsys):
+    log = tmp_path / "flight.tlog"
+    log.write_bytes(tlog.read_bytes())
+    (tmp_path / "truth.npz").write_text("not an archive")
+    assert main(["plot", str(log), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "truth.npz: not the simulator's truth" in err
 
 
 def test_a_truncated_tlog_is_plotted_with_a_warning(tlog, tmp_path, capsys):

@@ -41,7 +41,16 @@ def test_nmpc_payload_lists_one_predicted_position_per_node(topic_fields):
     p = payloads.nmpc_payload(5.0, 0.0, **topic_fields["nmpc"])
     assert p["predicted_p_ned_m"] == topic_fields["nmpc"]["predicted_p_ned_m"].tolist()
     assert (p["solve_ms"], p["iterations"], p["ok"], p["fallback"]) == (3.25, 2, True, False)
+    assert p["disturbance_force_ned_n"] == [None] * 3 and p["disturbance_torque_frd_n_m"] == [None] * 3   # not given
     json.dumps(p, allow_nan=False)
+
+
+def test_nmpc_payload_carries_the_disturbance_estimate_the_solve_planned_with(topic_fields):
+    p = payloads.nmpc_payload(5.0, 0.0, **topic_fields["nmpc"], disturbance_force_ned_n=np.array([-3.5, 1.0, np.nan]),
+                              disturbance_torque_frd_n_m=np.array([0.0, 0.25, -0.5]))
+    assert p["disturbance_force_ned_n"] == [-3.5, 1.0, None] and p["disturbance_torque_frd_n_m"] == [0.0, 0.25, -0.5]
+    with pytest.raises(ValueError, match="disturbance_force_ned_n"):
+        payloads.nmpc_payload(5.0, 0.0, **topic_fields["nmpc"], disturbance_force_ned_n=[1.0, 2.0])
 
 
 def test_fault_payload_takes_the_detector_state_number_and_keeps_the_statustext_words(topic_fields):

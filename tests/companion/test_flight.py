@@ -110,6 +110,8 @@ def test_the_feed_says_what_the_statustext_says_and_carries_every_topic(flight):
     assert 1.0 < confirmed[0]["detected_at_s"] <= 1.3
     nmpc = [p for topic, p in payloads if topic == "nmpc"]
     assert len(nmpc) >= 0.9 * SECONDS * RATE_HZ       # every control step (no rate cap on this feed)
+    assert all(len(p["disturbance_force_ned_n"]) == 3 for p in nmpc)
+    assert max(abs(v) for p in nmpc for v in p["disturbance_force_ned_n"]) > 0.1   # the lost rotor's push, at least
 
 
 def test_the_companion_logs_what_the_link_carried_and_what_it_decided(flight):

@@ -313,6 +313,8 @@ function makePlots() {
       {min: airframe ? airframe.hip_min_deg : 0, max: airframe ? airframe.hip_max_deg : 90}),
     yawRate: new Plot("yaw rate", "rad/s", [{label: "r", colour: AXIS_COLOURS[2], digits: 2}]),
     velocity: new Plot("velocity NED", "m/s", ["vN", "vE", "vD"].map((label, i) => ({label, colour: AXIS_COLOURS[i], digits: 2}))),
+    disturbance: new Plot("disturbance the companion estimates (wind, mass, thrust errors) NED", "N",
+      ["dN", "dE", "dD"].map((label, i) => ({label, colour: AXIS_COLOURS[i]}))),
     solve: new Plot("NMPC solve time", "ms", [{label: "solve", colour: "#c678dd", digits: 2}], {min: 0}),
     link: new Plot("link: last message age, latency", "ms", [{label: "age", colour: "#56b6c2"}], {min: 0}),
   };
@@ -350,6 +352,7 @@ const handlers = {
   },
   nmpc(p) {
     plots.solve.push("solve", p.t_s, p.solve_ms);
+    (p.disturbance_force_ned_n || []).forEach((v, i) => plots.disturbance.push(["dN", "dE", "dD"][i], p.t_s, v));
   },
   link(p) {
     if (isNum(p.last_msg_age_s)) plots.link.push("age", p.t_s, p.last_msg_age_s * 1000);

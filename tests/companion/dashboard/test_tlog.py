@@ -83,8 +83,8 @@ def test_a_companion_log_replays_its_nmpc_solves_and_the_thrust_its_escs_imply(t
     path = tmp_path / "flight.tlog"
     fc, comp = FC_COMPONENT_ID, COMPANION_COMPONENT_ID
     decisions = [(comp, 0.02, "named_value_float", (20, name.encode(), value)) for name, value in
-                 (("step_ms", 2.5), ("nmpc_ms", 1.25), ("nmpc_iter", 3.0), ("nmpc_cost", 0.5), ("nmpc_ok", 1.0),
-                  ("nmpc_fb", 0.0))]
+                 (("step_ms", 2.5), ("dist_n", -3.5), ("dist_e", 1.25), ("dist_d", 0.5), ("nmpc_ms", 1.25),
+                  ("nmpc_iter", 3.0), ("nmpc_cost", 0.5), ("nmpc_ok", 1.0), ("nmpc_fb", 0.0))]
     esc = (fc, 0.02, "esc_telemetry_1_to_4", ([30] * 4, [1600] * 4, [1500] * 4, [0] * 4, [5500, 5500, 4000, 0],
                                              [1] * 4))
     _write(path, [esc] + _flight(20, 0) + decisions)
@@ -95,6 +95,7 @@ def test_a_companion_log_replays_its_nmpc_solves_and_the_thrust_its_escs_imply(t
     assert (nmpc["t_s"], nmpc["solve_ms"], nmpc["iterations"], nmpc["cost"], nmpc["ok"], nmpc["fallback"]) == (
         0.02, 1.25, 3, 0.5, True, False)
     assert nmpc["predicted_p_ned_m"] == []
+    assert nmpc["disturbance_force_ned_n"] == [-3.5, 1.25, 0.5] and nmpc["disturbance_torque_frd_n_m"] == [None] * 3
 
 
 def test_a_file_that_is_no_log_is_one_line_naming_it(tmp_path, capsys):
