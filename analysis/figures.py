@@ -47,6 +47,7 @@ POSITION_NAMES = ("north", "east", "altitude")
 ZOOM_BEFORE_S, ZOOM_AFTER_S = 0.2, 1.0
 FIGURES = ("trajectory", "velocities_rates", "actuators", "yaw_rate")
 NED_NAMES = ("north", "east", "down")
+ESTIMATE_MEAN_S = 0.5          # the disturbance estimate moves a fraction of each step's innovation: noisy
 
 
 def _fault_label(f: dict) -> str:
@@ -228,6 +229,15 @@ def disturbance_force_ned_n(record: FlightRecord) -> Series | None:
     return Series(t, np.column_stack([np.interp(t, a.time_s, a.values[:, 0]) for a in axes]))
 
 
+def _running_mean(series: Series, span_s: float) -> Series:
+    """The mean of each column over the span_s before each instant (fewer samples at the start)."""
+    t, v = series.time_s, series.values
+    first = np.searchsorted(t, t - span_s, side="right")
+    total = np.vstack([np.zeros((1, v.shape[1])), np.cumsum(v, axis=0)])
+    count = (np.arange(len(t)) + 1 - first)[:, None]
+    return Series(t, (total[1:] - total[first]) / count)
+
+
 def wind_figure(path: Path, title: str, record: FlightRecord, marks: Marks, air: Series | None) -> Path:
     """The air (truth, when given), the companion's disturbance estimate, the hull's speeds."""
     estimate = disturbance_force_ned_n(record)
@@ -243,8 +253,11 @@ def wind_figure(path: Path, title: str, record: FlightRecord, marks: Marks, air:
     if estimate is None:
         ax.text(0.5, 0.5, "no disturbance estimate in this log", transform=ax.transAxes, ha="center", va="center")
     else:
+        mean = _running_mean(estimate, ESTIMATE_MEAN_S)
         for i, name in enumerate(NED_NAMES):
-            ax.plot(estimate.time_s, estimate.values[:, i], label=name)
+            line, = ax.plot(mean.time_s, mean.values[:, i], lw=1.8, label=f"{name}, {ESTIMATE_MEAN_S:g} s mean")
+            ax.plot(estimate.time_s, estimate.values[:, i], lw=0.6, alpha=0.35, color=line.get_color(),
+                    label=f"{name}, each step")
     ax.set_ylabel("force (N, NED)")
     ax.set_title("what the companion estimated its model misses (wind, mass and thrust errors): "
                  "what the robot knows", fontsize=9)
