@@ -313,7 +313,7 @@ function makePlots() {
       {min: airframe ? airframe.hip_min_deg : 0, max: airframe ? airframe.hip_max_deg : 90}),
     yawRate: new Plot("yaw rate", "rad/s", [{label: "r", colour: AXIS_COLOURS[2], digits: 2}]),
     velocity: new Plot("velocity NED", "m/s", ["vN", "vE", "vD"].map((label, i) => ({label, colour: AXIS_COLOURS[i], digits: 2}))),
-    disturbance: new Plot("disturbance the companion estimates (wind, mass, thrust errors) NED", "N",
+    disturbance: new Plot("disturbance estimate NED", "N",
       ["dN", "dE", "dD"].map((label, i) => ({label, colour: AXIS_COLOURS[i]}))),
     solve: new Plot("NMPC solve time", "ms", [{label: "solve", colour: "#c678dd", digits: 2}], {min: 0}),
     link: new Plot("link: last message age, latency", "ms", [{label: "age", colour: "#56b6c2"}], {min: 0}),

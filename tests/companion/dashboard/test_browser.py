@@ -45,13 +45,15 @@ def test_a_replayed_flight_shows_the_fault_the_posture_and_every_plot(chromium, 
     assert "FAULT: thrust loss rotor 4 (rear-right, motor), detected at t = 1.04 s" in banner_text
     hips = [float(v) for v in chromium.evaluate("document.getElementById('r-hip').textContent").split()]
     assert hips[0] > 80 and hips[1] < 10                   # the legs swung: rotor 1 out, rotor 2 folded
-    assert chromium.evaluate("document.querySelectorAll('#plots canvas').length") == 8
+    assert chromium.evaluate("document.querySelectorAll('#plots canvas').length") == 9
+    # the companion's disturbance estimate (the nmpc topic's disturbance_force_ned_n), every axis drawn
+    assert chromium.evaluate("Math.min(...plots.disturbance.series.map((s) => s.data.length))") > 50
 
     assert _share(image, chromium.rect("#banner"), FAULT_RED) > 0.6
     view = chromium.rect("#view3d")
     assert 1 - _share(image, view, PANEL, tolerance=3) > 0.05    # the robot, its legs and the ground are drawn
     assert _share(image, view, FAULT_RED, tolerance=40) < 0.05   # the dead rotor is red, not the whole view
-    for k in range(8):
+    for k in range(9):
         plot = chromium.rect(f"#plots canvas:nth-child({k + 1})")
         assert 1 - _share(image, plot, PANEL, tolerance=3) > 0.03, k   # axes, lines, labels
 
