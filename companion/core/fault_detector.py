@@ -30,7 +30,9 @@ is no rotor's fault.
 Confirmed: the rotor is modelled as min(effectiveness x command, ceiling estimate). At
 confirmation the ceiling is what the rotor delivers (from the ESC: the level its lag heads
 to; from the residual: the interval average), 0 for a lost motor or propeller; a damaged
-propeller keeps its full range at a lower effectiveness (ceiling = effectiveness x limit).
+propeller keeps its full range at a lower effectiveness, its ceiling its thrust coefficient's
+share at the speed a full command reaches on its lighter load (companion.core.damaged_rotor;
+without ESC speeds, effectiveness x limit), refined either way as it flies (_refine_damage).
 Afterwards the NMPC's bound on that rotor is the estimate plus probe_n: a rotor commanded
 there that delivers less lowers the estimate, one that delivers more raises it (it came
 back, an intermittent fault), so the bound climbs back to the limit and the state returns
