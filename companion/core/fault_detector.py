@@ -507,10 +507,15 @@ class FaultDetector:
     def _damage_ceiling_n(self) -> float:
         """A damaged propeller's most: with its ESC's speed, its thrust coefficient's share
         (effectiveness over overspeed) at the speed a full command reaches on its lighter load;
-        without, the effectiveness times the limit (a limit below the airframe's: that too)."""
+        without, the effectiveness times the limit (a limit below the airframe's: that too). One
+        giving less than _LOST_SHARE of its command may be a lost propeller whose motor has yet
+        to overspeed: never more than the effectiveness times the limit (a nearly unloaded motor
+        would turn far faster at a full command, for no thrust)."""
         i = self._index
-        if self._overspeed is None or self._overspeed <= 0 or self._limit_n[i] < self._af.thrust_max_n:
-            return self._clip(self._effectiveness * self._limit_n[i])
+        scaled = self._clip(self._effectiveness * self._limit_n[i])
+        if (self._overspeed is None or self._overspeed <= 0 or self._limit_n[i] < self._af.thrust_max_n
+                or self._effectiveness < _LOST_SHARE):
+            return scaled
         return self._clip(damaged_ceiling_n(self._af, self._effectiveness / self._overspeed, self._esc_voltage_v))
 
     def _clip(self, thrust_n: float) -> float:
