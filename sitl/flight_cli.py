@@ -48,8 +48,15 @@ def add_fly(sub) -> None:
                    help="then render the flight offscreen: flight.mp4 (chase camera, real time) and snapshots_render.png")
     p.add_argument("--video-size", type=_video_size, default=(640, 360), metavar="WxH",
                    help="with --video: frame size in pixels (default 640x360)")
+    _lockstep_timeout(p, FlightOptions.lockstep_timeout_s)
     add_link_arguments(p, "with --realtime through a loopback proxy (sitl/links/netem_proxy.py) instead")
     p.set_defaults(func=_fly)
+
+
+def _lockstep_timeout(p: argparse.ArgumentParser, default_s: float) -> None:
+    p.add_argument("--lockstep-timeout", type=positive_number, default=default_s, metavar="S",
+                   help="lockstep: the SITL's wall-clock wait for a setpoint before its FC flies its failsafe "
+                        f"(default {default_s:g}; a loaded machine needs more)")
 
 
 def _video_size(text: str) -> tuple[int, int]:
@@ -66,7 +73,8 @@ def _fly(args) -> int:
     from sitl.flights.fly import default_out_dir, fly, summary_line
 
     options = FlightOptions(controller=args.controller, seed=args.seed, realtime=args.realtime, viewer=args.viewer,
-                            port=args.port, rate_hz=args.rate_hz, link=link_of(args))
+                            port=args.port, rate_hz=args.rate_hz, link=link_of(args),
+                            lockstep_timeout_s=args.lockstep_timeout)
     out = args.out or default_out_dir(scenarios.resolve(args.scenario).name)
     try:
         metrics = fly(args.scenario, out, options)
@@ -109,7 +117,7 @@ def _compare(args) -> int:
 
 def add_campaign(sub) -> None:
     from sitl.campaigns.campaign import DEFAULT_OUT
-    from sitl.campaigns.detection_campaign import DEFAULT_OUT as DETECTION_OUT, KINDS
+    from sitl.campaigns.detection_campaign import DEFAULT_OUT as DETECTION_OUT, KINDS, LOCKSTEP_TIMEOUT_S
     from sitl.campaigns.parallel import ENGINES
 
     p = sub.add_parser("campaign", help="many faulted flights in parallel: survival, altitude loss, detection")
@@ -143,6 +151,7 @@ def add_campaign(sub) -> None:
     p.add_argument("--sweep", type=_sweep, default=(), metavar="SETTING=V,...",
                    help="detection campaign: fly every flight at each value of this [fault_detector] setting "
                         "(e.g. chi2_min=10,25,50): the latency / false-alarm trade-off, tradeoff.png")
+    _lockstep_timeout(p, LOCKSTEP_TIMEOUT_S)
     add_link_arguments(p, "the same for every flight")
     p.set_defaults(func=_campaign)
 
@@ -198,10 +207,11 @@ def _campaign(args) -> int:
             result = run_detection_campaign(out, args.kind or (), args.speed, tuple(e == "on" for e in args.esc), args.seed,
                                             args.false_alarm_minutes, args.jobs, args.rate_hz, args.engine,
                                             args.scheduler, link_of(args),
-                                            WeatherGrid(args.wind, args.turbulence, args.profile), args.sweep)
+                                            WeatherGrid(args.wind, args.turbulence, args.profile), args.sweep,
+                                            args.lockstep_timeout)
         else:
             result = run_campaign(out, args.samples, args.seed, args.grid, args.jobs, args.rate_hz, losses,
-                                  args.engine, args.scheduler, link_of(args))
+                                  args.engine, args.scheduler, link_of(args), args.lockstep_timeout)
     except FlightError as e:
         raise BadInput(str(e)) from None
     print(result.summary, end="")

@@ -159,7 +159,8 @@ class Campaign:
 def run_campaign(out_dir: Path = DEFAULT_OUT, samples: int = 20, seed: int = 0, grid: bool = False,
                  workers: int | None = None, rate_hz: float | None = None,
                  losses: tuple[float, ...] = LOSS_LEVELS, engine: str = "local",
-                 scheduler: str | None = None, link: LinkEmulation | None = None) -> Campaign:
+                 scheduler: str | None = None, link: LinkEmulation | None = None,
+                 lockstep_timeout_s: float = FlightOptions.lockstep_timeout_s) -> Campaign:
     out_dir = Path(out_dir).resolve()
     cases = grid_cases(losses, seed) if grid else random_cases(samples, seed, losses)
     (out_dir / "scenarios").mkdir(parents=True, exist_ok=True)
@@ -168,7 +169,8 @@ def run_campaign(out_dir: Path = DEFAULT_OUT, samples: int = 20, seed: int = 0, 
         path = out_dir / "scenarios" / f"{case.name}.toml"
         path.write_text(case.scenario_toml())
         jobs.append(FlightJob(str(path), out_dir / "flights" / case.name,
-                              FlightOptions(seed=case.noise_seed, rate_hz=rate_hz, link=link)))
+                              FlightOptions(seed=case.noise_seed, rate_hz=rate_hz, link=link,
+                                            lockstep_timeout_s=lockstep_timeout_s)))
     batch = fly_all(jobs, workers, "campaign", engine, scheduler)
     rows = [result_row(c, m) for c, m in zip(cases, batch.results)]
     with (out_dir / "campaign.csv").open("w", newline="") as f:

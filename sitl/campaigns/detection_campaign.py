@@ -39,7 +39,7 @@ import numpy as np
 from analysis.detection import CONFIRMED
 from m4.airframe import ROTOR_COUNT, load_airframe
 from sitl.campaigns.campaign import Campaign
-from sitl.flights.flight_run import FlightOptions
+from sitl.flights.flight_run import FlightFiles, FlightOptions, stalled
 from sitl.links.emulation import LinkEmulation, flights_note
 from sitl.campaigns.parallel import FlightJob, fly_all
 from sitl.flights.records import FaultStatusLog, read_fault_status
@@ -67,6 +67,7 @@ HELD_CHECKS = ("completed", "no_ground_contact_before_landing", "altitude_loss_w
 FREE_MINUTES_TARGET = {"none": 5.0, "light": 30.0, "moderate": 30.0, "severe": 30.0}
 SIZING_TARGET_PCT = 10.0
 DEFAULT_OUT = Path("runs") / "detection"
+LOCKSTEP_TIMEOUT_S = 60.0             # the SITL's wall-clock wait for a setpoint: a loaded machine only slows a flight
 
 
 @dataclass(frozen=True)
@@ -220,8 +221,11 @@ def confirmations_before(status: FaultStatusLog, at_s: float) -> int:
     return int(np.count_nonzero(confirmed & ~np.r_[False, confirmed[:-1]]))
 
 
-def result_row(case: DetectionCase, metrics: dict, status: FaultStatusLog, truth: Truth | None, hover_n: float) -> dict:
-    row = case_columns(case)
+def result_row(case: DetectionCase, metrics: dict, status: FaultStatusLog, truth: Truth | None, hover_n: float,
+               was_stalled: bool = False) -> dict:
+    """The flight's row; one whose lockstep stalled (the FC flew its failsafe while the companion
+    was late on the wall clock) says so ("stalled") and counts in no figure."""
+    row = {**case_columns(case), "stalled": was_stalled}
     if "error" in metrics:
         return {**row, "survived": False, "error": metrics["error"]}
     confirmed = status.state == CONFIRMED
@@ -345,10 +349,20 @@ def _verdicts(rows: list[dict]) -> list[str]:
     return out
 
 
+def stalled_note(rows: list[dict]) -> str:
+    """The flights whose lockstep stalled, left out of every figure below; "" when none did."""
+    names = [r["name"] for r in rows if r["stalled"]]
+    if not names:
+        return ""
+    return (f"{len(names)} of {len(rows)} flights stalled (the SITL's lockstep wait ran out and its FC flew its "
+            f"failsafe; detection.csv column \"stalled\"), left out of the figures below: {', '.join(names)}\n\n")
+
+
 def run_detection_campaign(out_dir: Path, kinds, speeds, escs, seed: int = 0, false_alarm_minutes: float = 0.0,
                            workers: int | None = None, rate_hz: float | None = None, engine: str = "local",
                            scheduler: str | None = None, link: LinkEmulation | None = None,
-                           grid: WeatherGrid = WeatherGrid(), sweep: tuple[tuple[str, float], ...] = ()) -> Campaign:
+                           grid: WeatherGrid = WeatherGrid(), sweep: tuple[tuple[str, float], ...] = (),
+                           lockstep_timeout_s: float = LOCKSTEP_TIMEOUT_S) -> Campaign:
     from sitl.plant.truth import load_truth
 
     out_dir = Path(out_dir).resolve()
@@ -360,7 +374,8 @@ def run_detection_campaign(out_dir: Path, kinds, speeds, escs, seed: int = 0, fa
         path.write_text(case.scenario_toml())
         settings = () if case.detector_setting is None else (case.detector_setting,)
         jobs.append(FlightJob(str(path), out_dir / "flights" / case.name,
-                              FlightOptions(seed=seed + k, rate_hz=rate_hz, link=link, fault_detector=settings)))
+                              FlightOptions(seed=seed + k, rate_hz=rate_hz, link=link, fault_detector=settings,
+                                            lockstep_timeout_s=lockstep_timeout_s)))
     af = load_airframe()
     rows = []
     batch = fly_all(jobs, workers, "detection", engine, scheduler)
@@ -368,16 +383,17 @@ def run_detection_campaign(out_dir: Path, kinds, speeds, escs, seed: int = 0, fa
         tlog, truth = job.out_dir / "flight.tlog", job.out_dir / "truth.npz"
         status = read_fault_status(tlog) if tlog.exists() else FaultStatusLog.empty()
         rows.append(result_row(case, metrics, status, load_truth(truth) if truth.exists() else None,
-                               af.hover_thrust_per_rotor_n))
+                               af.hover_thrust_per_rotor_n, stalled(FlightFiles(job.out_dir))))
     fields = list(dict.fromkeys(key for r in rows for key in r))
     with (out_dir / "detection.csv").open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=fields)
         writer.writeheader()
         writer.writerows(rows)
-    summary = flights_note(link) + summary_markdown(rows)
+    counted = [r for r in rows if not r["stalled"]]
+    summary = flights_note(link) + stalled_note(rows) + summary_markdown(counted)
     if len(sweep) > 1:
         from sitl.campaigns.tradeoff import draw_tradeoff, tradeoff_markdown
 
-        summary += "\n" + tradeoff_markdown(draw_tradeoff(rows, out_dir / "tradeoff.png"))
+        summary += "\n" + tradeoff_markdown(draw_tradeoff(counted, out_dir / "tradeoff.png"))
     (out_dir / "detection.md").write_text(summary)
     return Campaign(summary, rows, batch)

@@ -54,6 +54,8 @@ CONTROLLERS = ("nmpc", "fixed-posture")
 VEHICLE = "m4"
 COMPANION_START_TIMEOUT_S = 300.0     # a first start compiles the NMPC
 STOP_TIMEOUT_S = 10.0
+LOCKSTEP_TELEMETRY_TIMEOUT_S = 10.0   # lockstep: the companion's [link] telemetry_timeout_s, its largest
+STALL_MARK = "no setpoint for"        # the SITL's log line when its lockstep wait ran out (sitl/serve.py)
 POLL_S = 0.2
 _PREFIX = re.compile(r"^m4-[a-z]+: (error: )?")
 
@@ -77,6 +79,7 @@ class FlightOptions:
     feed_rate_hz: float = 0.0             # the companion's [feed] max_rate_hz: 0 records every topic at every step
                                           # (the metrics' NMPC figures need every solve); 20: the robot's default
     fault_detector: tuple[tuple[str, float], ...] = ()   # the companion's [fault_detector] settings (name, value)
+    lockstep_timeout_s: float = 5.0       # lockstep: the SITL's wall-clock wait for a setpoint before its failsafe
 
     def link_conditions(self) -> dict:
         """The link's impairment and how it was made: "lockstep" (emulated in simulated time by
@@ -136,9 +139,13 @@ def make_output_dir(path: Path) -> None:
 def companion_config_text(options: FlightOptions, mavlink_port: int, feed_port: int | None) -> str:
     rate = [] if options.rate_hz is None else [f"rate_hz = {options.rate_hz:g}"]
     priority = [f"realtime_priority = {options.companion_priority}"] * bool(options.companion_priority)
+    link_timeout = [] if options.realtime else [
+        "# lockstep: the FC's clock waits for our answers, so a wall-clock silence is the machine's load, not a",
+        "# lost link (the SITL's own wait, --lockstep-timeout, says when it stalled)",
+        f"telemetry_timeout_s = {LOCKSTEP_TELEMETRY_TIMEOUT_S:g}"]
     lines = ["# The companion's configuration for this flight (written by m4-sitl fly).",
              "[control]", *rate, *priority, "", "[link]",
-             f'fc_url = "udpin:127.0.0.1:{mavlink_port}"', f'signing_key_file = "{SIGNING_KEY}"', "",
+             f'fc_url = "udpin:127.0.0.1:{mavlink_port}"', f'signing_key_file = "{SIGNING_KEY}"', *link_timeout, "",
              "[log]", f'dir = "{COMPANION_LOG_DIR}"', ""]
     nmpc = []
     if not options.realtime:
@@ -216,6 +223,8 @@ def run_flight(scenario: Scenario, scenario_text: str, out_dir: Path, options: F
                "--mavlink", f"udpout:127.0.0.1:{sitl_port}", "--duration", f"{scenario.duration_s:g}",
                "--tlog", str(files.tlog), "--truth-log", str(files.truth), "--seed", str(options.seed),
                "--signing-key", str(files.signing_key)]
+        if not options.realtime:
+            cmd += ["--lockstep-timeout", f"{options.lockstep_timeout_s:g}"]
         if options.link is not None and not options.realtime:
             cmd += ["--link-delay-ms", f"{options.link.delay_ms:g}", "--link-loss", f"{options.link.loss:g}"]
         cmd += ["--realtime"] * options.realtime + ["--viewer"] * options.viewer
@@ -238,6 +247,12 @@ def run_flight(scenario: Scenario, scenario_text: str, out_dir: Path, options: F
         if companion.poll() is not None:
             raise FlightError(f"the companion stopped during the flight: {_last_line(files.companion_log)}")
     return files
+
+
+def stalled(files: FlightFiles) -> bool:
+    """Whether the SITL's lockstep wait for a setpoint ran out in this flight (its FC then flew its
+    failsafe): a flight the machine's load, not the software, decided."""
+    return files.sitl_log.exists() and STALL_MARK in files.sitl_log.read_text(errors="replace")
 
 
 def _start(stack: contextlib.ExitStack, cmd: list[str], log_path: Path, pass_fds: tuple[int, ...] = ()
