@@ -276,7 +276,9 @@ def alarms_per_hour(rows: list[dict]) -> float:
 
 
 def summary_markdown(rows: list[dict]) -> str:
-    head = ("| kind | speed (m/s) | ESC telemetry | turbulence | profile | detector | flights | detected | "
+    """The tables and verdicts of the flights that did not stall, after a line naming those that did."""
+    note, rows = stalled_note(rows), [r for r in rows if not r.get("stalled")]
+    head = note + ("| kind | speed (m/s) | ESC telemetry | turbulence | profile | detector | flights | detected | "
             "latency median / max (s) | rotor isolated | ceiling error median / worst (% hover) | survived | "
             "held aloft | false alarms |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
     lines = []
@@ -351,7 +353,7 @@ def _verdicts(rows: list[dict]) -> list[str]:
 
 def stalled_note(rows: list[dict]) -> str:
     """The flights whose lockstep stalled, left out of every figure below; "" when none did."""
-    names = [r["name"] for r in rows if r["stalled"]]
+    names = [r["name"] for r in rows if r.get("stalled")]
     if not names:
         return ""
     return (f"{len(names)} of {len(rows)} flights stalled (the SITL's lockstep wait ran out and its FC flew its "
@@ -389,11 +391,10 @@ def run_detection_campaign(out_dir: Path, kinds, speeds, escs, seed: int = 0, fa
         writer = csv.DictWriter(f, fieldnames=fields)
         writer.writeheader()
         writer.writerows(rows)
-    counted = [r for r in rows if not r["stalled"]]
-    summary = flights_note(link) + stalled_note(rows) + summary_markdown(counted)
+    summary = flights_note(link) + summary_markdown(rows)
     if len(sweep) > 1:
         from sitl.campaigns.tradeoff import draw_tradeoff, tradeoff_markdown
 
-        summary += "\n" + tradeoff_markdown(draw_tradeoff(counted, out_dir / "tradeoff.png"))
+        summary += "\n" + tradeoff_markdown(draw_tradeoff(rows, out_dir / "tradeoff.png"))
     (out_dir / "detection.md").write_text(summary)
     return Campaign(summary, rows, batch)

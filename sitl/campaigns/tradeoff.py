@@ -34,8 +34,8 @@ class TradeoffPoint:
 
 def tradeoff_points(rows: list[dict]) -> list[TradeoffPoint]:
     """One point per value of the swept setting, in increasing order (rows without a setting
-    are not part of the sweep)."""
-    swept = [r for r in rows if r.get("setting") and not r.get("error")]
+    are not part of the sweep, stalled flights are left out as in the detection table)."""
+    swept = [r for r in rows if r.get("setting") and not r.get("error") and not r.get("stalled")]
     points = []
     for value in sorted({r["setting_value"] for r in swept}):
         g = [r for r in swept if r["setting_value"] == value]

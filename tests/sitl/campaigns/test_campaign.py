@@ -162,3 +162,19 @@ def test_the_tradeoff_has_one_point_per_value_with_its_latency_and_alarm_rate(tm
     assert low.alarms_per_hour == pytest.approx(4.0) and high.alarms_per_hour == 0.0 and high.missed == 1
     assert (tmp_path / "tradeoff.png").stat().st_size > 0
     assert "| chi2_min = 50 | 0.10 / 0.10 | 1 | 0.0 | 1.00 |" in tradeoff.tradeoff_markdown([low, high])
+
+
+def test_a_stalled_flight_is_flagged_and_counts_in_no_figure():
+    """Two fault-free minutes, the second stalled with an alarm in its failsafe: the table has
+    one minute and no alarm, and says which flight it left out."""
+    checks = {"completed": True, "no_ground_contact_before_landing": True, "altitude_loss_within_0.5_m": True}
+    alarm = _status([(10.0, 2, 1), (10.1, 2, 2), (10.2, 2, 2)])
+    rows = [detection_campaign.result_row(detection_campaign.DetectionCase(name, "", 0, 3.0, True, 1.0, 1.0, 60.0),
+                                          {"survived": True, "checks": checks}, status, None, 14.7, was_stalled)
+            for name, status, was_stalled in (("calm", _status([]), False), ("late", alarm, True))]
+    assert [r["stalled"] for r in rows] == [False, True] and rows[1]["alarms_before_fault"] == 1
+    text = detection_campaign.summary_markdown(rows)
+    assert text.startswith("1 of 2 flights stalled") and text.splitlines()[0].endswith(": late")
+    assert "| 3 m/s, ESC on/off | none | ideal | default | 1 | 1 | 1/1 | 0 | 0.0 |" in text
+    swept = [{**r, "setting": "chi2_min", "setting_value": 25.0} for r in rows]
+    assert tradeoff.tradeoff_points(swept)[0].alarms_per_hour == 0.0

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
+import tomllib
 
 import pytest
 
@@ -100,3 +101,35 @@ def test_the_sitl_starts_alongside_the_companion_and_waits_on_its_start_pipe(tmp
         flight_run.run_flight(load_scenario(path), path.read_text(), tmp_path / "flight",
                               flight_run.FlightOptions(record_feed=False))
     assert [cmd[2] for cmd in at_ready] == ["companion.cli", "sitl.cli"] and "--start-fd" in at_ready[1]
+
+
+def _hover(tmp_path, name: str, lockstep_timeout_s: float):
+    from m4.scenario import parse_scenario
+    from sitl.flights.flight_run import FlightOptions, run_flight
+
+    text = f'name = "{name}"\nduration_s = 0.5\n\n[start]\nned_m = [0.0, 0.0, -3.0]\n'
+    options = FlightOptions(record_feed=False, lockstep_timeout_s=lockstep_timeout_s)
+    return run_flight(parse_scenario(tomllib.loads(text), name), text, tmp_path / name, options)
+
+
+def test_a_flight_whose_lockstep_wait_ran_out_is_flagged_stalled(tmp_path):
+    """A companion later than the SITL's wait (1 ms: later than any answer can come) leaves the
+    FC in its failsafe: the flight is flagged stalled; with the campaign's wait it is not."""
+    from sitl.campaigns.detection_campaign import LOCKSTEP_TIMEOUT_S
+    from sitl.flights.flight_run import stalled
+
+    late = _hover(tmp_path, "late", 0.001)
+    assert "no setpoint for 0.001 s" in late.sitl_log.read_text() and stalled(late)
+    assert not stalled(_hover(tmp_path, "patient", LOCKSTEP_TIMEOUT_S))
+
+
+def test_in_lockstep_the_companion_calls_no_wall_clock_silence_a_lost_link_before_10_s(tmp_path):
+    """The FC's clock waits for the companion in lockstep: a silence there is the machine's load.
+    In real time the companion's own 0.3 s stands."""
+    from companion.config import load_config
+    from sitl.flights.flight_run import FlightOptions, companion_config_text
+
+    for realtime, timeout_s in ((False, 10.0), (True, 0.3)):
+        path = tmp_path / f"companion-{realtime}.toml"
+        path.write_text(companion_config_text(FlightOptions(realtime=realtime), 14550, None))
+        assert load_config(path).link.telemetry_timeout_s == timeout_s
