@@ -23,7 +23,10 @@ largest command then, fault and pack voltage applied; as % of hover thrust), sur
 (sitl.flights.metrics) and, for turbulence, held aloft (HELD_CHECKS), a false alarm (any confirmation before the fault or naming another
 rotor), and the confirmations before the fault with the time flown before it (false alarms per
 hour of flight). Outputs: detection.csv and detection.md in the folder, and with several
-values of a sweep tradeoff.png.
+values of a sweep tradeoff.png. The SITL waits LOCKSTEP_TIMEOUT_S of wall clock for each
+setpoint; a flight whose wait still ran out (its FC flew the failsafe: the machine, not the
+software, decided it) is "stalled" in detection.csv, named in detection.md and counted in
+no figure.
 """
 
 from __future__ import annotations
