@@ -19,7 +19,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.core.condensing import Linearisation, TrackingCost, parameter_sensitivities, sensitivities
-from companion.core.rom import NX
+from companion.core.rom import EULER, NX
+
+_YAW = EULER.stop - 1
 
 
 @dataclass(frozen=True)
@@ -40,10 +42,16 @@ class PreparedQp:
     grad_input: np.ndarray     # (N*8,) the gradient's change per unit of U (negated: of u_ref)
 
     def states(self, x0: np.ndarray, d: np.ndarray) -> np.ndarray:
-        """(N+1, 20) the prepared rollout moved to initial state x0 and disturbance d (first order)."""
+        """(N+1, 20) the prepared rollout moved to initial state x0 and disturbance d (first order).
+        The yaw moves by its change within +-pi: the model is the same at yaw + 2 pi, and a yaw
+        that wrapped from +pi to -pi between the preparation and the state (a heading through
+        south, a robot spinning after a rotor loss) is a small turn, not a 2 pi one that the
+        linearisation would carry into every predicted state."""
         xs = self.xs.copy()
         xs[0] = x0
-        xs[1:] += (self.sens @ np.concatenate([x0 - self.x0, d - self.d])).reshape(-1, NX)
+        dx0 = x0 - self.x0
+        dx0[_YAW] -= 2 * np.pi * np.round(dx0[_YAW] / (2 * np.pi))     # exactly 0 taken off when no wrap
+        xs[1:] += (self.sens @ np.concatenate([dx0, d - self.d])).reshape(-1, NX)
         return xs
 
     def gradient(self, xs: np.ndarray, ref: np.ndarray, u_ref: np.ndarray) -> np.ndarray:

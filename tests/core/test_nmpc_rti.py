@@ -127,3 +127,19 @@ def test_the_sqp_scheme_prepares_nothing():
 def test_an_unknown_scheme_is_rejected_by_name():
     with pytest.raises(ValueError, match="scheme"):
         NmpcConfig(scheme="fast").validate()
+
+
+def test_a_yaw_that_wrapped_past_south_since_the_preparation_is_a_small_turn(rti):
+    """Prepared heading just west of south (yaw pi - 0.005), the state arrives just east of it:
+    as -pi + 0.005 on the wire. The command is the one for the same heading written pi + 0.005,
+    not the wild one a 2 pi turn through the linearisation gives (a false rotor alarm in
+    moderate turbulence, fault-free: docs/fault-detection.md)."""
+    x = moving_state()
+    x[rom.EULER.stop - 1] = np.pi - 0.005
+
+    def command(yaw_rad):
+        prep = prepared(rti, x, WIND)
+        arrived = prep.x0.copy()
+        arrived[rom.EULER.stop - 1] = yaw_rad
+        return rti.solve(arrived, hover_ref(), FULL, WIND).u
+    assert command(-np.pi + 0.005) == pytest.approx(command(np.pi + 0.005), abs=1e-6)
