@@ -77,7 +77,7 @@ class JsonPhysics:
     """The plant behind the JSON interface, without sockets: `answer(packet)` steps and replies."""
 
     def __init__(self, scenario: Scenario, airframe: Airframe, seed: int = 0, log=print, start_on_hold: bool = True):
-        self.scenario, self.airframe, self._log = scenario, airframe, log
+        self.scenario, self.airframe, self._log, self._seed = scenario, airframe, log, seed
         self.start_on_hold = start_on_hold
         north, east, _ = scenario.start.ned_m
         rest_down_m = -0.5 * airframe.body_box_size_m[2]        # the hull's belly on the floor
@@ -155,6 +155,8 @@ class JsonPhysics:
 
     def _start_clock(self, why: str) -> None:
         self.scenario_t0_ms = self.now_ms
+        if self.scenario.wind is not None:                 # the scenario's air, its gusts on its clock
+            self.plant.blow(self.scenario.wind, height_m=-float(self.scenario.start.ned_m[2]), seed=self._seed)
         self._log(f"t={self.now_ms / 1000:.3f} s: scenario {self.scenario.name!r} t=0 ({why})")
 
     def _sensor_line(self) -> bytes:

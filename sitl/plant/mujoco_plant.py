@@ -84,8 +84,11 @@ class Plant:
         self._vel, self._rates = slice(qvel0, qvel0 + 3), slice(qvel0 + 3, qvel0 + 6)
         self._drag = HullDrag(airframe, d.qvel[qvel0:qvel0 + 6], m.dof_damping[qvel0:qvel0 + 6],
                               d.xfrc_applied[self._hull, :3])
-        self.wind = None if wind is None else WindField(wind, height_m=-float(start[2]), seed=seed)
-        self._rotor_aero = None if wind is None else RotorAero(airframe, m, d, (self._thrust, self._thrust_sq))
+        self.wind: WindField | None = None
+        self._wind_t0_s = 0.0
+        self._rotor_aero: RotorAero | None = None
+        if wind is not None:
+            self.blow(wind, height_m=-float(start[2]), seed=seed)
         self._air_world_m_s: np.ndarray | None = None
         self._noise = SensorNoise(airframe, seed)
 
@@ -243,6 +246,18 @@ class Plant:
                             frames.flip_quat_wxyz(d.qpos[self._quat]), frames.flip_vector(d.qvel[self._rates]),
                             rotors.speed_rad_s, rotors.kind, rotors.loss)
 
+    def blow(self, wind: Wind, height_m: float, seed: int = 0) -> None:
+        """From now on the robot flies in `wind`: its turbulence that of `height_m` above the
+        ground, its gusts timed from now. For a plant that waits in still air for its scenario
+        (ArduPilot's JSON physics boots on the floor; the scenario starts once it holds its start)."""
+        self.wind = WindField(wind, height_m=height_m, seed=seed)
+        self._wind_t0_s = float(self.data.time)
+        self._rotor_aero = RotorAero(self.airframe, self.model, self.data, (self._thrust, self._thrust_sq))
+
+    def _wind_ned_m_s(self) -> np.ndarray | None:
+        """The air's velocity over the ground now, NED (None: still air)."""
+        return None if self.wind is None else self.wind.velocity_ned_m_s(float(self.data.time) - self._wind_t0_s)
+
     def take_sensor_samples(self) -> list[SensorSample]:
         """The raw sensors' samples heard since the last call, up to now (none without [sensors])."""
         return [] if self.sensors is None else self.sensors.take(self._now_ms())
@@ -250,7 +265,7 @@ class Plant:
     def _update_air(self) -> None:
         """Hull drag, and in wind the air's loads on the hull and the rotors, for the next servo period."""
         if self.wind is not None:
-            self._air_world_m_s = frames.flip_vector(self.wind.velocity_ned_m_s(float(self.data.time)))
+            self._air_world_m_s = frames.flip_vector(self._wind_ned_m_s())
             self._rotor_aero.update(self._air_world_m_s, self.thrusters.speed_rad_s)
         self._drag.update(self._air_world_m_s)
 
@@ -309,7 +324,7 @@ class Plant:
             battery_consumed_mah=self.battery.consumed_mah,
             com_ned_m=frames.flip_vector(d.subtree_com[self._hull]),
             on_ground=bool(d.ncon > 0),
-            wind_ned_m_s=None if self.wind is None else self.wind.velocity_ned_m_s(float(d.time)),
+            wind_ned_m_s=self._wind_ned_m_s(),
         )
 
     def specific_force_frd_m_s2(self) -> np.ndarray:

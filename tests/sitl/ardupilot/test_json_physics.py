@@ -209,3 +209,24 @@ def test_without_start_on_hold_the_scenarios_clock_and_its_faults_wait_for_start
     assert ph.plant.thrusters.kind[2] == HEALTHY
     step(1)
     assert ph.plant.thrusters.kind[2] != HEALTHY                # rotor 3 failed at scenario t = 0.01 s
+
+
+def test_the_scenarios_wind_blows_from_its_clock_on_with_its_gusts_on_that_clock():
+    """Still air while ArduPilot boots, aligns and takes off; the scenario's air once its clock
+    starts, a gust at its at_s counted from there (not from boot)."""
+    scenario = parse_scenario({"name": "t", "duration_s": 1.0, "start": {"ned_m": [0.0, 0.0, -2.0]},
+                               "wind": {"mean_ned_m_s": [0.0, 3.0, 0.0],
+                                        "gust": [{"at_s": 0.02, "peak_ned_m_s": [2.0, 0.0, 0.0],
+                                                  "duration_s": 0.02}]}}, "test")
+    ph = JsonPhysics(scenario, AF, log=lambda _: None, start_on_hold=False)
+    count = iter(range(10**6))
+
+    def step(n: int) -> np.ndarray | None:
+        for _ in range(n):
+            ph.answer(parse_servo_packet(servo_packet(RATE_HZ, next(count), _pwm(MOTORS_OFF))))
+        return ph.plant.state().wind_ned_m_s
+
+    assert step(50) is None
+    ph.start_scenario()
+    np.testing.assert_allclose(step(1), [0.0, 3.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(step(30), [2.0, 3.0, 0.0], atol=1e-9)       # the gust's peak, at t = 0.03 s
