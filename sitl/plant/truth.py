@@ -68,7 +68,10 @@ class TruthRecorder:
         for name in _FROM_STATE:
             value = getattr(s, name)
             if value is not None:          # a still-air plant has no wind: that array is left out
-                rows[name].append(value)
+                column, earlier = rows[name], len(rows["time_s"]) - 1
+                if len(column) < earlier:  # the air came later (Plant.blow): still air at the samples before
+                    column.extend(np.zeros_like(value) for _ in range(earlier - len(column)))
+                column.append(value)
 
     def truth(self) -> Truth:
         return Truth(**{name: np.array(values) for name, values in self._rows.items()

@@ -23,7 +23,7 @@ from sitl.ardupilot.json_protocol import (
 from sitl.ardupilot.physics import JsonPhysics, PhysicsOptions, PhysicsServer
 from sitl.cli import main as sitl_main
 from sitl.plant.thrusters import HEALTHY, Thrusters
-from sitl.plant.truth import load_truth
+from sitl.plant.truth import TruthRecorder, load_truth
 
 AF = load_airframe()
 RATE_HZ = 1000
@@ -219,6 +219,8 @@ def test_the_scenarios_wind_blows_from_its_clock_on_with_its_gusts_on_that_clock
                                         "gust": [{"at_s": 0.02, "peak_ned_m_s": [2.0, 0.0, 0.0],
                                                   "duration_s": 0.02}]}}, "test")
     ph = JsonPhysics(scenario, AF, log=lambda _: None, start_on_hold=False)
+    recorder = TruthRecorder(period_ms=10)
+    ph.observers.append(recorder.observe)
     count = iter(range(10**6))
 
     def step(n: int) -> np.ndarray | None:
@@ -230,3 +232,7 @@ def test_the_scenarios_wind_blows_from_its_clock_on_with_its_gusts_on_that_clock
     ph.start_scenario()
     np.testing.assert_allclose(step(1), [0.0, 3.0, 0.0], atol=1e-12)
     np.testing.assert_allclose(step(30), [2.0, 3.0, 0.0], atol=1e-9)       # the gust's peak, at t = 0.03 s
+    truth = recorder.truth()                 # the air row by row with the time: still before the clock started
+    assert truth.wind_ned_m_s.shape == (len(truth.time_s), 3)
+    np.testing.assert_array_equal(truth.wind_ned_m_s[truth.time_s < 0.051], 0.0)
+    np.testing.assert_allclose(truth.wind_ned_m_s[truth.time_s == 0.06], [[0.0, 3.0, 0.0]], atol=1e-12)
