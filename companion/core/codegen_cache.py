@@ -19,20 +19,13 @@ from pathlib import Path
 
 import casadi as ca
 
-CACHE_ENV = "M4_CACHE_DIR"
+from m4.bytecode_cache import CACHE_ENV, cache_dir   # one cache folder for the project's compiled code
+
 COMPILER_FLAGS = ("-O2", "-fPIC", "-shared")
 
 
 class CodegenError(RuntimeError):
     """The C compiler is missing or failed."""
-
-
-def cache_dir() -> Path:
-    """$M4_CACHE_DIR, else $XDG_CACHE_HOME/m4-fault-recovery, else ~/.cache/m4-fault-recovery."""
-    if os.environ.get(CACHE_ENV):
-        return Path(os.environ[CACHE_ENV])
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "m4-fault-recovery"
 
 
 def _compiler() -> str:
