@@ -33,7 +33,6 @@ import itertools
 import math
 
 import numpy as np
-import scipy.linalg
 
 from m4.airframe import ROTOR_COUNT, Airframe
 from sitl.fc.motor_model import MotorModel
@@ -47,24 +46,36 @@ _SINGULAR = 1e-6              # |det| / (largest entry)^2 below this: two rotors
 
 class DifferentiatingFilter:
     """Second-order low-pass filter y'' = w^2 (u - y) - 2 zeta w y' on several channels,
-    discretised exactly for input held over each tick; gives y and y'."""
+    discretised exactly for input held over each tick (underdamped: 0 < zeta < 1); gives y and y'."""
 
     def __init__(self, tick_s: float, cutoff_rad_s: float = CUTOFF_RAD_S, damping: float = DAMPING):
-        w = cutoff_rad_s
-        a = np.array([[0.0, 1.0, 0.0], [-w * w, -2.0 * damping * w, w * w], [0.0, 0.0, 0.0]])
-        m = scipy.linalg.expm(a * tick_s)
-        self._phi, self._gamma = m[:2, :2], m[:2, 2:]
-        self._state: np.ndarray | None = None       # (2, channels): value, derivative
+        if not (tick_s > 0.0 and cutoff_rad_s > 0.0 and 0.0 < damping < 1.0):
+            raise ValueError(f"the filter needs tick_s > 0, cutoff_rad_s > 0 and 0 < damping < 1, got "
+                             f"{tick_s}, {cutoff_rad_s}, {damping}")
+        # The state's transition over a tick and the held input's gain, in closed form: the
+        # underdamped oscillator's impulse and step responses at t = tick_s.
+        w, sigma = cutoff_rad_s, damping * cutoff_rad_s
+        w_d = w * math.sqrt(1.0 - damping * damping)
+        decay, cos, sin = math.exp(-sigma * tick_s), math.cos(w_d * tick_s), math.sin(w_d * tick_s)
+        self._phi = ((decay * (cos + sigma / w_d * sin), decay * sin / w_d),
+                     (-decay * w * w / w_d * sin, decay * (cos - sigma / w_d * sin)))
+        self._gamma = (1.0 - decay * (cos + sigma / w_d * sin), decay * w * w / w_d * sin)
+        self._value: list[float] | None = None
+        self._derivative: list[float] = []
 
-    def update(self, u) -> tuple[np.ndarray, np.ndarray]:
-        """Filter the input held over the last tick; (value, derivative). The first input
-        starts the filter settled on it."""
-        u = np.asarray(u, dtype=float)[None, :]
-        if self._state is None:
-            self._state = np.vstack([u, np.zeros_like(u)])
+    def update(self, u) -> tuple[list[float], list[float]]:
+        """Filter the input held over the last tick; (value, derivative), one entry a channel.
+        The first input starts the filter settled on it."""
+        u = [float(v) for v in u]
+        if self._value is None:
+            self._value, self._derivative = u, [0.0] * len(u)
         else:
-            self._state = self._phi @ self._state + self._gamma @ u
-        return self._state[0], self._state[1]
+            (p00, p01), (p10, p11) = self._phi
+            g0, g1 = self._gamma
+            y, dy = self._value, self._derivative
+            self._value = [p00 * a + p01 * b + g0 * c for a, b, c in zip(y, dy, u)]
+            self._derivative = [p10 * a + p11 * b + g1 * c for a, b, c in zip(y, dy, u)]
+        return self._value, self._derivative
 
 
 def rotor_shortfall_n(effectiveness: np.ndarray, lacking: np.ndarray) -> list[float]:
@@ -93,7 +104,7 @@ class GyroShortfallMeter:
         self._commanded = MotorModel(af, tick_s)      # what the FC's commands give
         self._planned = MotorModel(af, tick_s)        # what the plan's thrusts would give
         self._filter = DifferentiatingFilter(tick_s)
-        self.lacking_rad_s2 = np.zeros(2)             # the last roll and pitch acceleration lacking
+        self.lacking_rad_s2 = [0.0, 0.0]              # the last roll and pitch acceleration lacking
 
     def update(self, rates_frd_rad_s, thrust_cmd_n, planned_thrust_n, planned_accel_frd_rad_s2,
                effectiveness: np.ndarray | None) -> list[float] | None:
@@ -103,12 +114,12 @@ class GyroShortfallMeter:
         is settled when one comes)."""
         self._commanded.update(thrust_cmd_n)
         self._planned.update(planned_thrust_n)
-        expected = np.asarray(planned_accel_frd_rad_s2, dtype=float)
+        expected = [float(v) for v in planned_accel_frd_rad_s2]
         if effectiveness is not None:
-            expected = expected + effectiveness @ np.subtract(self._commanded.thrust_n, self._planned.thrust_n)
-        value, derivative = self._filter.update(np.concatenate((np.asarray(rates_frd_rad_s, dtype=float)[:2],
-                                                                 expected)))
-        self.lacking_rad_s2 = value[2:] - derivative[:2]
+            gap = [c - p for c, p in zip(self._commanded.thrust_n, self._planned.thrust_n)]
+            expected = [e + sum(k * g for k, g in zip(row, gap)) for e, row in zip(expected, effectiveness.tolist())]
+        value, derivative = self._filter.update([float(rates_frd_rad_s[0]), float(rates_frd_rad_s[1]), *expected])
+        self.lacking_rad_s2 = [value[2] - derivative[0], value[3] - derivative[1]]
         if effectiveness is None:
             return None
         return [max(s - DEADBAND_N, 0.0) for s in rotor_shortfall_n(effectiveness, self.lacking_rad_s2)]

@@ -40,6 +40,12 @@ def test_the_filter_settles_on_a_held_input_and_differentiates_a_ramp():
     assert derivative[0] == pytest.approx(3.0, rel=0.06)
 
 
+@pytest.mark.parametrize("damping", [1.0, 1.5, 0.0])
+def test_the_filter_refuses_a_damping_it_does_not_solve_in_one_line(damping):
+    with pytest.raises(ValueError, match="0 < damping < 1"):
+        DifferentiatingFilter(0.004, damping=damping)
+
+
 def _fly(effectiveness, fail_rotor: int | None):
     """Hover on a FC without ESC telemetry, the setpoint carrying the cover with or without the
     effectiveness, rotor `fail_rotor` stopping as it arrives; the commanded thrusts 300 ms later
