@@ -14,9 +14,10 @@
                      [--kind K,... [--esc on,off] [--speed V,...] [--false-alarm-minutes MIN] [--wind M/S]
                       [--turbulence LEVEL,...] [--profile P,...] [--sweep SETTING=V,...]]
 
-A subcommand is one `add_<name>(subparsers)` function that sets `func`, registered through
-`SUBCOMMANDS` (the flight subcommands live in sitl/flight_cli.py, the shared argument
-types in sitl/cli_args.py). Bad input (unknown scenario, malformed file, bad URL, port in use) prints one
+A subcommand is one `add_<name>(subparsers)` function that sets `func`, registered under its
+name in `SUBCOMMANDS` (the flight subcommands live in sitl/flight_cli.py, the shared argument
+types in sitl/cli_args.py); a command line that names one builds that parser alone (the
+campaigns' parsers import the campaigns: a cost at every `serve` a campaign starts). Bad input (unknown scenario, malformed file, bad URL, port in use) prints one
 line on stderr and exits with 2; so does an install without the `sim` extra (every subcommand but
 `list` needs MuJoCo, matplotlib and tqdm), naming the extra to install.
 """
@@ -87,6 +88,8 @@ def _ids(text: str) -> tuple[int, int]:
 def _serve(args) -> int:
     scenario = scenarios.resolve(args.scenario) if args.scenario else Scenario(name="hover", duration_s=3600.0)
     key = load_key(args.signing_key) if args.signing_key else None
+    if not args.viewer:
+        os.environ.setdefault("MUJOCO_GL", "disable")   # MuJoCo then loads no OpenGL (0.1 s of each start)
     from sitl.serve import ServeError, ServeOptions, Server  # MuJoCo only once the input is good
 
     options = ServeOptions(scenario=scenario, mavlink_urls=tuple(args.mavlink or (DEFAULT_URL,)),
@@ -220,13 +223,15 @@ def _list(args) -> int:
     return 0
 
 
-SUBCOMMANDS = [_add_serve, _add_physics, _add_fly_ardupilot, _add_list, flight_cli.add_fly, flight_cli.add_compare, flight_cli.add_campaign]
+SUBCOMMANDS = {"serve": _add_serve, "physics": _add_physics, "fly-ardupilot": _add_fly_ardupilot, "list": _add_list,
+               "fly": flight_cli.add_fly, "compare": flight_cli.add_compare, "campaign": flight_cli.add_campaign}
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = Parser(prog="m4-sitl", description="M4 simulator: MuJoCo plant behind a MAVLink 2 flight controller")
     sub = parser.add_subparsers(dest="command", required=True)
-    for add in SUBCOMMANDS:
+    named = sys.argv[1:2] if argv is None else argv[:1]
+    for add in [SUBCOMMANDS[named[0]]] if named and named[0] in SUBCOMMANDS else SUBCOMMANDS.values():
         add(sub)
     try:
         args = parser.parse_args(argv)

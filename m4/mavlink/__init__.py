@@ -10,8 +10,16 @@ from m4.mavlink.dialect import (
                                        FC_COMPONENT_ID,
                                        FC_SYSTEM_ID,
                                        mavlink,
-                                       mavutil,
                                        new_mav,
 )
+
+
+def __getattr__(name: str):
+    """`mavutil`, loaded on first use (m4/mavlink/dialect.py)."""
+    if name != "mavutil":
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    from m4.mavlink import dialect
+    return dialect.mavutil
+
 
 __all__ = ["COMPANION_COMPONENT_ID", "DIALECT", "FC_COMPONENT_ID", "FC_SYSTEM_ID", "mavlink", "mavutil", "new_mav"]

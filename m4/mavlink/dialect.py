@@ -6,6 +6,9 @@ anything else imports pymavlink. The dialect module (generated from `mavlink_def
 by `python -m m4.mavlink.generate`) is registered as `pymavlink.dialects.v20.m4`, so
 `mavutil.mavlink_connection(..., dialect="m4")` finds it without regenerating anything into
 site-packages; `new_mav()` gives the bare protocol object for a transport of one's own.
+`mavutil` (tlogs, connections) is loaded on first use, with the dialect set: it loads
+pymavlink's two largest dialects, a tenth of a second of every start of a process that never
+calls it (the SITL and the companion in flight).
 pymavlink's own log lines (one per rejected signature) are rate-limited (m4/log_limit.py).
 """
 
@@ -20,7 +23,6 @@ os.environ["MAVLINK20"] = "1"
 
 # Imported after MAVLINK20 is set, on purpose.
 import pymavlink.dialects.v20 as _v20
-from pymavlink import mavutil
 
 from m4.bytecode_cache import load_module
 from m4.log_limit import RepeatFilter
@@ -33,7 +35,6 @@ from m4.mavlink.packing import fast_pack  # it wraps the dialect loaded above
 DIALECT = "m4"
 sys.modules[f"{_v20.__name__}.{DIALECT}"] = mavlink
 setattr(_v20, DIALECT, mavlink)
-mavutil.set_dialect(DIALECT)
 # pymavlink logs every rejected signature ("sig mismatch", "bad new stream") at INFO: a peer
 # with the wrong key would flood the log of any process that shows INFO.
 logging.getLogger(mavlink.__name__).addFilter(RepeatFilter())
@@ -49,6 +50,16 @@ mavlink.MAVLink_message._pack = fast_pack
 FC_SYSTEM_ID = 1
 FC_COMPONENT_ID = 1                                  # MAV_COMP_ID_AUTOPILOT1
 COMPANION_COMPONENT_ID = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER    # 191
+
+
+def __getattr__(name: str):
+    """`mavutil`, imported and set to the project's dialect on first use."""
+    if name != "mavutil":
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    from pymavlink import mavutil
+    mavutil.set_dialect(DIALECT)
+    globals()["mavutil"] = mavutil
+    return mavutil
 
 
 def new_mav(file, source_system: int, source_component: int) -> mavlink.MAVLink:
