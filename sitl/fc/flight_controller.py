@@ -72,6 +72,7 @@ from sitl.fc.commands import CommandHandler
 from sitl.fc.esc_telemetry import EscTelemetry
 from sitl.fc.estimator import Estimator
 from sitl.fc.failsafe import Failsafe
+from sitl.fc.fast_loop import FastLoop
 from sitl.fc.gyro_shortfall import GyroShortfallMeter
 from sitl.fc.mission_store import MISSION_IDS, MissionStore
 from sitl.fc.modes import FcMode, current_mode
@@ -192,6 +193,7 @@ class FlightController:
         self._announced: tuple[int, str] | None = None  # the last STATUSTEXT on the mode
         self._applied: ReceivedSetpoint | None = None
         self._applied_at_ms = 0
+        self._fast: tuple[ReceivedSetpoint, FastLoop] | None = None    # the fast loop of the setpoint in force
         self._outbox: list[mavlink.MAVLink_message] = []
         self._measured: _Measured | None = None
         self._commands = CommandHandler(self)
@@ -224,18 +226,15 @@ class FlightController:
         self.plant.command(thrust_n, hip_rad, hip_rate_rad_s)
         self._measured = None
 
-    def _fast_loop(self, sp: Setpoint, now_ms: int) -> None:
+    def _fast_loop(self, now_ms: int) -> None:
         """The companion's thrusts plus, every tick, its rate feedback on our gyro and the other
-        rotors' cover for a rotor our ESCs or our gyro show falling short (m4.setpoint)."""
-        change = np.zeros(ROTOR_COUNT)
-        if sp.rate_feedback is not None:
-            change += sp.rate_feedback.thrust_change_n(self._gyro(now_ms), (now_ms - self._applied_at_ms) / 1000.0,
-                                                       self.setpoint.period_ms / 1000.0)
-        shortfall = self._shortfall_n()
-        if sp.shortfall_cover is not None and shortfall is not None:
-            change += sp.shortfall_cover.thrust_change_n(shortfall)
-        af = self.airframe
-        self.plant.command_thrust(_clip(sp.thrust_n + change, af.thrust_min_n, af.thrust_max_n))
+        rotors' cover for a rotor our ESCs or our gyro show falling short (sitl/fc/fast_loop.py)."""
+        if self._fast is None or self._fast[0] is not self.setpoint:
+            af = self.airframe
+            self._fast = (self.setpoint, FastLoop(self.setpoint.command, af.thrust_min_n, af.thrust_max_n))
+        thrust_n = self._fast[1].thrust_n(self._gyro(now_ms), (now_ms - self._applied_at_ms) / 1000.0,
+                                          self.setpoint.period_ms / 1000.0, self._shortfall_n())
+        self.plant.command_thrust(thrust_n)
         self._measured = None
 
     def set_rotor_loss(self, rotor: int, loss: float, kind: FaultKind = FaultKind.DEGRADED) -> None:
@@ -314,7 +313,7 @@ class FlightController:
                 self._command_plant(sp.thrust_n, sp.hip_rad, sp.hip_rate_rad_s)
                 self._applied, self._applied_at_ms = self.setpoint, now_ms
             if sp.rate_feedback is not None or sp.shortfall_cover is not None:
-                self._fast_loop(sp, now_ms)
+                self._fast_loop(now_ms)
             return
         state = self.measured_state(now_ms)
         self.failsafe.set_lost_rotor(self.lost_rotor())
@@ -348,7 +347,7 @@ class FlightController:
         flew over the last tick (commanded: what we sent the ESCs); the filter runs whoever flies."""
         companion_flies = self.mode not in (None, FcMode.LANDED) and not self._by_failsafe
         flown = self._applied.command if self._applied is not None and companion_flies else None
-        planned, accel, effectiveness = commanded, np.zeros(2), None
+        planned, accel, effectiveness = commanded, (0.0, 0.0), None
         if flown is not None:
             planned = flown.thrust_n
             if flown.rate_feedback is not None and now_ms - self._applied_at_ms < self._applied.period_ms:
