@@ -22,6 +22,7 @@ class SensorNoise:
     def __init__(self, af: Airframe, seed: int):
         self._af = af
         self._seed = seed
+        self._last: tuple[float, _Noise] | None = None     # the last instant's draw: the gyro and the state share it
 
     def measure(self, truth: PlantState) -> PlantState:
         """The truth plus noise on position, velocity, attitude (through the Euler angles, the
@@ -46,6 +47,12 @@ class SensorNoise:
         return rates_frd_rad_s + self._draw(time_s).rates_frd_rad_s
 
     def _draw(self, time_s: float) -> "_Noise":
+        """The instant's noise (a generator seeded for it costs more than its draws: built once an instant)."""
+        if self._last is None or self._last[0] != time_s:
+            self._last = (time_s, self._new_draw(time_s))
+        return self._last[1]
+
+    def _new_draw(self, time_s: float) -> "_Noise":
         af, rng = self._af, np.random.default_rng((self._seed, round(time_s * 1e6)))
         return _Noise(euler_rad=rng.normal(0.0, af.attitude_noise_rad, 3),
                       pos_ned_m=rng.normal(0.0, af.position_noise_m, 3),
