@@ -36,7 +36,7 @@ from m4.mavlink.link import LinkError
 from m4.mavlink.signing import load_key
 from m4.scenario import Scenario
 from m4.toml_fields import ConfigError
-from sitl import flight_cli, scenarios
+from sitl import scenarios
 from m4.arguments import positive_number, seed_number
 from sitl.cli_args import BadInput, Parser, add_link_arguments, link_of
 
@@ -223,8 +223,17 @@ def _list(args) -> int:
     return 0
 
 
+def _flight_subcommand(name: str):
+    """sitl/flight_cli.py's add_<name>, imported when it is built (it loads the flights' runner)."""
+    def add(sub) -> None:
+        from sitl import flight_cli
+        getattr(flight_cli, f"add_{name}")(sub)
+    return add
+
+
 SUBCOMMANDS = {"serve": _add_serve, "physics": _add_physics, "fly-ardupilot": _add_fly_ardupilot, "list": _add_list,
-               "fly": flight_cli.add_fly, "compare": flight_cli.add_compare, "campaign": flight_cli.add_campaign}
+               "fly": _flight_subcommand("fly"), "compare": _flight_subcommand("compare"),
+               "campaign": _flight_subcommand("campaign")}
 
 
 def main(argv: list[str] | None = None) -> int:
