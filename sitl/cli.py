@@ -17,9 +17,10 @@
 A subcommand is one `add_<name>(subparsers)` function that sets `func`, registered under its
 name in `SUBCOMMANDS` (the flight subcommands live in sitl/flight_cli.py, the shared argument
 types in sitl/cli_args.py); a command line that names one builds that parser alone (the
-campaigns' parsers import the campaigns: a cost at every `serve` a campaign starts). Bad input (unknown scenario, malformed file, bad URL, port in use) prints one
-line on stderr and exits with 2; so does an install without the `sim` extra (every subcommand but
-`list` needs MuJoCo, matplotlib and tqdm), naming the extra to install.
+campaigns' parsers import the campaigns: a cost at every `serve` a campaign starts). Bad input
+(unknown scenario, malformed file, bad URL, port in use) prints one line on stderr and exits
+with 2; so does an install without the `sim` extra (every subcommand but `list` needs MuJoCo,
+matplotlib and tqdm), naming the extra to install.
 """
 
 from __future__ import annotations
