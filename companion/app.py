@@ -182,8 +182,6 @@ class CompanionApp:
                 self._on_kept_status(msg)
             elif msg_id == mavlink.MAVLINK_MSG_ID_CURRENT_MODE:
                 self._on_mode(msg)
-            elif msg_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
-                self._on_fc_heartbeat(msg)
             if self.fc_mission is not None and (flown := self.fc_mission.on_message(msg, now)) is not None:
                 self._new_mission = flown.mission
         for msg in received.param_requests:
@@ -205,15 +203,11 @@ class CompanionApp:
         self.controller.retune_detector(config.fault_detector)
 
     def _profiled(self, messages: list) -> list:
-        """The messages as the profile of the FC's autopilot has them read; a HEARTBEAT naming
-        another autopilot changes the profile and the streams asked for."""
+        """The messages as the profile of the FC's autopilot has them read, after its HEARTBEATs
+        (the one place they are handled: they may change the profile)."""
         for msg in messages:
-            if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_HEARTBEAT and (profile := profile_of(msg)) != self.profile:
-                self.profile = profile
-                log.info("the flight controller runs %s: asking for its streams every %d ms", profile.name,
-                         self.period_ms)
-                self.fc.stop_streams(profile.stopped)
-                self.fc.request_intervals(self.config.control_period_s, profile.streams)
+            if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+                self._on_fc_heartbeat(msg)
         return self.profile.translate(messages)
 
     def _joining(self, now: float) -> bool:
@@ -462,7 +456,14 @@ class CompanionApp:
             self.controller.resume()
 
     def _on_fc_heartbeat(self, msg) -> None:
-        """The FC saying it shuts down (MAV_STATE_POWEROFF) makes the silence that follows the flight's end."""
+        """A HEARTBEAT naming another autopilot changes the profile and the streams asked for; the
+        FC saying it shuts down (MAV_STATE_POWEROFF) makes the silence that follows the flight's end."""
+        if (profile := profile_of(msg)) != self.profile:
+            self.profile = profile
+            log.info("the flight controller runs %s: asking for its streams every %d ms", profile.name,
+                     self.period_ms)
+            self.fc.stop_streams(profile.stopped)
+            self.fc.request_intervals(self.config.control_period_s, profile.streams)
         if msg.system_status != mavlink.MAV_STATE_POWEROFF:
             self.fc_shut_down_s = None
         elif self.fc_shut_down_s is None:
