@@ -1,10 +1,10 @@
 """Commands to the flight controller, one at a time, each resent until it is acknowledged.
 
 A COMMAND_LONG goes out, and again every COMMAND_RETRY_S (or the command's own retry_s; its
-confirmation field counting the attempts) until a COMMAND_ACK for that command comes back,
-whatever its result (DENIED and FAILED are answers too); after COMMAND_ATTEMPTS unanswered
-sends it is given up and the next one goes. `waiting(command, param1)` says whether one is
-still to be answered. Pure logic: the caller sends what `next_message(now_s)` gives.
+confirmation field counting the attempts) until the COMMAND_ACK for that command comes back
+from the target to us, whatever its result (DENIED and FAILED are answers too); after
+COMMAND_ATTEMPTS unanswered sends it is given up and the next one goes. `waiting(command,
+param1)` says whether one is still to be answered. Pure logic: the caller sends what `next_message(now_s)` gives.
 """
 
 from __future__ import annotations
@@ -30,8 +30,8 @@ class Command:
 
 
 class CommandQueue:
-    def __init__(self, target_system: int, target_component: int):
-        self._target = (target_system, target_component)
+    def __init__(self, target: tuple[int, int], own: tuple[int, int]):
+        self._target, self._own = target, own
         self._pending: list[Command] = []
         self._sent_at_s: float | None = None
         self._attempts = 0
@@ -54,8 +54,17 @@ class CommandQueue:
         """Is a command asking this still pending (not yet answered nor given up)?"""
         return any(c.key == (command, param1) for c in self._pending)
 
+    def answers(self, msg) -> bool:
+        """Is this COMMAND_ACK the answer to the command sent? Its command, from the target, to
+        us (a target of 0: a sender that does not fill it in), as ArduPilot and MAVSDK match an
+        ack: the FC answers a ground station's command of the same number as well."""
+        if not self._pending or self._sent_at_s is None or msg.command != self._pending[0].command:
+            return False
+        return ((msg.get_srcSystem(), msg.get_srcComponent()) == self._target
+                and msg.target_system in (0, self._own[0]) and msg.target_component in (0, self._own[1]))
+
     def on_ack(self, msg) -> None:
-        if self._pending and self._sent_at_s is not None and msg.command == self._pending[0].command:
+        if self.answers(msg):
             self._pending.pop(0)
             self._restart_head()
             self.acked += 1

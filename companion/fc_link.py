@@ -54,7 +54,7 @@ from companion.core.control_types import FaultStatus
 from companion.fc_commands import Command, CommandQueue
 from companion.link_delay import LinkDelay
 from companion.telemetry import REQUESTED, STREAMS
-from m4.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from m4.mavlink.param_service import PARAM_IDS
 from m4.mavlink.second_sender import OTHER_ADDRESS, SecondSender, address_text
 from m4.mavlink.signing import SigningCounters, refusal
@@ -164,7 +164,8 @@ def mission_progress(msg: mavlink.MAVLink_m4_fault_status_message) -> MissionPro
 
 class FcLink:
     def __init__(self, link: FcTransport, fc_system_id: int = FC_SYSTEM_ID, fc_component_id: int = FC_COMPONENT_ID,
-                 heartbeat_before_lock: bool = False, telemetry_timeout_s: float = DEFAULT_TELEMETRY_TIMEOUT_S):
+                 heartbeat_before_lock: bool = False, telemetry_timeout_s: float = DEFAULT_TELEMETRY_TIMEOUT_S,
+                 own_ids: tuple[int, int] = (FC_SYSTEM_ID, COMPANION_COMPONENT_ID)):
         self.link = link
         self.heartbeat_before_lock = heartbeat_before_lock
         self.telemetry_timeout_s = telemetry_timeout_s
@@ -176,7 +177,7 @@ class FcLink:
         self.last_telemetry_s: float | None = None          # when it arrived (our clock)
         self._foreign = 0
         self._next_heartbeat_s = 0.0
-        self.commands = CommandQueue(fc_system_id, fc_component_id)
+        self.commands = CommandQueue(self.fc_ids, own_ids)
         self.delay = LinkDelay()
         self._signing = link.signing_key is not None
         self.second_sender = SecondSender("the flight controller", self.fc_ids, "companion",

@@ -215,6 +215,25 @@ def test_message_intervals_are_requested_one_at_a_time_until_acked(links):
     assert companion.health().commands_acked == len(REQUESTED)
 
 
+def test_an_ack_the_fc_sends_a_ground_station_does_not_answer_our_command(links):
+    """The FC answers a ground station's command of the same number too: only the ack to us
+    (its target our system and component) answers ours, as ArduPilot and MAVSDK match acks."""
+    companion, fc, _ = links
+    fc.send(heartbeat())
+    drain(received(companion))
+    companion.request_intervals(0.02)
+    sent = []
+    for now, to in ((0.0, (255, 190)), (0.6, (FC_SYSTEM_ID, COMPANION_COMPONENT_ID))):
+        companion.tick(now)
+        sent += [m for m in drain(fc.receive, timeout_s=0.5) if m.get_type() == "COMMAND_LONG"]
+        fc.send(mavlink.MAVLink_command_ack_message(sent[-1].command, mavlink.MAV_RESULT_ACCEPTED, 0, 0, *to))
+        drain(received(companion))
+        if to[0] == 255:
+            assert companion.health().commands_acked == 0
+    assert [(m.param1, m.confirmation) for m in sent] == [(REQUESTED[0], 0), (REQUESTED[0], 1)]   # resent
+    assert companion.health().commands_acked == 1
+
+
 def test_the_fault_status_carries_the_missions_progress_and_it_reads_back():
     plan = PlanProgress(PlanState.FAULT_HOLD, 0.02, (0.0, 0.0, -2.0), 1.06, (0.5, 0.0, -1.9))
     progress = MissionProgress(2.98, plan)

@@ -56,7 +56,7 @@ class Fc:
 
     def __init__(self, store):
         self.store, self.fc_ids, self.replies, self.sent = store, FC, [], []
-        self.commands = CommandQueue(*FC)
+        self.commands = CommandQueue(FC, OWN)
         self.link = SimpleNamespace(send=self._send, send_all=lambda msgs: [self._send(msg) for msg in msgs])
 
     def _send(self, msg):
@@ -69,7 +69,7 @@ class Fc:
         while self.replies or self.commands.pending:
             if (cmd := self.commands.next_message(0.0)) is not None:
                 assert (cmd.command, cmd.param1) == (m.MAV_CMD_REQUEST_MESSAGE, HOME_ID)
-                self.commands.on_ack(ack(cmd.command, m.MAV_RESULT_ACCEPTED))
+                self.commands.on_ack(sent_by(FC, ack(cmd.command, m.MAV_RESULT_ACCEPTED)))
                 self.replies.append(sent_by(FC, m.MAVLink_home_position_message(
                     round(HOME.lat_deg * 1e7), round(HOME.lon_deg * 1e7), round(HOME.alt_amsl_m * 1e3), 0, 0, 0,
                     [1, 0, 0, 0], 0, 0, 0, 0)))
