@@ -55,7 +55,7 @@ VEHICLE = "m4"
 COMPANION_START_TIMEOUT_S = 300.0     # a first start compiles the NMPC
 STOP_TIMEOUT_S = 10.0
 LOCKSTEP_TELEMETRY_TIMEOUT_S = 10.0   # lockstep: the companion's [link] telemetry_timeout_s, its largest
-STALL_MARK = "no setpoint for"        # the SITL's log line when its lockstep wait ran out (sitl/serve.py)
+STALL_MARK = "no setpoint for"        # sitl/serve.py logs it when its lockstep wait runs out; read here
 POLL_S = 0.2
 _PREFIX = re.compile(r"^m4-[a-z]+: (error: )?")
 
