@@ -198,7 +198,8 @@ class Server:
         self._watch_companion(i, datagrams)
         msgs = [msg for _, batch in datagrams for msg in batch]
         if msgs:
-            self.router.forward(i, msgs)
+            # what the FC repeats as its own (the companion's critical texts) reaches the other links once: as the FC's
+            self.router.forward(i, [msg for msg in msgs if self.vehicle.fc.relayed(msg) is None])
             self.vehicle.handle(msgs, self.send, i)
 
     # -- the emulated link's messages, as the vehicle's inbox (sitl/vehicle.py) -------------------
