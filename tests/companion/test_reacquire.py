@@ -121,19 +121,20 @@ def test_a_restarted_companion_says_nothing_of_a_fault_before_it_learns_the_one_
 
 
 def test_a_restarted_companion_takes_control_within_0_3_s_of_the_fcs_telemetry_without_its_heartbeat():
+    """0.3 s of the FC's clock: 15 frames, each answered before the next goes (the wall clock
+    is the machine's load's; the FC's next HEARTBEAT is up to 1 s away)."""
     app, link = _app()
     fc = LoopbackFc(link.local_port, AF)
     try:
-        heard = time.monotonic()
         setpoints = []
-        for k in range(15):                         # 0.3 s of frames; the FC's next HEARTBEAT is up to 1 s away
+        for k in range(15):
             setpoints += [m for m in _fly(app, fc, 4000 + 20 * k, 1) if m.get_type() == "M4_SETPOINT"]
             if setpoints:
                 break
     finally:
         fc.close()
         link.close()
-    assert setpoints and time.monotonic() - heard < 0.3
+    assert setpoints and setpoints[0].time_boot_ms < 4000 + 300
 
 
 def test_a_restarted_companion_resumes_the_hold_the_fc_kept_instead_of_anchoring_where_it_finds_the_robot():
