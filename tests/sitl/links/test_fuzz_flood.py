@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import itertools
+import socket
 
 from m4.mavlink import new_mav
 from m4.mavlink.link import parse_bytes
+from m4.scenario import Scenario
 from sitl.links.fuzz_flood import fuzzed_frames
+from sitl.serve import POLL_DATAGRAMS, ServeOptions, Server
 from benchmarks.flood import measure
 
 
@@ -21,9 +24,28 @@ def test_fuzzed_frames_are_mostly_garbage_with_some_good_messages():
 
 
 def test_telemetry_keeps_its_rate_through_a_flood_of_fuzzed_frames():
+    """Measured against the rates of the second before the flood, on the same machine at the
+    same load: a busy CPU slows both alike, a flood that stalls the FC (before: a 9 s freeze)
+    takes the telemetry and the setpoints' rates to nothing. Half is the margin: the FC reads at
+    most 32 datagrams a link and poll, so a flood costs it a bounded share."""
     figures = measure(rate_hz=10_000.0, count=20_000)
     print(figures)
-    assert figures.attitude_hz > 60.0        # 100 Hz asked; before: a 9 s freeze (bounds loose: 2 shared cores)
-    assert figures.longest_gap_s < 1.0
-    assert figures.setpoints_accepted > 0.3 * 50 * figures.flood_s
-    assert figures.refused_foreign > 500 and figures.garbled > 5000
+    assert figures.attitude_hz > 0.5 * figures.quiet_attitude_hz
+    assert figures.setpoints_hz > 0.5 * figures.quiet_setpoints_hz
+    assert figures.refused_foreign > 100 and figures.garbled > 0.05 * figures.frames     # the flood reached the FC
+
+
+def test_one_poll_of_the_fc_reads_a_bounded_number_of_datagrams_whatever_is_queued():
+    """What keeps a flood from stalling the FC, counted rather than timed: one poll takes at most
+    POLL_DATAGRAMS of a link's queue, the simulation steps, the next poll takes the next ones."""
+    server = Server(ServeOptions(scenario=Scenario(name="hover", duration_s=1.0), mavlink_urls=("udpin:127.0.0.1:0",)))
+    link = server.links[0]
+    try:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as flooder:
+            for frame in itertools.islice(fuzzed_frames(seed=3), 3 * POLL_DATAGRAMS):
+                flooder.sendto(frame, ("127.0.0.1", link.local_port))
+        server.poll()
+        server.poll()
+        assert len(link.receive_from()) == POLL_DATAGRAMS           # the third poll's share, still queued
+    finally:
+        server.close()
