@@ -14,7 +14,8 @@ few seconds to start on a busy machine, while the FC's failsafe lands at 0.5 m/s
   and the companion's ids (all it takes; unsigned, anyone could), stops ATTITUDE and
   ATTITUDE_QUATERNION with two MAV_CMD_SET_MESSAGE_INTERVAL (interval -1). Figures from T on: the largest horizontal
   drift and drop of the centre of mass, the largest tilt, the first ground contact; what the
-  companion said about it (its log lines and STATUSTEXT with "stale").
+  companion said about it (its log lines and STATUSTEXT with "stale"); what the station still
+  heard of the two streams on its own link after the FC acknowledged the stop.
 - restart: at each T (default 3 and 6 s) the companion is killed (SIGKILL) and started again
   at once. Figures per restart: how long after the new companion was ready it took control
   (its first setpoint), the first fault status it sent (healthy overwrites the fault the FC
@@ -59,6 +60,7 @@ m = mavlink
 STEP_WINDOW_S = 0.15            # thrust steps are looked for from the instant the first setpoint answers to
                                 # this later (it acts a link delay and a control step after)
 DEAD_ROTOR_WINDOW_S = 0.3
+STATION_WATCH_S = 1.0           # stale: how long the station listens (FC time) after it stopped its streams
 
 
 def at_altitude(scenario: str, altitude_m: float | None, out: Path) -> Path:
@@ -102,6 +104,7 @@ class Rig:
                            key=load_key(key), link_id=1)
         stack.callback(self.gcs.close)
         self.sim_s = 0.0
+        self.station: list[tuple[float, mavlink.MAVLink_message]] = []   # what it heard, at the FC time then reached
 
     def start_companion(self) -> None:
         self.starts += 1
@@ -134,8 +137,10 @@ class Rig:
                 self.gcs.send(m.MAVLink_heartbeat_message(m.MAV_TYPE_GCS, m.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))
                 beat_s = time.monotonic() + 0.5
             wait_readable([self.gcs], 0.01)
-            stamps = [msg.time_boot_ms for msg in self.gcs.receive() if msg.get_type() == "LOCAL_POSITION_NED"]
-            self.sim_s = max([self.sim_s, *(t / 1000.0 for t in stamps)])
+            for msg in self.gcs.receive():
+                if msg.get_type() == "LOCAL_POSITION_NED":
+                    self.sim_s = max(self.sim_s, msg.time_boot_ms / 1000.0)
+                self.station.append((self.sim_s, msg))
 
     def wait_for_end(self) -> None:
         self.sitl.wait()
@@ -199,16 +204,30 @@ def third_party_stops_attitude(gcs: UdpLink) -> None:
                                                 float(msg_id), -1.0, 0, 0, 0, 0, 0))
 
 
+def attitude_after_the_stop(station: list[tuple[float, mavlink.MAVLink_message]]) -> int | None:
+    """ATTITUDE and ATTITUDE_QUATERNION the station heard stamped after the FC time it had
+    reached when the second COMMAND_ACK came (the FC had stopped them by then); None: no acks."""
+    acked = [t_s for t_s, msg in station
+             if msg.get_type() == "COMMAND_ACK" and msg.command == m.MAV_CMD_SET_MESSAGE_INTERVAL]
+    if len(acked) < 2:
+        return None
+    return sum(msg.get_type() in ("ATTITUDE", "ATTITUDE_QUATERNION") and msg.time_boot_ms / 1000.0 > acked[1]
+               for _, msg in station)
+
+
 @dataclass(frozen=True)
 class StaleFigures:
     at_s: float
     motion: Motion              # from at_s on
     log_lines: int              # the companion's log lines on stale streams
     statustext: list[str]       # its STATUSTEXT on stale and fresh streams
+    station_attitude: int | None    # what the station heard of the two streams after they were stopped (None: no acks)
 
     def __str__(self) -> str:
+        station = "not acknowledged" if self.station_attitude is None else f"{self.station_attitude} after the acks"
         return (f"ATTITUDE and ATTITUDE_QUATERNION stopped at {self.at_s:g} s: {self.motion}; the companion's log: "
-                f"{self.log_lines} lines on stale streams; its STATUSTEXT: {self.statustext}")
+                f"{self.log_lines} lines on stale streams; its STATUSTEXT: {self.statustext}; the station's "
+                f"own ATTITUDE and ATTITUDE_QUATERNION: {station}")
 
 
 def stale(scenario: str, at_s: float, seconds: float, out: Path, altitude_m: float | None = None) -> StaleFigures:
@@ -216,10 +235,11 @@ def stale(scenario: str, at_s: float, seconds: float, out: Path, altitude_m: flo
         rig = Rig(at_altitude(scenario, altitude_m, out), seconds, out, stack)
         rig.wait_until(at_s)
         third_party_stops_attitude(rig.gcs)
+        rig.wait_until(min(at_s + STATION_WATCH_S, seconds - STATION_WATCH_S / 2))
         rig.wait_for_end()
     texts = [msg.text for msg in _ours(_tlog(out / "flight.tlog")) if msg.get_type() == "STATUSTEXT"]
     return StaleFigures(at_s, motion_from(load_truth(out / "truth.npz"), at_s), rig.companion_said("stale"),
-                        [t for t in texts if "stale" in t or "fresh" in t])
+                        [t for t in texts if "stale" in t or "fresh" in t], attitude_after_the_stop(rig.station))
 
 
 @dataclass(frozen=True)
