@@ -17,14 +17,16 @@ def test_a_third_party_stopping_attitude_on_its_own_link_does_not_reach_the_comp
     too (the companion then said "stale attitude" and asked again). Now, as ArduPilot has it, it
     sets the sender's own link: the station's streams stop, the companion's run on and nothing
     goes stale. (The companion's answer to a stale stream: tests/companion/test_app.py.)
-    Judged on what crossed the links and on the robot staying level, not on where it flew: on a
-    loaded machine a starved companion leaves the robot to the FC's failsafe, which lands it
-    level, whatever the streams."""
+    Judged on what crossed the links and on the robot staying upright, not on where it flew: on
+    a loaded machine a starved companion leaves the robot to the FC's failsafe, which lands it,
+    whatever the streams. Upright: within 30 deg, about twice the most this rotor loss tilts
+    it in real time behind a slow lossy link (17 deg, docs/links-and-load.md; 16 deg here with
+    the companion starved at load 19); flown on stale attitude it turned upside down."""
     figures = reliability.stale("hover-rotor-loss", at_s=3.0, seconds=6.0, out=tmp_path)
     print(f"\n{figures}")
     assert figures.station_attitude == 0                # the station's own streams stopped: the FC obeyed it
     assert "companion: stale attitude: no setpoints" not in figures.statustext and figures.log_lines == 0
-    assert figures.motion.tilt_deg < 15.0
+    assert figures.motion.tilt_deg < 30.0
 
 
 def test_a_companion_restarted_after_the_rotor_loss_keeps_the_fault_takes_over_and_lands(tmp_path):
