@@ -138,8 +138,8 @@ class Rig:
                 beat_s = time.monotonic() + 0.5
             wait_readable([self.gcs], 0.01)
             for msg in self.gcs.receive():
-                if msg.get_type() == "LOCAL_POSITION_NED":
-                    self.sim_s = max(self.sim_s, msg.time_boot_ms / 1000.0)
+                if (stamp_ms := getattr(msg, "time_boot_ms", None)) is not None:
+                    self.sim_s = max(self.sim_s, stamp_ms / 1000.0)
                 self.station.append((self.sim_s, msg))
 
     def wait_for_end(self) -> None:
