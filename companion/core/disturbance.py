@@ -40,10 +40,15 @@ class DisturbanceEstimator:
         if not period_s > 0:
             raise ValueError(f"DisturbanceEstimator period_s must be > 0, got {period_s}")
         self.gain = gain
-        # Defaults: half the weight as force; one rotor's full thrust at the leg's reach as torque.
-        f_max = 0.5 * airframe.total_mass_kg * airframe.gravity_m_s2 if force_max_n is None else force_max_n
+        # Defaults: as force, half the weight across and the weight down. Down it carries the thrust
+        # the rotors lose to the air (tilted into 13-17 m/s of it up to half: docs/fault-detection.md,
+        # "held aloft"), which the NMPC must ask for; across, a larger push would only tilt the robot
+        # further into that air, where the inflow takes more thrust than the tilt gains. As torque:
+        # one rotor's full thrust at the leg's reach.
+        weight_n = airframe.total_mass_kg * airframe.gravity_m_s2
+        f_max = np.array([0.5, 0.5, 1.0]) * weight_n if force_max_n is None else np.full(3, force_max_n)
         t_max = airframe.thrust_max_n * airframe.leg_length_m if torque_max_n_m is None else torque_max_n_m
-        self.bound = np.r_[np.full(3, f_max), np.full(3, t_max)]
+        self.bound = np.r_[f_max, np.full(3, t_max)]
         step = rom.build_rom(airframe, period_s, substeps=2).step
         x, u, d = ca.SX.sym("x", NX), ca.SX.sym("u", NU), ca.SX.sym("d", ND)
         x_next = step(x, u, d)

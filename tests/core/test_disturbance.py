@@ -55,6 +55,15 @@ def test_a_heavier_robot_shows_up_as_a_downward_force():
     assert np.abs(est[:2]).max() < 0.01
 
 
+def test_a_thrust_shortfall_beyond_half_the_weight_is_recovered():
+    # Tilted into 13-17 m/s of air the rotors lose up to half their thrust to the inflow (the
+    # plant's law): the NMPC must know all of it, not a share clipped at half the weight.
+    weight_n = AF.total_mass_kg * AF.gravity_m_s2
+    d_true = np.array([0.3 * weight_n, 0.0, 0.7 * weight_n, 0.0, 0.0, 0.0])
+    est = run(DisturbanceEstimator(AF, PERIOD, gain=0.3), d_true, steps=60)
+    assert est == pytest.approx(d_true, abs=0.05)
+
+
 def test_the_estimate_is_bounded():
     est = DisturbanceEstimator(AF, PERIOD, gain=1.0, force_max_n=5.0, torque_max_n_m=0.2)
     out = run(est, np.array([50.0, 0.0, 0.0, 3.0, 0.0, 0.0]), steps=20)
