@@ -9,8 +9,10 @@ which grows as omega^3 (torque k_q omega^2 times speed). Per rotor:
 - unloaded (propeller lost): the motor overspeeds, its thrust is 0 whatever it turns at,
   and its load index current * voltage / rpm^3 falls far below the other rotors'. The
   serial current comes at a tenth of the RPM's rate and each ESC's at its own instant, so
-  a collapsed load index counts only on a rotor already turning faster than asked, and the
-  overspeed alone also tells;
+  each current is judged against the speed of the frame it first came in
+  (`current_speed_rpm`: a rotor speeding up would otherwise read a current from 0.1 s before
+  as a collapsed load), a collapsed load index counts only on a rotor already turning faster
+  than asked, and the overspeed alone also tells;
 - a rotor that turns slower than the voltage and command ask (a weak motor) delivers the
   thrust of the speed it reaches;
 - a chipped propeller turns normally: the ESC cannot see it (the model residual must).
@@ -102,11 +104,24 @@ class EscReading:
     voltage_v: float                       # the ESCs' median voltage (NaN: unknown)
 
 
-def read_escs(sample: EscSample, expected_n: np.ndarray, model: PropellerModel,
-              th: EscThresholds = EscThresholds()) -> EscReading:
-    """The thrusts and conditions of one ESC frame, against the thrust the rotors should give now
-    (the command through the motor lag, within the battery's ceiling)."""
+def current_speed_rpm(sample: EscSample, before: EscSample | None, before_speed_rpm: np.ndarray | None) -> np.ndarray:
+    """Each rotor's speed when the current `sample` reports was measured: the speed of the frame
+    that current first came in. A current the frame `before` reported already keeps the speed it
+    came with (`before_speed_rpm`, this function's answer for `before`); a new one, this frame's."""
     rpm = _reported(sample.rpm, _RPM_MAX)
+    if before is None or before_speed_rpm is None:
+        return rpm
+    held = np.asarray(sample.current_a, dtype=float) == np.asarray(before.current_a, dtype=float)
+    return np.where(held & np.isfinite(before_speed_rpm), before_speed_rpm, rpm)
+
+
+def read_escs(sample: EscSample, expected_n: np.ndarray, model: PropellerModel,
+              th: EscThresholds = EscThresholds(), current_rpm: np.ndarray | None = None) -> EscReading:
+    """The thrusts and conditions of one ESC frame, against the thrust the rotors should give now
+    (the command through the motor lag, within the battery's ceiling). current_rpm: each rotor's
+    speed when its current was measured (`current_speed_rpm`; None: this frame's)."""
+    rpm = _reported(sample.rpm, _RPM_MAX)
+    load_rpm = rpm if current_rpm is None else np.where(np.isfinite(current_rpm), current_rpm, rpm)
     current = _reported(sample.current_a, _CURRENT_MAX_A)
     voltage = _reported(sample.voltage_v, _VOLTAGE_MAX_V)
     volts = [v for v in voltage.tolist() if math.isfinite(v) and v > 0]
@@ -117,7 +132,7 @@ def read_escs(sample: EscSample, expected_n: np.ndarray, model: PropellerModel,
     current = np.where(current > 0.0, current, np.nan)     # a turning motor draws current: 0 is "not polled yet"
     with np.errstate(divide="ignore", invalid="ignore"):
         load = np.where(turning & np.isfinite(current), current * np.where(np.isfinite(voltage), voltage, 1.0)
-                        / np.maximum(rpm, th.speed_min_rpm) ** 3, np.nan)
+                        / np.maximum(load_rpm, th.speed_min_rpm) ** 3, np.nan)
         speed_share = np.where(expected_rpm >= th.speed_min_rpm, rpm / expected_rpm, np.nan)
     thrust = model.thrust_n(rpm)
     conditions = []

@@ -59,7 +59,8 @@ from m4.fault_kind import FaultKind
 from companion.core import rom
 from companion.core.control_types import FaultState, FaultStatus
 from companion.core.damaged_rotor import damaged_ceiling_n
-from companion.core.esc_evidence import EscReading, EscSample, PropellerModel, RotorCondition, read_escs
+from companion.core.esc_evidence import (EscReading, EscSample, PropellerModel, RotorCondition, current_speed_rpm,
+                                         read_escs)
 from companion.core.fault_residual import (
     CHANNELS,
     IntervalFit,
@@ -177,6 +178,8 @@ class FaultDetector:
         self._esc_time_s = -math.inf               # newest ESC frame used
         self._esc_thrust_n = np.zeros(ROTOR_COUNT)     # its speed-implied thrusts
         self._esc_rpm: np.ndarray | None = None
+        self._esc_sample: EscSample | None = None      # the last frame read
+        self._current_rpm: np.ndarray | None = None    # each rotor's speed when its current was measured
         self._esc_heading_n = np.zeros(ROTOR_COUNT)    # the level those thrusts head to through the lag
         self._esc_voltage_v = math.nan                 # its voltage
         self._run: _Run | None = None
@@ -321,9 +324,12 @@ class FaultDetector:
         esc_dt, self._esc_time_s = esc.time_s - self._esc_time_s, esc.time_s
         if not np.isfinite(esc.rpm).any():
             return None
+        self._current_rpm = current_speed_rpm(esc, self._esc_sample, self._current_rpm)
+        self._esc_sample = esc
         # Overspeed is judged against the most the rotor may have been asked: a rotor slowing
         # down after a command drop still turns faster than the lagged model says.
-        reading = read_escs(esc, np.maximum(self._cmd_lag_high_n, self._asked_n), self._propeller)
+        reading = read_escs(esc, np.maximum(self._cmd_lag_high_n, self._asked_n), self._propeller,
+                            current_rpm=self._current_rpm)
         self._esc_voltage_v = reading.voltage_v
         self._esc_thrust_n = np.where(np.isfinite(reading.thrust_n), reading.thrust_n, self._cmd_lag_n)
         # The rotor speed follows its first-order lag: speed = heading + decay (previous - heading).
