@@ -136,6 +136,25 @@ def test_a_damaged_propeller_stays_damaged_when_a_current_read_while_braking_say
     assert min(s.thrust_max_estimate_n[1] for s in statuses[k:]) >= 0.3 * AF.thrust_max_n
 
 
+def test_a_damaged_propeller_spinning_up_on_a_current_from_before_is_not_taken_for_a_lost_one():
+    """Rotor 2's propeller loses half its blade while the controller asks it for 60 % more (the
+    campaign's rotor 2 in hover). Its ESC's serial current is the one it measured at the hover
+    speed, held for the 0.1 s until the next poll while the rotor spins up: against the new speed
+    its load index is 0.19 of the others', a collapsed load on a rotor turning 9 % fast. Judged
+    against the speed it was measured at, it is half a load: a damaged propeller, sized as one."""
+    def chip_on_a_held_current(e):
+        chip(e)
+        e.stale_current_a[1] = 0.5 * LOAD * PROP.rpm(HOVER_N) ** 3 / e.voltage_v
+    def poll(e):
+        e.stale_current_a[1] = np.nan
+    commands = hover(5) + [np.array([HOVER_N, 1.6 * HOVER_N, HOVER_N, HOVER_N])] * 35
+    statuses = fly(Escs(), commands, {5: chip_on_a_held_current, 10: poll})
+    k, s = first_confirmed(statuses)
+    assert s.rotor == 2 and (k - 5 + 1) * DT <= 0.12 + 1e-9
+    assert all(s.kind is FaultKind.DAMAGE for s in statuses[k:])
+    assert min(s.thrust_max_estimate_n[1] for s in statuses[k:]) >= 0.3 * AF.thrust_max_n
+
+
 def test_a_motor_that_cannot_reach_its_speed_is_sized_by_the_speed_it_reaches():
     ceiling_n = 0.5 * HOVER_N
     def weaken(e):
