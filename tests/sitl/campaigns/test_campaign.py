@@ -164,6 +164,17 @@ def test_the_tradeoff_has_one_point_per_value_with_its_latency_and_alarm_rate(tm
     assert "| chi2_min = 50 | 0.10 / 0.10 | 1 | 0.0 | 1.00 |" in tradeoff.tradeoff_markdown([low, high])
 
 
+def test_the_tradeoff_marks_the_value_the_companion_flies_with():
+    """deploy/companion.toml flies chi2_min = 25: that point, and only it, is the default."""
+    rows = [{"setting": "chi2_min", "setting_value": value, "kind": "", "latency_s": None, "detected": False,
+             "alarms_before_fault": 0, "flown_before_fault_s": 60.0} for value in (5.0, 25.0)]
+    points = tradeoff.tradeoff_points(rows)
+    assert [p.default for p in points] == [False, True]
+    text = tradeoff.tradeoff_markdown(points)
+    assert "| chi2_min = 25 (default) |" in text and "| chi2_min = 5 |" in text
+    assert tradeoff.deployed_value("no_such_setting") is None
+
+
 def test_a_stalled_flight_is_flagged_and_counts_in_no_figure():
     """Two fault-free minutes, the second stalled with an alarm in its failsafe: the table has
     one minute and no alarm, and says which flight it left out."""
