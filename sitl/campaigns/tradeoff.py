@@ -74,27 +74,48 @@ def tradeoff_markdown(points: list[TradeoffPoint]) -> str:
 
 
 def draw_tradeoff(rows: list[dict], path: Path) -> list[TradeoffPoint]:
-    """tradeoff.png at path: latency (median, the bar up to the worst) against false alarms per hour."""
+    """tradeoff.png at path. Left: latency (median, the bar up to the worst) against false alarms
+    per hour, values that land on one point named together. Right: both against the setting's
+    value, so the figure still reads where every value raised the same number of alarms."""
     points = tradeoff_points(rows)
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    setting = points[0].setting if points else "the setting"
+    fig, (ax, by) = plt.subplots(1, 2, figsize=(11.0, 4.2))
     x = np.array([p.alarms_per_hour for p in points])
+    value = np.array([p.value for p in points])
     median = np.array([p.latency_median_s for p in points])
-    worst = np.array([p.latency_worst_s for p in points])
-    ax.errorbar(x, median, yerr=[np.zeros_like(median), worst - median], fmt="o-", capsize=4,
-                label="latency: median, bar to the worst")
+    bar = [np.zeros_like(median), np.array([p.latency_worst_s for p in points]) - median]
+    ax.errorbar(x, median, yerr=bar, fmt="o-", capsize=4, label="latency: median, bar to the worst")
+    together: dict[tuple[float, float], list[TradeoffPoint]] = {}
     for p in points:
-        label = f"{p.value:g}" + " (default)" * p.default + (f" ({p.missed} missed)" if p.missed else "")
-        ax.annotate(label, (p.alarms_per_hour, p.latency_median_s), textcoords="offset points", xytext=(6, -12),
-                    fontsize=8, fontweight="bold" if p.default else "normal")
+        together.setdefault((p.alarms_per_hour, p.latency_median_s), []).append(p)
+    for spot, same in together.items():
+        label = ", ".join(f"{p.value:g}" + " (default)" * p.default + (f" ({p.missed} missed)" if p.missed else "")
+                          for p in same)
+        ax.annotate(label, spot, textcoords="offset points", xytext=(6, -12), fontsize=8,
+                    fontweight="bold" if any(p.default for p in same) else "normal")
     marked = [p for p in points if p.default]
     if marked:
         ax.plot([p.alarms_per_hour for p in marked], [p.latency_median_s for p in marked], "o", markersize=13,
                 markerfacecolor="none", markeredgecolor="tab:red", label="the companion's default")
+        by.axvline(marked[0].value, color="tab:red", linestyle=":", label="the companion's default")
     ax.set_xlabel("false alarms per hour of flight")
     ax.set_ylabel("detection latency (s)")
-    ax.set_title(f"trade-off as {points[0].setting if points else 'the setting'} moves (labels: its value)")
-    ax.grid(True, alpha=0.3)
+    ax.set_title(f"trade-off as {setting} moves (labels: its value)", fontsize=10)
+    by.errorbar(value, median, yerr=bar, fmt="o-", capsize=4, label="latency: median, bar to the worst")
+    by.set_xlabel(setting)
+    by.set_ylabel("detection latency (s)")
+    alarms = by.twinx()
+    alarms.plot(value, x, "s--", color="tab:orange", label="false alarms per hour")
+    alarms.set_ylabel("false alarms per hour of flight")
+    most = max(1.0, 1.1 * float(np.nanmax(x))) if points else 1.0
+    ax.set_xlim(-0.05 * most, most)
+    alarms.set_ylim(0.0, most)
+    by.set_title(f"each against {setting}", fontsize=10)
+    for a in (ax, by):
+        a.grid(True, alpha=0.3)
     ax.legend(loc="upper right", fontsize=8)
+    handles = [h for a in (by, alarms) for h in a.get_legend_handles_labels()[0]]
+    by.legend(handles, [h.get_label() for h in handles], loc="upper left", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
