@@ -73,6 +73,16 @@ def tradeoff_markdown(points: list[TradeoffPoint]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def point_labels(points: list[TradeoffPoint]) -> dict[tuple[float, float], str]:
+    """The label of each spot (false alarms per hour, median latency): the values that land on it,
+    in order, the default and the faults missed said."""
+    labels: dict[tuple[float, float], list[str]] = {}
+    for p in points:
+        labels.setdefault((p.alarms_per_hour, p.latency_median_s), []).append(
+            f"{p.value:g}" + " (default)" * p.default + (f" ({p.missed} missed)" if p.missed else ""))
+    return {spot: ", ".join(names) for spot, names in labels.items()}
+
+
 def draw_tradeoff(rows: list[dict], path: Path) -> list[TradeoffPoint]:
     """tradeoff.png at path. Left: latency (median, the bar up to the worst) against false alarms
     per hour, values that land on one point named together. Right: both against the setting's
@@ -85,14 +95,9 @@ def draw_tradeoff(rows: list[dict], path: Path) -> list[TradeoffPoint]:
     median = np.array([p.latency_median_s for p in points])
     bar = [np.zeros_like(median), np.array([p.latency_worst_s for p in points]) - median]
     ax.errorbar(x, median, yerr=bar, fmt="o-", capsize=4, label="latency: median, bar to the worst")
-    together: dict[tuple[float, float], list[TradeoffPoint]] = {}
-    for p in points:
-        together.setdefault((p.alarms_per_hour, p.latency_median_s), []).append(p)
-    for spot, same in together.items():
-        label = ", ".join(f"{p.value:g}" + " (default)" * p.default + (f" ({p.missed} missed)" if p.missed else "")
-                          for p in same)
+    for spot, label in point_labels(points).items():
         ax.annotate(label, spot, textcoords="offset points", xytext=(6, -12), fontsize=8,
-                    fontweight="bold" if any(p.default for p in same) else "normal")
+                    fontweight="bold" if "(default)" in label else "normal")
     marked = [p for p in points if p.default]
     if marked:
         ax.plot([p.alarms_per_hour for p in marked], [p.latency_median_s for p in marked], "o", markersize=13,

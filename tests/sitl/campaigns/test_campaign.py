@@ -175,6 +175,14 @@ def test_the_tradeoff_marks_the_value_the_companion_flies_with():
     assert tradeoff.deployed_value("no_such_setting") is None
 
 
+def test_values_that_land_on_one_point_of_the_tradeoff_are_named_together():
+    """confirm_s 0.1 and 0.2 both 0.11 s with no alarm: one label, not two written over each other."""
+    def point(value, latency, missed=0):
+        return tradeoff.TradeoffPoint("confirm_s", value, latency, latency, missed, 0.0, 0.02, value == 0.1)
+    labels = tradeoff.point_labels([point(0.04, 0.06), point(0.1, 0.11), point(0.2, 0.11, missed=1)])
+    assert labels == {(0.0, 0.06): "0.04", (0.0, 0.11): "0.1 (default), 0.2 (1 missed)"}
+
+
 def test_a_stalled_flight_is_flagged_and_counts_in_no_figure():
     """Two fault-free minutes, the second stalled with an alarm in its failsafe: the table has
     one minute and no alarm, and says which flight it left out."""
