@@ -37,14 +37,15 @@ The real-time iteration ([nmpc] scheme = "rti"): `step` is its feedback (one QP)
 called once the setpoint has left, is its preparation for the next step, at the state the plan
 predicts then, along the reference from then, with this step's bounds and disturbance.
 
-The detector after the send: a frame that cannot move the NMPC's bounds (the detector healthy,
-the frame too soon after the last for one vote to confirm: FaultDetector.settles_nothing) is
-read by the detector in `prepare`, after the setpoint left, instead of before the solve; any
-other frame (a suspicion that may confirm, a confirmed fault, new limits) is read before it,
-so a fault confirmed at a frame bounds that frame's setpoint. The setpoint and the bounds are
-the same either way; the fault status sent with the setpoint is the one it was planned under
-(a suspicion raised by that frame goes out with the next), and `prepare` returns the status
-after the frame for the log and the feed.
+The detector after the send: a frame that cannot confirm a fault (FaultDetector.cannot_confirm:
+a fault confirmed already, or the detector healthy and the frame too soon after the last for
+one vote to confirm) is read by the detector in `prepare`, after the setpoint left, instead of
+before the solve; any other frame (a suspicion that may confirm, new limits) is read before
+it, so a fault confirmed at a frame bounds that frame's setpoint. Once a fault is confirmed,
+a frame's refinement of its rotor's ceiling (or its recovery) bounds the next setpoint, one
+period later. The fault status sent with a setpoint is the one it was planned under; `prepare`
+returns the status after the frame, which the app sends on, stamped with the frame, when it
+moved (a suspicion, a refined ceiling, a kind re-settled).
 
 Takeover: at the flight's first step and after a gap in which our setpoints went stale at the
 FC (its failsafe flew; FC_STALE_PERIODS, FC_STALE_MIN_S: the FC contract), the thrusts ramp
@@ -441,7 +442,7 @@ class Controller:
         if limit_n is not None and np.isfinite(limit_n).any():          # already a (4,) array (_thrust_telemetry)
             cap = float(np.clip(np.nanmax(limit_n), self.af.thrust_min_n, self.af.thrust_max_n))
         frame = (time_s, x, in_force.thrust_n, np.full(ROTOR_COUNT, cap), esc)
-        if self.detector.settles_nothing(time_s, frame[3]):
+        if self.detector.cannot_confirm(time_s, frame[3]):
             self._deferred = frame
             return self.detector.status, False
         return self._detected(self.detector.update(*frame))
@@ -451,7 +452,7 @@ class Controller:
         frame, self._deferred = self._deferred, None
         if frame is None:
             return None
-        status, _ = self._detected(self.detector.update(*frame))    # it cannot confirm (settles_nothing)
+        status, _ = self._detected(self.detector.update(*frame))    # it cannot confirm (cannot_confirm)
         return status
 
     def _detected(self, status: FaultStatus) -> tuple[FaultStatus, bool]:

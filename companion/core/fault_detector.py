@@ -243,15 +243,19 @@ class FaultDetector:
                            thrust_bound_n=bound, detected_at_s=self._detected_at_s if confirmed else None,
                            message=message, deficit_n=self._deficit_n.copy())
 
-    def settles_nothing(self, time_s: float, thrust_limit_n) -> bool:
+    def cannot_confirm(self, time_s: float, thrust_limit_n) -> bool:
         """True when update() at time_s with these limits (4,) can neither confirm a fault nor
-        move the thrust bounds: healthy, no votes in a row carried over, the limits the ones
-        in force, and the frame too soon after the last for a single vote to confirm. Such a
-        frame may be read after the setpoint that answers it has left."""
-        if self._state is not FaultState.HEALTHY or self._run is not None:
-            return False
+        take new limits: the limits the ones in force, and either a fault confirmed already (one
+        rotor at a time: a frame refines its estimate or clears it, never confirms another) or
+        healthy, no votes in a row carried over, and the frame too soon after the last for a
+        single vote to confirm. Such a frame may be read after the setpoint that answers it has
+        left (a refinement then bounds the next setpoint)."""
         limit = np.asarray(thrust_limit_n, dtype=float).reshape(ROTOR_COUNT)
         if not np.array_equal(np.where(np.isfinite(limit), limit, self._af.thrust_max_n), self._limit_n):
+            return False
+        if self._state is FaultState.CONFIRMED:
+            return True
+        if self._state is not FaultState.HEALTHY or self._run is not None:
             return False
         c = self._c
         return self._prev is None or time_s - self._prev.time_s < min(c.direct_confirm_s, c.saturated_confirm_s,

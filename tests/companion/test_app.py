@@ -301,12 +301,37 @@ class ScriptedDetector:
                            message=f"thrust loss rotor 4 ({kind.name.lower()})" if confirmed else "",
                            deficit_n=np.zeros(4))
 
-    def settles_nothing(self, *_args) -> bool:
+    def cannot_confirm(self, *_args) -> bool:
         return False                           # every frame may confirm: read before the solve
 
     def update(self, time_s: float, *_args, **_kwargs) -> FaultStatus:
         self.status = self._status(time_s)
         return self.status
+
+
+class ConfirmedFrameAfterTheSend(ScriptedDetector):
+    """The scripted detector, its frames read after the send once the fault is confirmed."""
+
+    def cannot_confirm(self, *_args) -> bool:
+        return self.status.state is FaultState.CONFIRMED
+
+
+def test_a_status_moved_by_a_frame_read_after_the_send_goes_out_alone_stamped_with_the_frame(rig):
+    """Rotor 4 confirmed damaged at 0.1 s, lost from 0.3 s: the setpoint answering 0.3 s goes
+    out with the status it was planned under (damage), the frame's own (propeller) right after
+    it, stamped 0.3 s too; then only the new one."""
+    app, fc, link, clock = rig
+    app.controller.detector = ConfirmedFrameAfterTheSend(
+        lambda t_s: FaultKind.DAMAGE if t_s < 0.3 else FaultKind.PROPELLER)
+    fc.join(app)
+    fly(app, fc, clock, 0, 20)
+    said = [(m.get_type(), m.time_boot_ms, getattr(m, "kind", None)) for m in link.sent_messages()
+            if m.get_type() in ("M4_SETPOINT", "M4_FAULT_STATUS")]
+    at_300 = [m for m in said if m[1] == 300]
+    assert at_300 == [("M4_SETPOINT", 300, None), ("M4_FAULT_STATUS", 300, int(FaultKind.DAMAGE)),
+                      ("M4_FAULT_STATUS", 300, int(FaultKind.PROPELLER))]
+    assert all(kind == int(FaultKind.PROPELLER) for kind_of, t_ms, kind in said
+               if kind_of == "M4_FAULT_STATUS" and t_ms > 300)
 
 
 def test_a_re_settled_fault_kind_is_announced_once_more_and_not_at_every_step(rig):

@@ -403,7 +403,7 @@ def test_after_prepare_the_next_step_finds_the_fcs_rate_feedback_and_cover_desig
 
 
 class _EveryFrameBeforeTheSolve(FaultDetector):
-    def settles_nothing(self, *_args) -> bool:
+    def cannot_confirm(self, *_args) -> bool:
         return False
 
 
@@ -424,10 +424,11 @@ def _rotor_4_lost(c: Controller, steps: int = 25):
     return answers
 
 
-def test_a_healthy_frame_is_read_after_the_send_and_the_setpoints_and_the_confirmation_stay_the_same():
-    """The detector reads a frame that cannot move the bounds after the send (prepare() returns
-    its status then); the setpoints, and the step at which the fault is confirmed and bounds
-    the NMPC, are those of a controller that reads every frame before the solve."""
+def test_a_frame_that_cannot_confirm_is_read_after_the_send_and_the_confirmation_stays_the_same():
+    """The detector reads a frame that cannot confirm a fault after the send (prepare() returns
+    its status then): the healthy frames and every frame after the confirmation. The step at
+    which the fault is confirmed and bounds the NMPC, and the setpoints up to it, are those of
+    a controller that reads every frame before the solve."""
     late = _rotor_4_lost(controller())
     _NMPC.reset()
     early = _rotor_4_lost(Controller(SETTINGS, nmpc=_NMPC, new_detector=lambda: _EveryFrameBeforeTheSolve(
@@ -436,6 +437,7 @@ def test_a_healthy_frame_is_read_after_the_send_and_the_setpoints_and_the_confir
     assert read_after and read_after[0] <= 1 and all(status is None for _, _, status in early)
     confirmed = [k for k, (_, now, _) in enumerate(late) if now]
     assert confirmed == [k for k, (_, now, _) in enumerate(early) if now] and len(confirmed) == 1
-    assert all(k < confirmed[0] for k in read_after)
-    for (a, _, _), (b, _, _) in zip(late, early):
+    assert list(range(confirmed[0] + 1, len(late))) == [k for k in read_after if k > confirmed[0]]
+    assert all(late[k][2].state is FaultState.CONFIRMED for k in range(confirmed[0] + 1, len(late)))
+    for (a, _, _), (b, _, _) in zip(late[:confirmed[0] + 1], early):
         assert np.array_equal(a.thrust_n, b.thrust_n) and np.array_equal(a.hip_rad, b.hip_rad)

@@ -169,28 +169,31 @@ def test_without_esc_a_rotor_short_only_above_the_common_ceiling_a_battery_may_i
 
 
 @pytest.mark.parametrize("dt_s", [0.01, 0.02, 0.05, 0.1])
-def test_a_frame_said_to_settle_nothing_neither_confirms_nor_moves_the_bounds(dt_s):
+def test_a_frame_said_not_to_confirm_neither_confirms_nor_takes_new_limits(dt_s):
     """Rotor 4 dead from the 10th frame, commanded at its ceiling: at 100 and 50 Hz the healthy
-    frames settle nothing, the suspect ones and the confirmed ones may; at 20 and 10 Hz a
-    single vote may confirm, so no frame after the first settles nothing."""
+    frames cannot confirm, the suspect ones may; at 20 and 10 Hz a single vote may confirm, so
+    no healthy frame after the first is said not to; once confirmed, no frame can confirm
+    another fault (its refinements are read after the send)."""
     det, limits = FaultDetector(AF, propeller=PROP), np.full(ROTOR_COUNT, AF.thrust_max_n)
     step = rom.build_rom(AF, dt_s, 4).step
     x, cmd = rom.hover_state(AF), np.array([HOVER_N, HOVER_N, HOVER_N, AF.thrust_max_n])
     said, states = [], []
     for k in range(60):
         before = det.status
-        said.append(det.settles_nothing(k * dt_s, limits))
+        said.append(det.cannot_confirm(k * dt_s, limits))
         if k >= 1:
-            assert not det.settles_nothing(k * dt_s, limits - 1.0)         # new limits move the bounds
+            assert not det.cannot_confirm(k * dt_s, limits - 1.0)         # new limits move the bounds
         after = det.update(k * dt_s, x, cmd, limits)
         states.append(after.state)
-        if said[-1]:
+        if said[-1] and before.state is not FaultState.CONFIRMED:
             assert after.state is not FaultState.CONFIRMED
             assert np.array_equal(after.thrust_bound_n, before.thrust_bound_n)
         u = np.zeros(rom.NU)
         u[rom.THRUST] = np.where(np.arange(ROTOR_COUNT) == 3, 0.0 if k >= 10 else HOVER_N, cmd)
         x = np.array(step(x, u, np.zeros(rom.ND))).ravel()
     assert FaultState.CONFIRMED in states
-    healthy_read = [s for s, state in zip(said[1:], states) if state is FaultState.HEALTHY]
-    assert all(healthy_read) if dt_s < 0.03 else not any(said[1:])
-    assert not any(s for s, state in zip(said[1:], states) if state is not FaultState.HEALTHY)
+    confirmed = states.index(FaultState.CONFIRMED)
+    assert all(said[confirmed + 1:])
+    healthy_read = [s for s, state in zip(said[1:confirmed + 1], states) if state is FaultState.HEALTHY]
+    assert all(healthy_read) if dt_s < 0.03 else not any(healthy_read)
+    assert not any(s for s, state in zip(said[1:], states) if state is FaultState.SUSPECT)
