@@ -65,7 +65,7 @@ from companion.controller import ControllerSettings, ControlStep, Controller
 from companion.core import rom
 from companion.core.control_types import FaultState
 from companion.core.esc_evidence import PropellerModel
-from companion.fc_link import FcLink, LinkEvent, mission_progress, status_news
+from companion.fc_link import FcLink, LinkEvent, mission_progress
 from companion.fc_mission import FcMission
 from companion.feed_publisher import Feed, open_feed
 from companion.loop_timing import LoopTiming
@@ -293,12 +293,12 @@ class CompanionApp:
             self.controller.resume()
             return
         sent_s = self.clock()
-        self.fc.send_setpoint(t_ms, self.period_ms, step.setpoint, sent_s, step.fault,
+        status_later = self.controller.frame_unread      # the detector reads the frame after the send
+        self.fc.send_setpoint(t_ms, self.period_ms, step.setpoint, sent_s, None if status_later else step.fault,
                               self.controller.mission_progress(t_s))
         self.timing.answered(read_s, sent_s)
         if (fault := self.controller.prepare()) is not None:    # the NMPC's next QP, off the critical path
-            if status_news(step.fault, fault):   # the frame read after the send moved the status: it goes out
-                self.fc.send_fault_status(t_ms, fault, self.controller.mission_progress(t_s))
+            self.fc.send_fault_status(t_ms, fault, self.controller.mission_progress(t_s))   # the frame's own status
             step = replace(step, fault=fault)
         if (report := self.timing.report(sent_s)) is not None:
             log.warning("t=%.3f s: %s", t_s, report.text)

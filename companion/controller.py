@@ -43,9 +43,9 @@ one vote to confirm) is read by the detector in `prepare`, after the setpoint le
 before the solve; any other frame (a suspicion that may confirm, new limits) is read before
 it, so a fault confirmed at a frame bounds that frame's setpoint. Once a fault is confirmed,
 a frame's refinement of its rotor's ceiling (or its recovery) bounds the next setpoint, one
-period later. The fault status sent with a setpoint is the one it was planned under; `prepare`
-returns the status after the frame, which the app sends on, stamped with the frame, when it
-moved (a suspicion, a refined ceiling, a kind re-settled).
+period later. A frame's fault status goes out once the detector has read it: with the
+setpoint when read before the solve, else alone right after it (`prepare` returns it; the
+app sends it stamped with the frame), so a status is never later than the frame it reads.
 
 Takeover: at the flight's first step and after a gap in which our setpoints went stale at the
 FC (its failsafe flew; FC_STALE_PERIODS, FC_STALE_MIN_S: the FC contract), the thrusts ramp
@@ -212,6 +212,12 @@ class Controller:
     @property
     def started(self) -> bool:
         return self.flight is not None
+
+    @property
+    def frame_unread(self) -> bool:
+        """The last step's frame is left for the detector after the send: prepare() reads it and
+        returns the status after it."""
+        return self._deferred is not None
 
     def start(self, time_s: float, x_measured, kept: MissionProgress | None = None) -> bool:
         """The flight begins at time_s: the mission is anchored at this measured state, or, with

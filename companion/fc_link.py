@@ -150,14 +150,6 @@ def _fault_status_message(time_ms: int, status: FaultStatus,
         list(plan.start_ned_m), _ms(plan.change_time_s), list(plan.change_ned_m))
 
 
-def status_news(sent: FaultStatus, now: FaultStatus) -> bool:
-    """Whether M4_FAULT_STATUS says anything of `now` that it did not of `sent` (the deficits
-    are not on the wire)."""
-    said = (sent.state, sent.rotor, sent.kind, sent.detected_at_s)
-    return (said != (now.state, now.rotor, now.kind, now.detected_at_s)
-            or not np.array_equal(sent.thrust_max_estimate_n, now.thrust_max_estimate_n, equal_nan=True))
-
-
 def mission_progress(msg: mavlink.MAVLink_m4_fault_status_message) -> MissionProgress | None:
     """The mission progress an M4_FAULT_STATUS carries (None: no plan in it, or not a sane one)."""
     if msg.mission_state not in set(PlanState) or msg.mission_state == PlanState.NONE:
@@ -350,8 +342,8 @@ class FcLink:
         self.link.send_all(msgs)
 
     def send_fault_status(self, time_ms: int, fault: FaultStatus, mission: MissionProgress | None = None) -> None:
-        """The fault status after FC instant time_ms, alone: a status the detector settled after
-        that instant's setpoint left."""
+        """The fault status after FC instant time_ms, alone: the detector read that instant's
+        frame after its setpoint left."""
         self.link.send(_fault_status_message(time_ms, fault, mission))
 
     def statustext(self, severity: int, text: str) -> None:
