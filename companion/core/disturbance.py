@@ -40,15 +40,20 @@ class DisturbanceEstimator:
         if not period_s > 0:
             raise ValueError(f"DisturbanceEstimator period_s must be > 0, got {period_s}")
         self.gain = gain
-        # Defaults: as force, half the weight across and the weight down. Down it carries the thrust
-        # the rotors lose to the air (tilted into 13-17 m/s of it up to half: docs/fault-detection.md,
-        # "held aloft"), which the NMPC must ask for; across, a larger push would only tilt the robot
-        # further into that air, where the inflow takes more thrust than the tilt gains. As torque:
-        # one rotor's full thrust at the leg's reach.
+        # Defaults: as force, half the weight across and up, the weight down. Down it carries the
+        # thrust the rotors lose to the air (tilted into 13-17 m/s of it up to half:
+        # docs/fault-detection.md, "held aloft"), which the NMPC must ask for; across, a larger push
+        # would only tilt the robot further into that air, where the inflow takes more thrust than
+        # the tilt gains; up, the ground carrying a landed robot must not wind it past half. As
+        # torque: one rotor's full thrust at the leg's reach, either way.
         weight_n = airframe.total_mass_kg * airframe.gravity_m_s2
-        f_max = np.array([0.5, 0.5, 1.0]) * weight_n if force_max_n is None else np.full(3, force_max_n)
+        if force_max_n is None:
+            f_low, f_high = np.full(3, -0.5 * weight_n), np.array([0.5, 0.5, 1.0]) * weight_n
+        else:
+            f_low, f_high = np.full(3, -force_max_n), np.full(3, force_max_n)
         t_max = airframe.thrust_max_n * airframe.leg_length_m if torque_max_n_m is None else torque_max_n_m
-        self.bound = np.r_[f_max, np.full(3, t_max)]
+        self.lower = np.r_[f_low, np.full(3, -t_max)]
+        self.upper = np.r_[f_high, np.full(3, t_max)]
         step = rom.build_rom(airframe, period_s, substeps=2).step
         x, u, d = ca.SX.sym("x", NX), ca.SX.sym("u", NU), ca.SX.sym("d", ND)
         x_next = step(x, u, d)
@@ -74,5 +79,5 @@ class DisturbanceEstimator:
             correction = np.linalg.lstsq(sensitivity, innovation, rcond=None)[0]
         if np.isfinite(correction).all():
             step = self.gain * float(np.clip(gain_scale, 0.0, 1.0))
-            self.estimate = (self.estimate + step * correction).clip(-self.bound, self.bound)
+            self.estimate = (self.estimate + step * correction).clip(self.lower, self.upper)
         return self.estimate.copy()

@@ -107,3 +107,12 @@ def test_bad_settings_are_rejected(kwargs):
     args = {"period_s": PERIOD, **kwargs}
     with pytest.raises(ValueError, match=next(iter(kwargs))):
         DisturbanceEstimator(AF, **args)
+
+
+def test_the_estimate_carries_the_weight_downwards_but_only_half_of_it_upwards():
+    """Down the rotors may lose thrust to the air, the NMPC must ask for it; up, a landed robot's
+    ground would wind the estimate to the whole weight and the NMPC to no thrust at all."""
+    weight_n = AF.total_mass_kg * AF.gravity_m_s2
+    down = run(DisturbanceEstimator(AF, PERIOD, gain=1.0), np.array([0, 0, 2.0 * weight_n, 0, 0, 0]), steps=20)
+    up = run(DisturbanceEstimator(AF, PERIOD, gain=1.0), np.array([0, 0, -2.0 * weight_n, 0, 0, 0]), steps=20)
+    assert down[2] == pytest.approx(weight_n) and up[2] == pytest.approx(-0.5 * weight_n)
