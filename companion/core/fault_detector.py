@@ -245,16 +245,21 @@ class FaultDetector:
 
     def cannot_confirm(self, time_s: float, thrust_limit_n) -> bool:
         """True when update() at time_s with these limits (4,) can neither confirm a fault nor
-        take new limits: the limits the ones in force, and either a fault confirmed already (one
-        rotor at a time: a frame refines its estimate or clears it, never confirms another) or
-        healthy, no votes in a row carried over, and the frame too soon after the last for a
+        take new limits: the limits the ones in force, and either a rotor confirmed lost already
+        (motor or propeller: its ceiling at the least a rotor gives or on its way back up; one
+        rotor at a time: a frame refines that ceiling or clears the fault, never confirms another)
+        or healthy, no votes in a row carried over, and the frame too soon after the last for a
         single vote to confirm. Such a frame may be read after the setpoint that answers it has
-        left (a refinement then bounds the next setpoint)."""
+        left (a refinement then bounds the next setpoint). With ESC telemetry a damaged or weak
+        rotor's frame may find it lost after all, and a damaged propeller's ceiling falls at once
+        on a clear deficit: such a frame is read before the solve (without ESCs a weak rotor's
+        ceiling only moves by estimate_gain a frame)."""
         limit = np.asarray(thrust_limit_n, dtype=float).reshape(ROTOR_COUNT)
         if not np.array_equal(np.where(np.isfinite(limit), limit, self._af.thrust_max_n), self._limit_n):
             return False
         if self._state is FaultState.CONFIRMED:
-            return True
+            lost = self._kind in (FaultKind.MOTOR, FaultKind.PROPELLER)
+            return lost or self._kind is not FaultKind.DAMAGE and self._esc_sample is None
         if self._state is not FaultState.HEALTHY or self._run is not None:
             return False
         c = self._c

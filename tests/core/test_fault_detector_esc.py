@@ -60,14 +60,17 @@ def flown(x, before_n, after_n):
     return np.array(STEP(x, u, np.zeros(rom.ND))).ravel()
 
 
-def fly(escs, commands, events=()):
+def fly(escs, commands, events=(), said=None):
     """The robot moved by what the rotors deliver, the detector reading it and the ESCs;
-    events: {frame: fn(escs)}, applied at the start of that frame's interval."""
+    events: {frame: fn(escs)}, applied at the start of that frame's interval; said: a list to
+    which each frame's cannot_confirm() before it is read is appended."""
     det = FaultDetector(AF, propeller=PROP)
     x, statuses = rom.hover_state(AF), []
     for k, cmd in enumerate(commands):
         if k in events:
             events[k](escs)
+        if said is not None:
+            said.append(det.cannot_confirm(k * DT, np.full(ROTOR_COUNT, AF.thrust_max_n)))
         before = escs.thrust_n()
         sample = escs.step(k * DT, cmd)
         x = flown(x, before, escs.thrust_n())
@@ -258,3 +261,18 @@ def test_a_rotor_commanded_down_to_nothing_spins_down_as_fast_as_its_speed_lag_w
     drop[1] = AF.thrust_min_n
     statuses = fly(Escs(), hover(5) + [drop] * 10)
     assert all(s.state is FaultState.HEALTHY for s in statuses)
+
+
+def test_while_a_damaged_propeller_is_confirmed_its_frames_are_read_before_the_solve_a_lost_ones_after():
+    """A damaged propeller's frame may lower its ceiling at once or find it lost after all: it
+    must bound its own setpoint. A stopped motor's ceiling is the least already: its frames may
+    wait until after the send."""
+    said_damaged, said_stopped = [], []
+    damaged = fly(Escs(), hover(30), {5: chip}, said_damaged)
+    def stop(e):
+        e.rpm_max[2] = 0.0
+    stopped = fly(Escs(), hover(30), {5: stop}, said_stopped)
+    k, s = first_confirmed(damaged)
+    assert s.kind is FaultKind.DAMAGE and not any(said_damaged[k + 1:])
+    k, s = first_confirmed(stopped)
+    assert s.kind is FaultKind.MOTOR and all(said_stopped[k + 1:])
