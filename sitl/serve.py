@@ -72,7 +72,6 @@ from m4.mavlink.signing import StreamTimestamps, refusal
 from m4.mavlink.tlog import TlogWriter
 from m4.params_file import ParamFile
 from m4.toml_fields import ConfigError
-from sitl.flights.flight_run import STALL_MARK
 from sitl.links.emulation import EmulatedLink, LinkEmulation
 from sitl.fc.routing import Router
 from m4.scenario import Scenario
@@ -311,6 +310,7 @@ class Server:
                 if not self._await_setpoint(v.now_ms):
                     if self._stop:
                         return
+                    from sitl.flights.flight_run import STALL_MARK   # here: serve must not load the flights' runner
                     log(f"t={v.now_ms / 1000:.3f} s: {STALL_MARK} {self.options.lockstep_timeout_s:g} s "
                          "(wall clock); going on without waiting, in the FC's failsafe")
                     waiting = False
