@@ -297,9 +297,15 @@ class CompanionApp:
         self.fc.send_setpoint(t_ms, self.period_ms, step.setpoint, sent_s, None if status_later else step.fault,
                               self.controller.mission_progress(t_s))
         self.timing.answered(read_s, sent_s)
-        if (fault := self.controller.prepare()) is not None:    # the NMPC's next QP, off the critical path
-            self.fc.send_fault_status(t_ms, fault, self.controller.mission_progress(t_s))   # the frame's own status
-            step = replace(step, fault=fault)
+        try:
+            if (fault := self.controller.read_deferred()) is not None:
+                self.fc.send_fault_status(t_ms, fault, self.controller.mission_progress(t_s))   # the frame's own status
+                step = replace(step, fault=fault)
+            self.controller.prepare()                           # the NMPC's next QP, off the critical path
+        except Exception:           # a defect, not bad input: say it; the next step starts the NMPC afresh
+            self.counters.control_errors += 1
+            log.exception("after the setpoint at t=%.3f s: the detector or the NMPC's preparation failed", t_ms / 1000.0)
+            self.controller.resume()
         if (report := self.timing.report(sent_s)) is not None:
             log.warning("t=%.3f s: %s", t_s, report.text)
             self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, report.statustext)

@@ -262,7 +262,7 @@ class Controller:
     def resume(self) -> None:
         """After a gap in the telemetry (link loss): the previous plan, state and hip goal are
         stale. The disturbance estimate is kept (it describes the robot, not the moment)."""
-        self._detect_deferred()
+        self.read_deferred()
         self.nmpc.reset()
         self.sent.clear()
         self.applied.clear()
@@ -283,14 +283,14 @@ class Controller:
     def retune_detector(self, config: FaultDetectorConfig) -> None:
         """The detector's thresholds changed in flight (a parameter): from its next frame on, and
         for a detector built anew after an FC reboot."""
-        self._detect_deferred()               # a frame before the change is read by the thresholds it came under
+        self.read_deferred()               # a frame before the change is read by the thresholds it came under
         self.settings = replace(self.settings, fault_detector=config)
         self.detector.retune(config)
 
     def restore_fault(self, rotor: int, thrust_max_estimate_n: float, detected_at_s: float) -> None:
         """A fault confirmed by an earlier run of the companion (the FC kept it): the detector
         starts from it; the next step confirms it (bound, reference hold, announcement)."""
-        self._detect_deferred()
+        self.read_deferred()
         self.detector.restore(rotor, thrust_max_estimate_n, detected_at_s)
 
     def step(self, time_s: float, x_measured, esc: EscSample | None = None, thrust_limit_n=None,
@@ -303,7 +303,7 @@ class Controller:
         yet (None, or not finite) is planned as 0, and the disturbance estimate waits for it
         (_estimate_disturbance)."""
         af = self.af
-        self._detect_deferred()               # the last frame first, had no prepare() read it
+        self.read_deferred()               # the last frame first, had no prepare() read it
         self._note_gap(time_s)
         lead_known = lead_s is not None and bool(np.isfinite(lead_s))
         lead_s = max(float(lead_s), 0.0) if lead_known else 0.0
@@ -355,7 +355,7 @@ class Controller:
         dropped), and the FC's rate feedback and cover are designed for the hip goal the next
         step starts from. The next step is expected one period on, at the same lead, with the
         same bounds."""
-        status = self._detect_deferred()
+        status = self.read_deferred()
         solved, self._solved = self._solved, None
         if solved is None or self.flight is None:
             self.nmpc.unprepare()
@@ -453,8 +453,9 @@ class Controller:
             return self.detector.status, False
         return self._detected(self.detector.update(*frame))
 
-    def _detect_deferred(self) -> FaultStatus | None:
-        """The frame left for after the send, read now (None: none was left)."""
+    def read_deferred(self) -> FaultStatus | None:
+        """The frame left for after the send, read now (None: none was left); prepare() reads it
+        too, if the caller has not."""
         frame, self._deferred = self._deferred, None
         if frame is None:
             return None

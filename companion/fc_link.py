@@ -322,7 +322,8 @@ class FcLink:
                       fault: FaultStatus | None = None, mission: MissionProgress | None = None) -> None:
         """The setpoint answering FC instant time_ms, with the fault status and the mission's
         progress (when a fault status is given) and a TIMESYNC request (when one is due), in
-        one datagram: one send per control step."""
+        one datagram. A frame the detector reads after the send has its status sent alone right
+        after (send_fault_status): two datagrams that step (at 50 and 100 Hz, every healthy one)."""
         flags = mavlink.M4_SETPOINT_FLAG_THRUST_CUT if sp.thrust_cut else 0
         fb, cover = sp.rate_feedback, sp.shortfall_cover
         extensions = {} if fb is None else dict(rates_ref_frd_rad_s=_floats(fb.rates_ref_frd_rad_s),

@@ -337,6 +337,22 @@ def test_a_frame_read_after_the_send_has_its_status_sent_alone_right_after_its_s
     assert statuses == sorted(set(statuses)) == [t_ms for kind_of, t_ms in said if kind_of == "M4_SETPOINT"]
 
 
+def test_a_failing_preparation_is_said_and_counted_and_the_frames_status_has_gone_out_before_it(rig, caplog):
+    """The work after the send is guarded as the step is: a defect there is one logged error and
+    a counter, the companion flies on, and the frame's status left before the preparation ran."""
+    app, fc, link, clock = rig
+    app.controller.detector = ConfirmedFrameAfterTheSend(lambda t_s: FaultKind.PROPELLER)
+    fc.join(app)
+
+    def broken():
+        raise RuntimeError("a defect in the preparation")
+    app.controller.prepare = broken
+    fly(app, fc, clock, 0, 20)
+    statuses = [m.time_boot_ms for m in link.sent_messages() if m.get_type() == "M4_FAULT_STATUS"]
+    assert {200, 300} <= set(statuses)
+    assert app.counters.control_errors > 0 and "the detector or the NMPC's preparation failed" in caplog.text
+
+
 def test_a_re_settled_fault_kind_is_announced_once_more_and_not_at_every_step(rig):
     """Damage confirmed at 0.1 s; the kind flips between damage and propeller every frame from
     0.3 s, settles on propeller at 0.5 s: one more announcement, 1 s after the first (the
