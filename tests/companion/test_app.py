@@ -337,7 +337,8 @@ def test_a_frame_read_after_the_send_has_its_status_sent_alone_right_after_its_s
     assert statuses == sorted(set(statuses)) == [t_ms for kind_of, t_ms in said if kind_of == "M4_SETPOINT"]
 
 
-def test_a_failing_preparation_is_said_and_counted_and_the_frames_status_has_gone_out_before_it(rig, caplog):
+def test_a_failing_preparation_is_said_and_counted_and_the_frames_status_has_gone_out_before_it(rig, caplog,
+                                                                                                monkeypatch):
     """The work after the send is guarded as the step is: a defect there is one logged error and
     a counter, the companion flies on, and the frame's status left before the preparation ran."""
     app, fc, link, clock = rig
@@ -346,7 +347,7 @@ def test_a_failing_preparation_is_said_and_counted_and_the_frames_status_has_gon
 
     def broken():
         raise RuntimeError("a defect in the preparation")
-    app.controller.prepare = broken
+    monkeypatch.setattr(app.controller, "prepare", broken)      # the controller is the module's: undone after
     fly(app, fc, clock, 0, 20)
     statuses = [m.time_boot_ms for m in link.sent_messages() if m.get_type() == "M4_FAULT_STATUS"]
     assert {200, 300} <= set(statuses)
