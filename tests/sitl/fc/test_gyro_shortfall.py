@@ -80,3 +80,32 @@ def test_without_esc_telemetry_the_fc_covers_a_stopped_rotor_from_its_gyro():
 def test_a_healthy_hover_is_not_covered():
     thrust, _ = _fly(EFFECTIVENESS, fail_rotor=None)
     assert thrust == pytest.approx([THRUST_N] * 4, abs=1e-5)
+
+
+def _expm(a: np.ndarray) -> np.ndarray:
+    """The matrix exponential by scaling and squaring a Taylor series (numpy only)."""
+    squarings = max(0, int(np.ceil(np.log2(max(np.abs(a).sum(axis=1).max(), 1e-300)))) + 1)
+    scaled, term, out = a / 2 ** squarings, np.eye(len(a)), np.eye(len(a))
+    for k in range(1, 30):
+        term = term @ scaled / k
+        out = out + term
+    for _ in range(squarings):
+        out = out @ out
+    return out
+
+
+@pytest.mark.parametrize("tick_s, cutoff_rad_s, damping", [(0.004, 188.0, 0.7), (0.001, 60.0, 0.3), (0.01, 300.0, 0.9)])
+def test_the_filter_steps_as_the_exponential_of_its_held_input_system(tick_s, cutoff_rad_s, damping):
+    """y'' = w^2 (u - y) - 2 zeta w y' with u held over a tick: the closed form against exp(A tick_s)
+    of the system with u as a third, constant state."""
+    w = cutoff_rad_s
+    step = _expm(np.array([[0.0, 1.0, 0.0], [-w * w, -2.0 * damping * w, w * w], [0.0, 0.0, 0.0]]) * tick_s)
+    f = DifferentiatingFilter(tick_s, cutoff_rad_s, damping)
+    inputs = [[1.0, -2.0], [3.0, 0.5], [-1.0, 4.0], [0.0, 0.0]]
+    y, dy = f.update(inputs[0])
+    for u in inputs[1:]:
+        expected = [step @ np.array([a, b, c]) for a, b, c in zip(y, dy, u)]
+        y, dy = f.update(u)
+        for (ey, edy, _), got_y, got_dy in zip(expected, y, dy):
+            assert got_y == pytest.approx(ey, rel=1e-9, abs=1e-12)
+            assert got_dy == pytest.approx(edy, rel=1e-9, abs=1e-9)
