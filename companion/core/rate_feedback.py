@@ -49,6 +49,20 @@ from m4.setpoint import (EFFECTIVENESS_MAX_RAD_S2_PER_N, RATE_GAIN_MAX_N_PER_RAD
 LIVE_SHARE = 0.5
 
 
+class _Kept:
+    """The last value made, kept for the key it was made for: a step's gain, cover and geometry
+    are asked for again at the same posture until the posture moves."""
+
+    def __init__(self):
+        self._key: bytes | None = None
+        self._value = None
+
+    def get(self, key: bytes, make):
+        if self._key != key:
+            self._key, self._value = key, make()
+        return self._value
+
+
 class RateFeedbackDesign:
     def __init__(self, af: Airframe, bandwidth_rad_s: float, shortfall_cover: bool = False):
         self.af = af
@@ -58,9 +72,9 @@ class RateFeedbackDesign:
         com, inertia = rom.mass_properties(af, hip)
         arms = rom.thruster_positions(af, hip) - ca.repmat(com, 1, ROTOR_COUNT)
         self._geometry = BufferedFunction(ca.Function("m4_rate_feedback_geometry", [hip], [arms, inertia]))
-        self._last: tuple[bytes, tuple[np.ndarray, np.ndarray]] | None = None   # the gain's and the cover's posture
-        self._gain: tuple[bytes, np.ndarray | None] | None = None         # the last gain, by posture and live rotors
-        self._cover: tuple[bytes, ShortfallCover | None] | None = None    # the last cover, by posture and fault
+        self._geometry_kept = _Kept()     # by posture
+        self._gain = _Kept()              # by posture and live rotors
+        self._cover = _Kept()             # by posture and fault
 
     def prepare(self, hip_rad, thrust_bound_n, fault_confirmed: bool) -> None:
         """Design the gain and the cover for a step expected at posture hip_rad with these bounds
@@ -74,10 +88,7 @@ class RateFeedbackDesign:
         cannot take)."""
         live = np.asarray(thrust_bound_n, dtype=float) > LIVE_SHARE * self.af.hover_thrust_per_rotor_n
         hip = np.asarray(hip_rad, dtype=float)
-        key = hip.tobytes() + live.tobytes()
-        if self._gain is None or self._gain[0] != key:
-            self._gain = (key, self._design_gain(hip, live))
-        return self._gain[1]
+        return self._gain.get(hip.tobytes() + live.tobytes(), lambda: self._design_gain(hip, live))
 
     def _design_gain(self, hip: np.ndarray, live: np.ndarray) -> np.ndarray | None:
         if self.bandwidth_rad_s <= 0 or live.sum() < 3 or not np.isfinite(hip).all():
@@ -94,10 +105,8 @@ class RateFeedbackDesign:
         """The other rotors' cover for each rotor's shortfall at posture hip_rad; None when
         switched off, a fault is confirmed, or the posture cannot keep sum and torque."""
         hip = np.asarray(hip_rad, dtype=float)
-        key = hip.tobytes() + bytes([fault_confirmed])
-        if self._cover is None or self._cover[0] != key:
-            self._cover = (key, self._design_cover(hip, fault_confirmed))
-        return self._cover[1]
+        return self._cover.get(hip.tobytes() + bytes([fault_confirmed]),
+                               lambda: self._design_cover(hip, fault_confirmed))
 
     def _design_cover(self, hip: np.ndarray, fault_confirmed: bool) -> ShortfallCover | None:
         if not self.shortfall_cover or fault_confirmed or not np.isfinite(hip).all():
@@ -122,11 +131,10 @@ class RateFeedbackDesign:
     def _allocation(self, hip: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(3, 4) each rotor's roll and pitch torque and sum per newton, and the (3, 3) inertia;
         evaluated once for the posture a step's gain and cover share."""
-        key = hip.tobytes()
-        if self._last is None or self._last[0] != key:
+        def make():
             arms, inertia = self._geometry(hip)
-            self._last = (key, (np.vstack([-arms[1], arms[0], np.ones(ROTOR_COUNT)]), np.asarray(inertia)))
-        return self._last[1]
+            return np.vstack([-arms[1], arms[0], np.ones(ROTOR_COUNT)]), np.asarray(inertia)
+        return self._geometry_kept.get(hip.tobytes(), make)
 
     def feedback(self, x_start, x_next, dt_s: float, thrust_bound_n) -> RateFeedback | None:
         """The feedback for a plan from ROM state x_start whose next node, dt_s later, is x_next."""
