@@ -31,6 +31,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import random
 import re
 import select
 import signal
@@ -57,6 +58,10 @@ STOP_TIMEOUT_S = 10.0
 LOCKSTEP_TELEMETRY_TIMEOUT_S = 10.0   # lockstep: the companion's [link] telemetry_timeout_s, its largest
 STALL_MARK = "no setpoint for"        # sitl/serve.py logs it when its lockstep wait runs out; read here
 POLL_S = 0.2
+LOWEST_PICKED_PORT = 10000            # free_port: below the ephemeral range, above the well-known services
+EPHEMERAL_RANGE = Path("/proc/sys/net/ipv4/ip_local_port_range")
+DEFAULT_EPHEMERAL_START = 32768
+PORT_PICK_ATTEMPTS = 100
 _PREFIX = re.compile(r"^m4-[a-z]+: (error: )?")
 
 
@@ -111,9 +116,33 @@ class FlightFiles:
 
 
 def free_port(kind: int = socket.SOCK_DGRAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """A port on 127.0.0.1 free now, for a process started next to bind. Picked below the kernel's
+    ephemeral range: every socket bound to port 0 (the SITL's own end of its udpout link, Zenoh's,
+    any other program's) gets its port from that range, so between this pick and the bind only
+    another explicit pick could take it (a port the kernel had handed out and taken back was
+    once given to the SITL's own socket before the companion bound it)."""
+    below = _ephemeral_ports_start()
+    pick = random.SystemRandom()
+    for _ in range(PORT_PICK_ATTEMPTS):
+        port = pick.randrange(LOWEST_PICKED_PORT, below)
+        with socket.socket(socket.AF_INET, kind) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
+    raise FlightError(f"no free port on 127.0.0.1 between {LOWEST_PICKED_PORT} and {below - 1} "
+                      f"after {PORT_PICK_ATTEMPTS} tries")
+
+
+def _ephemeral_ports_start() -> int:
+    """The first port of the kernel's ephemeral range (Linux: ip_local_port_range; elsewhere
+    IANA's 49152, of which Linux's default 32768 is the safe side)."""
+    try:
+        start = int(EPHEMERAL_RANGE.read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return DEFAULT_EPHEMERAL_START
+    return max(start, LOWEST_PICKED_PORT + 1000)
 
 
 def check_port_free(port: int) -> None:

@@ -20,6 +20,7 @@ from companion.config import default_log_dir
 from m4.airframe import load_airframe
 from m4.mavlink.signing import load_key, write_new_key
 from sitl import scenarios
+from sitl.flights.flight_run import free_port
 from support.full_disk import FullDisk
 from support.loopback_fc import LoopbackFc
 
@@ -144,20 +145,14 @@ def test_a_ready_fd_that_is_not_open_is_refused_before_the_nmpc_is_built(capsys)
     assert code == 2 and len(lines) == 1 and f"--ready-fd {write_end}" in lines[0]
 
 
-def _free_port(kind: int) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.mark.parametrize("feed", [
     'zenoh_config = "/etc/m4/no-such-zenoh-companion.json5"',            # the deploy default's path, not installed
     'mode = "client"\nconnect = "tcp/127.0.0.1:{port}"',                  # no router there
 ])
 def test_a_companion_whose_feed_cannot_reach_zenoh_says_so_once_and_flies(tmp_path, feed, signed):
     config = tmp_path / "companion.toml"
-    config.write_text("[feed]\n" + feed.format(port=_free_port(socket.SOCK_STREAM)) + "\n")
-    port = _free_port(socket.SOCK_DGRAM)
+    config.write_text("[feed]\n" + feed.format(port=free_port(socket.SOCK_STREAM)) + "\n")
+    port = free_port()
     proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--config", str(config),
                              "--fc", f"udpin:127.0.0.1:{port}", *signed], stderr=subprocess.PIPE, text=True)
     fc = LoopbackFc(port, load_airframe(), key=load_key(tmp_path / "mavlink.key"))

@@ -5,13 +5,12 @@ sets them with its `mode` command."""
 
 from __future__ import annotations
 
-import socket
-
 import pytest
 
 from m4.fc_mode import FcMode
 from m4.mavlink import mavlink
 from m4.scenario import Scenario
+from sitl.flights.flight_run import free_port
 from sitl.serve import ServeOptions
 from sitl.standin_companion import StandInCompanion, served
 from tests.support.mavproxy_console import MavProxy
@@ -20,14 +19,8 @@ pytestmark = pytest.mark.flight
 m = mavlink
 
 
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_mavproxy_prints_the_fault_and_sets_the_fcs_modes(tmp_path):
-    port = _free_udp_port()
+    port = free_port()
     companion = StandInCompanion()
     options = ServeOptions(scenario=Scenario(name="hover", duration_s=120.0), realtime=True)
     with served(companion, options, more_urls=(f"udpout:127.0.0.1:{port}",)) as server:

@@ -1,18 +1,12 @@
-"""Loopback plumbing for the end-to-end tests: a free UDP port, the messages of a tlog, and
+"""Loopback plumbing for the end-to-end tests: a free UDP port (the flight runner's pick), the messages of a tlog, and
 MAVSDK as a ground station on a port."""
 
 from __future__ import annotations
 
 import contextlib
-import socket
 
 from m4.mavlink import mavutil
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from sitl.flights.flight_run import free_port as free_udp_port
 
 
 def tlog_messages(tlog) -> list:
