@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import socket
 import threading
 import time
 
@@ -13,6 +12,7 @@ from m4.airframe import load_airframe
 from m4.mavlink import mavlink, mavutil
 from m4.mavlink.link import UdpLink, wait_readable
 from m4.scenario import Fault, PlantOptions, Scenario
+from sitl.flights.flight_run import free_port
 from sitl.serve import ServeOptions, Server
 from sitl.plant.truth import load_truth
 from sitl.standin_companion import StandInCompanion, served
@@ -94,9 +94,7 @@ def test_signed_setpoints_fly_and_unsigned_ones_are_dropped_and_counted():
 
 
 def test_companion_that_starts_late_still_gets_the_first_frame():
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = free_port()
     server = Server(ServeOptions(scenario=NOISY_FAULT, mavlink_urls=(f"udpout:127.0.0.1:{port}",), duration_s=0.2))
     thread = threading.Thread(target=server.run, daemon=True)
     thread.start()
