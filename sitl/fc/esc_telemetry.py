@@ -29,7 +29,8 @@ from m4.units import RAD_S_TO_RPM
 from sitl.plant.state import RotorState
 
 _US_PER_MINUTE = 60e6
-_MANTISSA_MAX = 511                  # DShot telemetry: 9-bit mantissa
+_MANTISSA_BITS = 9                   # DShot telemetry: 9-bit mantissa
+_MANTISSA_MAX = (1 << _MANTISSA_BITS) - 1
 _EXPONENT_MAX = 7                    # 3-bit exponent
 _UINT16 = 65535
 _MAH_PER_AS = 1000.0 / 3600.0
@@ -45,9 +46,8 @@ def _dshot_rpm(rpm: float, pole_pairs: int) -> float:
     period_us = _US_PER_MINUTE / erpm if erpm > 0.0 else math.inf
     if not period_us < (_MANTISSA_MAX + 1) << _EXPONENT_MAX:
         return 0.0
-    period, exponent = int(period_us), 0
-    while period >> exponent > _MANTISSA_MAX:
-        exponent += 1
+    period = int(period_us)
+    exponent = max(period.bit_length() - _MANTISSA_BITS, 0)    # the least that fits the mantissa
     decoded_us = (period >> exponent) << exponent
     return _US_PER_MINUTE / (decoded_us * pole_pairs) if decoded_us > 0 else 0.0
 
@@ -105,17 +105,20 @@ class EscTelemetry:
         dt_s = 0.0 if self._last_ms is None else (now_ms - self._last_ms) / 1000.0
         self._last_ms = now_ms
         decay = math.exp(-dt_s / af.esc_thermal_time_constant_s)
+        ambient_c, rise_c_per_a = af.esc_ambient_temperature_c, af.esc_temperature_rise_c_per_a
+        consumed, temperature = self._consumed_mah, self._temperature_c
         for i, current in enumerate(map(float, truth.esc_current_a)):
             current = max(current, 0.0)
-            self._consumed_mah[i] += current * dt_s * _MAH_PER_AS
-            steady = af.esc_ambient_temperature_c + af.esc_temperature_rise_c_per_a * current
-            self._temperature_c[i] = steady + (self._temperature_c[i] - steady) * decay
+            consumed[i] += current * dt_s * _MAH_PER_AS
+            steady = ambient_c + rise_c_per_a * current
+            temperature[i] = steady + (temperature[i] - steady) * decay
 
     def _measured_rpm(self, truth: RotorState) -> list[int]:
         rpm = [w * RAD_S_TO_RPM for w in map(float, truth.rotor_speed_rad_s)]
         if self._noise:
             rpm = (np.array(rpm) / (1.0 + self._rng.normal(0.0, self._af.esc_rpm_noise_fraction, ROTOR_COUNT))).tolist()
-        return [min(int(_dshot_rpm(max(r, 0.0), self._af.motor_pole_pairs)), _UINT16) for r in rpm]
+        pole_pairs = self._af.motor_pole_pairs
+        return [min(int(_dshot_rpm(max(r, 0.0), pole_pairs)), _UINT16) for r in rpm]
 
     def _serial_packet(self, i: int, truth: RotorState) -> tuple[int, int, int, int]:
         af = self._af
@@ -126,8 +129,8 @@ class EscTelemetry:
         return (int(min(max(self._temperature_c[i], 0), 255)), _u16(100.0 * voltage_v), _u16(100.0 * current_a),
                 _u16(self._consumed_mah[i]))
 
-    def report(self, now_ms: int) -> EscReport:
-        """What the FC knows of its ESCs at `now_ms`."""
+    def _arrived(self, now_ms: int) -> None:
+        """Take in the samples that have reached the FC by `now_ms`."""
         while self._in_flight and self._in_flight[0][0] <= now_ms:
             _, rotor, values = self._in_flight.popleft()
             if rotor is None:
@@ -135,6 +138,15 @@ class EscTelemetry:
             else:
                 self._serial[rotor] = values
                 self._count[rotor] = (self._count[rotor] + 1) % (_UINT16 + 1)
+
+    def rpm(self, now_ms: int) -> list[int]:
+        """report(now_ms).rpm, without building the rest of the report (the FC reads it every tick)."""
+        self._arrived(now_ms)
+        return list(self._rpm)
+
+    def report(self, now_ms: int) -> EscReport:
+        """What the FC knows of its ESCs at `now_ms`."""
+        self._arrived(now_ms)
         temperature, voltage, current, total = (list(col) for col in zip(*self._serial))
         return EscReport(temperature=temperature, voltage=voltage, current=current, totalcurrent=total,
                          rpm=list(self._rpm), count=list(self._count))

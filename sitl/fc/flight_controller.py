@@ -337,7 +337,7 @@ class FlightController:
         rotors = self.plant.rotor_state()
         if self.esc is not None:
             self.esc.sample(now_ms, rotors)
-            rpm = self.esc.report(now_ms).rpm
+            rpm = self.esc.rpm(now_ms)
             self._esc_shortfall_n = self.shortfall.update(rotors.thrust_cmd_n, rpm)
             self._watch_rotors(now_ms, rotors.thrust_cmd_n, rpm)
         self._measure_on_gyro(now_ms, rotors.thrust_cmd_n)
@@ -496,9 +496,12 @@ class FlightController:
 
     def next_event_ms(self, now_ms: int) -> int:
         """The next instant at which the FC has something to do."""
-        next_tick = (now_ms // TICK_MS + 1) * TICK_MS
-        dues = [due for schedule in self.schedules if (due := schedule.next_due_ms()) is not None]
-        return min([next_tick, *(max(due, now_ms + 1) for due in dues)])
+        nxt = (now_ms // TICK_MS + 1) * TICK_MS              # the next tick
+        for schedule in self.schedules:
+            due = schedule.next_due_ms()
+            if due is not None and due < nxt:
+                nxt = max(due, now_ms + 1)
+        return nxt
 
     def relayed(self, msg) -> mavlink.MAVLink_message | None:
         """The companion's STATUSTEXT at CRITICAL or above (its fault, a crash) as our own, for

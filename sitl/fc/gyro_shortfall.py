@@ -82,21 +82,34 @@ def rotor_shortfall_n(effectiveness: np.ndarray, lacking: np.ndarray) -> list[fl
     """The s >= 0 (4,) of least total with effectiveness (2, 4) @ s = lacking (2,): one rotor,
     or the two whose effects bracket it; zeros where no rotors' effects bracket it (a posture
     whose rotors do not surround the centre of mass)."""
-    e, target = effectiveness.tolist(), [float(v) for v in lacking]
-    best, best_total = None, math.inf
-    for i, j in _PAIRS:
-        a, b, c, d = e[0][i], e[0][j], e[1][i], e[1][j]
-        det = a * d - b * c
-        if abs(det) <= _SINGULAR * max(abs(a), abs(b), abs(c), abs(d)) ** 2:
-            continue
-        s_i = (target[0] * d - b * target[1]) / det
-        s_j = (a * target[1] - c * target[0]) / det
-        if s_i >= 0.0 and s_j >= 0.0 and s_i + s_j < best_total:
-            best, best_total = (i, s_i, j, s_j), s_i + s_j
-    shortfall = [0.0] * ROTOR_COUNT
-    if best is not None:
-        shortfall[best[0]], shortfall[best[2]] = best[1], best[3]
-    return shortfall
+    return _Pairs(effectiveness.tolist()).shortfall_n(lacking)
+
+
+class _Pairs:
+    """The pairs of rotors whose effects are not on one line, for one effectiveness (2, 4, as
+    nested lists): prepared once per setpoint, solved at every tick."""
+
+    def __init__(self, e: list[list[float]]):
+        self._pairs = []
+        for i, j in _PAIRS:
+            a, b, c, d = e[0][i], e[0][j], e[1][i], e[1][j]
+            det = a * d - b * c
+            if abs(det) > _SINGULAR * max(abs(a), abs(b), abs(c), abs(d)) ** 2:
+                self._pairs.append((i, j, a, b, c, d, det))
+
+    def shortfall_n(self, lacking) -> list[float]:
+        """rotor_shortfall_n(effectiveness, lacking)."""
+        t0, t1 = (float(v) for v in lacking)
+        best, best_total = None, math.inf
+        for i, j, a, b, c, d, det in self._pairs:
+            s_i = (t0 * d - b * t1) / det
+            s_j = (a * t1 - c * t0) / det
+            if s_i >= 0.0 and s_j >= 0.0 and s_i + s_j < best_total:
+                best, best_total = (i, s_i, j, s_j), s_i + s_j
+        shortfall = [0.0] * ROTOR_COUNT
+        if best is not None:
+            shortfall[best[0]], shortfall[best[2]] = best[1], best[3]
+        return shortfall
 
 
 class GyroShortfallMeter:
@@ -105,6 +118,9 @@ class GyroShortfallMeter:
         self._planned = MotorModel(af, tick_s)        # what the plan's thrusts would give
         self._filter = DifferentiatingFilter(tick_s)
         self.lacking_rad_s2 = [0.0, 0.0]              # the last roll and pitch acceleration lacking
+        # the effectiveness last given, its rows and pairs: a setpoint's (numpy arrays are not
+        # changed in place here), taken apart once, not at every tick
+        self._prepared: tuple[np.ndarray, list[list[float]], _Pairs] | None = None
 
     def update(self, rates_frd_rad_s, thrust_cmd_n, planned_thrust_n, planned_accel_frd_rad_s2,
                effectiveness: np.ndarray | None) -> list[float] | None:
@@ -116,10 +132,13 @@ class GyroShortfallMeter:
         self._planned.update(planned_thrust_n)
         expected = [float(v) for v in planned_accel_frd_rad_s2]
         if effectiveness is not None:
+            if self._prepared is None or self._prepared[0] is not effectiveness:
+                rows = effectiveness.tolist()
+                self._prepared = (effectiveness, rows, _Pairs(rows))
             gap = [c - p for c, p in zip(self._commanded.thrust_n, self._planned.thrust_n)]
-            expected = [e + sum(k * g for k, g in zip(row, gap)) for e, row in zip(expected, effectiveness.tolist())]
+            expected = [e + sum(k * g for k, g in zip(row, gap)) for e, row in zip(expected, self._prepared[1])]
         value, derivative = self._filter.update([float(rates_frd_rad_s[0]), float(rates_frd_rad_s[1]), *expected])
         self.lacking_rad_s2 = [value[2] - derivative[0], value[3] - derivative[1]]
         if effectiveness is None:
             return None
-        return [max(s - DEADBAND_N, 0.0) for s in rotor_shortfall_n(effectiveness, self.lacking_rad_s2)]
+        return [max(s - DEADBAND_N, 0.0) for s in self._prepared[2].shortfall_n(self.lacking_rad_s2)]

@@ -26,13 +26,15 @@ class MotorModel:
     def update(self, thrust_cmd_n) -> list[float]:
         """The rotors' expected speeds (rad/s, rotors 1..4) one tick after they were commanded
         thrust_cmd_n (4,); the first call takes them as settled there."""
-        target = [math.sqrt(max(float(t), 0.0) / self._k_n_s2) for t in thrust_cmd_n]
+        k_n_s2, decay = self._k_n_s2, self._decay
+        target = [math.sqrt(max(float(t), 0.0) / k_n_s2) for t in thrust_cmd_n]
         if self.speed_rad_s is not None:
-            target = [w + (e - w) * self._decay for w, e in zip(target, self.speed_rad_s)]
+            target = [w + (e - w) * decay for w, e in zip(target, self.speed_rad_s)]
         self.speed_rad_s = target
         return target
 
     @property
     def thrust_n(self) -> list[float]:
         """The thrusts (N) the expected speeds give."""
-        return [self._k_n_s2 * w * w for w in self.speed_rad_s]
+        k_n_s2 = self._k_n_s2
+        return [k_n_s2 * w * w for w in self.speed_rad_s]

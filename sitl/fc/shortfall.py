@@ -44,13 +44,14 @@ class ShortfallMeter:
         """The rotors' shortfall (N, rotors 1..4) one tick after they were commanded
         thrust_cmd_n (4,), their ESCs reporting rpm (4,)."""
         self._history.append(self._motors.update(thrust_cmd_n))
+        k_n_s2, unload_n_s = self._k_n_s2, self._unload_n_s
         shortfall = []
         for expected, measured_rpm in zip(self._history[0], rpm):
             measured = float(measured_rpm) / RAD_S_TO_RPM
-            expected_n = self._k_n_s2 * expected * expected
+            expected_n = k_n_s2 * expected * expected
             if measured <= expected:
-                delivered_n = self._k_n_s2 * measured * measured
+                delivered_n = k_n_s2 * measured * measured
             else:
-                delivered_n = max(expected_n - self._unload_n_s * (measured - expected), 0.0)
+                delivered_n = max(expected_n - unload_n_s * (measured - expected), 0.0)
             shortfall.append(max(expected_n - delivered_n - DEADBAND_N, 0.0))
         return shortfall

@@ -50,6 +50,7 @@ class StreamSchedule:
         self._defaults = dict(DEFAULT_INTERVALS_MS if intervals_ms is None else intervals_ms)
         self._interval_ms: dict[int, int] = dict(self._defaults)
         self._next_ms: dict[int, int] = {i: 0 for i in self._interval_ms}
+        self._next_due_ms = self._earliest()      # min(_next_ms): asked at every instant, changed only here
 
     def set_interval_us(self, msg_id: int, interval_us: float, now_ms: int) -> None:
         """MAV_CMD_SET_MESSAGE_INTERVAL semantics: -1 stops, 0 restores the default, else the
@@ -59,6 +60,7 @@ class StreamSchedule:
         if interval_us < 0:
             self._interval_ms.pop(msg_id, None)
             self._next_ms.pop(msg_id, None)
+            self._next_due_ms = self._earliest()
             return
         if interval_us == 0:
             if msg_id not in self._defaults:
@@ -69,21 +71,27 @@ class StreamSchedule:
             interval = max(1, round(interval_us / 1000.0))
         self._interval_ms[msg_id] = interval
         self._next_ms[msg_id] = (now_ms // interval + 1) * interval
+        self._next_due_ms = self._earliest()
 
     def interval_ms(self, msg_id: int) -> int | None:
         """The stream's interval in force (None: not sent)."""
         return self._interval_ms.get(msg_id)
 
     def next_due_ms(self) -> int | None:
+        return self._next_due_ms
+
+    def _earliest(self) -> int | None:
         return min(self._next_ms.values(), default=None)
 
     def due(self, now_ms: int, extra=()) -> list[int]:
         """Ids to send at `now_ms` (plus `extra`, e.g. the frame), in emission order; each
         stream sent is rescheduled."""
         ids = set(extra)
-        for msg_id, t in self._next_ms.items():
-            if t <= now_ms:
-                ids.add(msg_id)
-                iv = self._interval_ms[msg_id]
-                self._next_ms[msg_id] = (now_ms // iv + 1) * iv
+        if self._next_due_ms is not None and self._next_due_ms <= now_ms:
+            for msg_id, t in self._next_ms.items():
+                if t <= now_ms:
+                    ids.add(msg_id)
+                    iv = self._interval_ms[msg_id]
+                    self._next_ms[msg_id] = (now_ms // iv + 1) * iv
+            self._next_due_ms = self._earliest()
         return sorted(ids, key=_ORDER.get) if ids <= _ORDER.keys() else sorted(ids, key=_order)

@@ -44,30 +44,32 @@ class HipReference:
 
     def advance(self) -> None:
         """One period of the reference: new rate, and the angle at the end of the period."""
-        dt, dv, vmax = self._dt, self._dv, self._rate_max
+        dt, dv, vmax, brake_gain = self._dt, self._dv, self._rate_max, self._brake_gain
+        lo, hi = self._lo, self._hi
+        pos, rate, goals, goal_rates = self.pos_rad, self.rate_rad_s, self._goal, self._goal_rate     # (in place)
         moving = False
-        for i, q in enumerate(self.pos_rad):
-            goal, goal_rate, v = self._goal[i], self._goal_rate[i], self.rate_rad_s[i]
+        for i, q in enumerate(pos):
+            goal, goal_rate, v = goals[i], goal_rates[i], rate[i]
             err = goal - q
             if abs(err) < _SETTLED_RAD and abs(v - goal_rate) < _SETTLED_RAD_S and goal_rate == 0.0:
-                self.pos_rad[i], self.rate_rad_s[i] = goal, 0.0
+                pos[i], rate[i] = goal, 0.0
                 continue
             moving = True
             # Fastest rate relative to the goal from which k steps of -dv (and one remainder)
             # stop exactly on it.
             dist = abs(err)
-            k = math.floor(0.5 * (math.sqrt(1.0 + self._brake_gain * dist) - 1.0))
+            k = math.floor(0.5 * (math.sqrt(1.0 + brake_gain * dist) - 1.0))
             brake = dv * k + (dist - dv * dt * k * (k + 1) / 2) / ((k + 1) * dt)
             v_des = min(vmax, max(-vmax, goal_rate + math.copysign(brake, err)))
             v += min(dv, max(-dv, v_des - v))
             q_free = q + v * dt
-            q = self._clamp(q_free)
+            q = min(hi, max(lo, q_free))            # _clamp
             if abs(q - q_free) > _SETTLED_RAD:      # ran into the joint range: stop there
                 v = 0.0
-            self.pos_rad[i], self.rate_rad_s[i] = q, v
+            pos[i], rate[i] = q, v
             goal += goal_rate * dt
-            if not self._lo <= goal <= self._hi:
-                self._goal[i], self._goal_rate[i] = self._clamp(goal), 0.0
+            if not lo <= goal <= hi:
+                goals[i], goal_rates[i] = min(hi, max(lo, goal)), 0.0
             else:
-                self._goal[i] = goal
+                goals[i] = goal
         self.settled = not moving

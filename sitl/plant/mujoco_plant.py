@@ -69,14 +69,17 @@ class Plant:
         self._rate_ctrl = slice(m.actuator("hiprate1").id, m.actuator("hiprate1").id + ROTOR_COUNT)
         self._thrust_act = _contiguous(m.actuator_actadr[self._thrust], "thrust filter states")
         self._thrust_sq_act = _contiguous(m.actuator_actadr[self._thrust_sq], "thrust filter states")
+        # both filters' states in one write
+        self._thrust_filters = _contiguous(m.actuator_actadr[self._thrust.start:self._thrust_sq.stop],
+                                           "thrust filter states")
         self._hip_act = _contiguous(m.actuator_actadr[self._hip_ctrl], "hip reference states")
         # hip{i} and hiprate{i} both take the reference rate: one write for the eight of them.
         self._servo_ctrl = slice(self._hip_ctrl.start, self._rate_ctrl.stop)
         if self._rate_ctrl.start != self._hip_ctrl.stop:
             raise ValueError("the MJCF must list the hiprate actuators right after the hip ones")
         joints = [m.joint(f"sagittal{i + 1}") for i in range(ROTOR_COUNT)]
-        self._hip_qpos = np.array([m.jnt_qposadr[j.id] for j in joints])
-        self._hip_qvel = np.array([m.jnt_dofadr[j.id] for j in joints])
+        self._hip_qpos = _evenly_spaced(np.array([m.jnt_qposadr[j.id] for j in joints]), "hip joints' positions")
+        self._hip_qvel = _evenly_spaced(np.array([m.jnt_dofadr[j.id] for j in joints]), "hip joints' velocities")
         self._hull = m.body("hull").id
         root = m.joint("root")
         qpos0, qvel0 = m.jnt_qposadr[root.id], m.jnt_dofadr[root.id]
@@ -93,6 +96,7 @@ class Plant:
         self._noise = SensorNoise(airframe, seed)
 
         self._thrust_max_n = airframe.thrust_max_n if options.thrust_max_n is None else options.thrust_max_n
+        self._thrust_rated_max_n = np.full(ROTOR_COUNT, self._thrust_max_n)     # copied into every state
         self.hover_thrust_n = m.body_subtreemass[self._hull] * airframe.gravity_m_s2 / ROTOR_COUNT
         self._thrust_request_n = [float(self.hover_thrust_n)] * ROTOR_COUNT
         self.battery = Battery(airframe, options.battery, options.battery_charge)
@@ -141,15 +145,19 @@ class Plant:
         k_t w_s^2 + 2 k_t w_s d exp(-t / tau) + k_t d^2 exp(-2 t / tau)."""
         rotors, d = self.thrusters, self.data
         rotors.update(self.battery.voltage_v)
-        rotor = [(k_t, w_s, w - w_s) for k_t, w_s, w in rotors.filter_inputs()]     # (k_t, w_s, gap): Python floats
-        d.ctrl[self._thrust] = [k_t * (w_s * w_s) for k_t, w_s, _ in rotor]
-        d.act[self._thrust_act] = [k_t * w_s * (w_s + 2.0 * gap) for k_t, w_s, gap in rotor]
-        d.act[self._thrust_sq_act] = [k_t * (gap * gap) for k_t, _, gap in rotor]
+        ctrl, act, act_sq = [], [], []       # Python floats
+        for k_t, w_s, w in rotors.filter_inputs():
+            gap = w - w_s
+            ctrl.append(k_t * (w_s * w_s))
+            act.append(k_t * w_s * (w_s + 2.0 * gap))
+            act_sq.append(k_t * (gap * gap))
+        d.ctrl[self._thrust] = ctrl
+        d.act[self._thrust_filters] = act + act_sq
 
     def command_thrust(self, thrust_n) -> None:
         """Thrusts alone (N, rotors 1..4), the hips' targets kept: the FC's rate feedback
         between setpoints. Clamped as in command(); a non-finite entry keeps its value."""
-        thrust = _vector("thrust_n", thrust_n, ROTOR_COUNT).tolist()
+        thrust = _floats("thrust_n", thrust_n, ROTOR_COUNT)
         self._thrust_request_n = [t if math.isfinite(t) else kept for t, kept in zip(thrust, self._thrust_request_n)]
         self._apply_thrust()
 
@@ -301,7 +309,8 @@ class Plant:
         m, d = self.model, self.data
         mujoco.mj_forward(m, d)
         quat = frames.flip_quat_wxyz(d.qpos[self._quat])
-        thrust_n = d.act[self._thrust_act] + d.act[self._thrust_sq_act]
+        filters = d.act[self._thrust_filters]
+        thrust_n = filters[:ROTOR_COUNT] + filters[ROTOR_COUNT:]
         if self._rotor_aero is not None:
             thrust_n = thrust_n * self._rotor_aero.inflow_factor
         return PlantState(
@@ -311,12 +320,12 @@ class Plant:
             quat_wxyz=quat,
             euler_rad=euler_from_quat_wxyz(quat),
             rates_frd_rad_s=frames.flip_vector(d.qvel[self._rates]),
-            hip_rad=d.qpos[self._hip_qpos],               # indexed by an array: a copy already
-            hip_rate_rad_s=d.qvel[self._hip_qvel],
+            hip_rad=d.qpos[self._hip_qpos].copy(),
+            hip_rate_rad_s=d.qvel[self._hip_qvel].copy(),
             thrust_cmd_n=np.array(self._esc_cmd_n),
             thrust_n=thrust_n,
             thrust_limit_n=self.thrusters.thrust_ceiling_n(self._thrust_max_n),
-            thrust_rated_max_n=np.full(ROTOR_COUNT, self._thrust_max_n),
+            thrust_rated_max_n=self._thrust_rated_max_n.copy(),
             rotor_speed_rad_s=self.thrusters.speed_rad_s,
             esc_current_a=self.thrusters.current_a,
             fault_kind=self.thrusters.kind.copy(),
@@ -353,10 +362,26 @@ def _reach_m(af: Airframe) -> float:
     return max(hull, float(hips) + af.leg_length_m + math.hypot(af.wheel_radius_m, af.wheel_width_m / 2))
 
 
+def _evenly_spaced(addresses: np.ndarray, what: str) -> slice:
+    """The addresses as a slice (reading through it is cheaper than indexing by an array)."""
+    step = int(addresses[1] - addresses[0]) if len(addresses) > 1 else 1
+    if step < 1 or not np.array_equal(addresses, addresses[0] + step * np.arange(len(addresses))):
+        raise ValueError(f"the MJCF must keep the {what} evenly spaced, got addresses {addresses}")
+    return slice(int(addresses[0]), int(addresses[-1]) + 1, step)
+
+
 def _contiguous(addresses: np.ndarray, what: str) -> slice:
     if not np.array_equal(addresses, np.arange(addresses[0], addresses[0] + len(addresses))):
         raise ValueError(f"the MJCF must keep the {what} contiguous, got addresses {addresses}")
     return slice(int(addresses[0]), int(addresses[0]) + len(addresses))
+
+
+def _floats(name: str, value, length: int) -> list[float]:
+    """_vector(name, value, length) as Python floats; a list of them (the FC's fast loop, every
+    tick) without a round trip through numpy."""
+    if type(value) is list and len(value) == length and all(type(v) is float for v in value):
+        return value
+    return _vector(name, value, length).tolist()
 
 
 def _vector(name: str, value, length: int) -> np.ndarray:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -33,11 +34,10 @@ class PlantState:
                                              # None: a still-air scenario (no [wind])
 
 
-@dataclass(frozen=True)
-class RotorState:
+class RotorState(NamedTuple):
     """What the ESCs measure and are told, alone (truth; the names of PlantState's fields):
     cheap to read at every FC tick, without the rest of the plant's state (Python floats,
-    not arrays: four numbers each)."""
+    not arrays: four numbers each; a named tuple, cheaper to make than a frozen dataclass)."""
     rotor_speed_rad_s: list[float]  # (4,)
     esc_current_a: list[float]      # (4,) drawn from the pack by each ESC
     battery_voltage_v: float

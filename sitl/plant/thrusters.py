@@ -54,11 +54,13 @@ class Thrusters:
         self._k_t, self._k_q = af.thrust_coefficient_n_s2, af.drag_torque_coefficient_n_m_s2
         self._k_e, self._r, self._i0 = af.motor_back_emf_v_s_rad, af.motor_resistance_ohm, af.motor_no_load_current_a
         self._k_e_sq, self._k_e_4 = self._k_e ** 2, self._k_e ** 4
+        self._friction_v = self._r * self._i0              # the drive the no-load current takes
         self._hover_n = af.hover_thrust_per_rotor_n
         self.kind = np.full(ROTOR_COUNT, HEALTHY)
         self.loss = np.zeros(ROTOR_COUNT)
         self._scale = [1.0] * ROTOR_COUNT                  # the propellers' k_t and k_q / the nominal ones
         self._k_t_now = [self._k_t] * ROTOR_COUNT          # k_t x scale: 0 without a propeller
+        self._k_q_now = [self._k_q] * ROTOR_COUNT          # k_q x scale
         self._u_max_v = [math.inf] * ROTOR_COUNT           # what each motor may be driven with
         self._driven = [True] * ROTOR_COUNT                # False: motor or ESC dead, no current
         self._speed_cmd = [float(self.speed_for_thrust(thrust_n))] * ROTOR_COUNT
@@ -86,7 +88,8 @@ class Thrusters:
     def duty_thrust_n(self, voltage_v: float) -> list[float]:
         """What the nominal rotor settles at on the present duties and pack voltage `voltage_v`
         (the thrust an autopilot's throttle stands for; command_duty must have been called)."""
-        return [self._k_t * self._settled_speed(d * voltage_v, self._k_q) ** 2 for d in self._duty]
+        speeds = self._settled_speeds([d * voltage_v for d in self._duty], [self._k_q] * ROTOR_COUNT)
+        return [self._k_t * w ** 2 for w in speeds]
 
     def set_fault(self, index: int, loss: float, kind: FaultKind) -> None:
         """The rotor at `index` (0..3 into the arrays: rotor index + 1) fails; loss 0 restores
@@ -96,34 +99,39 @@ class Thrusters:
         self.loss[index] = loss = 0.0 if restored else loss
         self._scale[index] = {_PROPELLER: 0.0, _DAMAGE: 1.0 - loss}.get(kind, 1.0)
         self._k_t_now[index] = self._k_t * self._scale[index]
-        ceiling_v = float(self._drive_voltage(self.speed_for_thrust((1.0 - loss) * self._hover_n)))
+        self._k_q_now[index] = self._k_q * self._scale[index]
+        ceiling_v = self._drive_voltages([float(self.speed_for_thrust((1.0 - loss) * self._hover_n))])[0]
         self._u_max_v[index] = {_MOTOR: 0.0, _DEGRADED: ceiling_v}.get(kind, math.inf)
         self._driven[index] = kind != _MOTOR
         self._ceiling = None
 
     # -- the motor ------------------------------------------------------------------------
-    def _drive_voltage(self, speed_rad_s: float) -> float:
-        """The motor voltage that settles the nominal propeller at `speed_rad_s` (0 at rest)."""
-        w = speed_rad_s
-        return self._k_e * w + self._r * (self._k_q * w * w / self._k_e + self._i0) if w > 0.0 else 0.0
+    # (Each takes and gives lists, one entry a rotor: the FC commands the rotors at every tick.)
+    def _drive_voltages(self, speed_rad_s: list[float]) -> list[float]:
+        """The motor voltages that settle the nominal propeller at `speed_rad_s` (0 at rest)."""
+        k_e, r, k_q, i0 = self._k_e, self._r, self._k_q, self._i0
+        return [k_e * w + r * (k_q * w * w / k_e + i0) if w > 0.0 else 0.0 for w in speed_rad_s]
 
-    def _settled_speed(self, u_v: float, k_q: float) -> float:
-        """Root of k_q R w^2 + k_e^2 w - k_e (u - R i0) = 0 (0 when u cannot beat friction)."""
-        drive = self._k_e * max(u_v - self._r * self._i0, 0.0)
-        return 2.0 * drive / (self._k_e_sq + math.sqrt(self._k_e_4 + 4.0 * k_q * self._r * drive))
+    def _settled_speeds(self, u_v: list[float], k_q: list[float]) -> list[float]:
+        """Roots of k_q R w^2 + k_e^2 w - k_e (u - R i0) = 0 (0 where u cannot beat friction)."""
+        k_e, r, friction_v, k_e_sq, k_e_4 = self._k_e, self._r, self._friction_v, self._k_e_sq, self._k_e_4
+        speeds = []
+        for u, k in zip(u_v, k_q):
+            drive = k_e * max(u - friction_v, 0.0)
+            speeds.append(2.0 * drive / (k_e_sq + math.sqrt(k_e_4 + 4.0 * k * r * drive)))
+        return speeds
 
     def _settle(self, drive_v: list[float], voltage_v: float) -> tuple[list[float], list[float]]:
         """(ESC output voltage, settled speed) for the drive voltages asked for (four), at most the
         pack's, faults applied."""
         u = [min(min(r, voltage_v), u_max) for r, u_max in zip(drive_v, self._u_max_v)]
-        w = [self._settled_speed(u_v, self._k_q * scale) for u_v, scale in zip(u, self._scale)]
-        return u, w
+        return u, self._settled_speeds(u, self._k_q_now)
 
     def update(self, voltage_v: float) -> None:
         """Recompute what every rotor heads for, on pack voltage `voltage_v`."""
         self.voltage_v = voltage_v
         drive_v = ([d * voltage_v for d in self._duty] if self._duty is not None
-                   else [self._drive_voltage(w) for w in self._speed_cmd])
+                   else self._drive_voltages(self._speed_cmd))
         self._u_v, self._settled = self._settle(drive_v, voltage_v)
 
     def advance(self, dt_s: float) -> None:
@@ -135,13 +143,19 @@ class Thrusters:
         ESCs draw from the pack in all (current_a summed, in its order of operations)."""
         decay = math.exp(-dt_s / self._tau_s)
         settled, speed, k_e, r = self._settled, self._speed, self._k_e, self._r
-        drives = list(zip(self._pack_share(), self._u_v, self._driven))
+        # _pack_currents(speed, share), summed (0 + each rotor's, in order): the same operations,
+        # without two calls a step; a rotor not driven adds 0.0 to the sum, so it is left out,
+        # and `0.0 if x < 0.0 else x` is max(x, 0.0) without the call.
+        drives = [(i, s, u) for i, (s, u, driven) in enumerate(zip(self._pack_share(), self._u_v, self._driven))
+                  if driven]
         totals = []
         for _ in range(steps):
             speed = [w_s + (w - w_s) * decay for w_s, w in zip(settled, speed)]
-            # _pack_currents(speed, share), summed: the same operations, without two calls a step
-            totals.append(sum([s * (max((u - k_e * w) / r, 0.0) if driven else 0.0)
-                               for (s, u, driven), w in zip(drives, speed)]))
+            total = 0.0
+            for i, s, u in drives:
+                current = (u - k_e * speed[i]) / r
+                total += s * (0.0 if current < 0.0 else current)
+            totals.append(total)
         self._speed = speed
         return totals
 
@@ -149,10 +163,10 @@ class Thrusters:
         """(speed rad/s, draw from the pack A) of every rotor: what its ESC measures."""
         return list(self._speed), self._pack_currents(self._speed, self._pack_share())
 
-    def filter_inputs(self) -> list[tuple[float, float, float]]:
+    def filter_inputs(self) -> zip:
         """(k_t N/(rad/s)^2, settled speed rad/s, speed rad/s) of every rotor: what the plant's
         thrust filters are set from (sitl/plant/mujoco_plant.py)."""
-        return list(zip(self._k_t_now, self._settled, self._speed))
+        return zip(self._k_t_now, self._settled, self._speed)
 
     # -- what the rotors do ---------------------------------------------------------------
     @property
@@ -194,7 +208,7 @@ class Thrusters:
         """What each rotor settles at when commanded `thrust_max_n` now (truth: the fault and the
         pack voltage applied; computed again only when one of them changed)."""
         if self._ceiling is None or self._ceiling[:2] != (thrust_max_n, self.voltage_v):
-            drive_v = self._drive_voltage(float(self.speed_for_thrust(thrust_max_n)))
+            drive_v = self._drive_voltages([float(self.speed_for_thrust(thrust_max_n))])[0]
             _, w = self._settle([drive_v] * ROTOR_COUNT, self.voltage_v)
             self._ceiling = (thrust_max_n, self.voltage_v, self.thrust_coefficient_n_s2 * np.array(w) ** 2)
         return self._ceiling[2].copy()

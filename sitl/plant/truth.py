@@ -54,6 +54,7 @@ class TruthRecorder:
         self.dropped = 0
         self._next_ms = 0
         self._rows: dict[str, deque] = {f.name: deque(maxlen=max_samples) for f in fields(Truth)}
+        self._from_state = [(name, self._rows[name]) for name in _FROM_STATE]
 
     def observe(self, now_ms: int, plant: Plant) -> None:
         """Called at every simulated instant; samples when the next grid point is reached."""
@@ -61,14 +62,14 @@ class TruthRecorder:
             return
         self._next_ms = (now_ms // self.period_ms + 1) * self.period_ms
         s = plant.state()
-        rows = self._rows
-        self.dropped += len(rows["time_s"]) == rows["time_s"].maxlen
-        rows["time_s"].append(now_ms / 1000.0)
-        rows["wall_s"].append(time.monotonic())
-        for name in _FROM_STATE:
+        time_s = self._rows["time_s"]
+        self.dropped += len(time_s) == time_s.maxlen
+        time_s.append(now_ms / 1000.0)
+        self._rows["wall_s"].append(time.monotonic())
+        earlier = len(time_s) - 1
+        for name, column in self._from_state:
             value = getattr(s, name)
             if value is not None:          # a still-air plant has no wind: that array is left out
-                column, earlier = rows[name], len(rows["time_s"]) - 1
                 if len(column) < earlier:  # the air came later (Plant.blow): still air at the samples before
                     column.extend(np.zeros_like(value) for _ in range(earlier - len(column)))
                 column.append(value)
