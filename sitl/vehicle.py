@@ -104,9 +104,11 @@ class Vehicle:
             self.inbox.deliver_held()
         if self.now_ms % TICK_MS == 0:
             self.fc.tick(self.now_ms)
-        send(self.fc.take_outbox())
+        if said := self.fc.take_outbox():
+            send(said)
         for link in range(self.links):
-            self._send_on(send, link, self.fc.telemetry(self.now_ms, frame=frame, link=link))
+            if streams := self.fc.telemetry(self.now_ms, frame=frame, link=link):
+                self._send_on(send, link, streams)
         for observe in self.observers:
             observe(self.now_ms, self.plant)
 
