@@ -55,6 +55,19 @@ def test_samples_reach_the_fc_after_the_telemetry_delay_and_serial_data_at_its_o
     assert esc.report(60_000 + delay_ms).temperature[0] == pytest.approx(warm, abs=1.0)    # a minute: one time constant
 
 
+def test_the_rpm_read_alone_is_the_reports_at_every_instant():
+    """The FC reads the RPM at every tick without the rest of the report (EscTelemetry.rpm)."""
+    alone, whole, plant = EscTelemetry(AF, tick_ms=4), EscTelemetry(AF, tick_ms=4), Plant(AF)
+    truth = plant.state()
+    for t_ms in range(0, 200, 4):
+        faster = dataclasses.replace(truth, rotor_speed_rad_s=(1.0 + t_ms / 1000.0) * truth.rotor_speed_rad_s)
+        alone.sample(t_ms, faster)
+        whole.sample(t_ms, faster)
+        for now_ms in (t_ms, t_ms + 1, t_ms + 3):
+            assert alone.rpm(now_ms) == whole.report(now_ms).rpm
+    assert alone.rpm(200) != [0] * 4
+
+
 def _serve(scenario: Scenario, seconds: float):
     companion = StandInCompanion(period_ms=20)
     with served(companion, ServeOptions(scenario=scenario, duration_s=seconds)):
