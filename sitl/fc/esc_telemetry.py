@@ -108,7 +108,7 @@ class EscTelemetry:
         ambient_c, rise_c_per_a = af.esc_ambient_temperature_c, af.esc_temperature_rise_c_per_a
         consumed, temperature = self._consumed_mah, self._temperature_c
         for i, current in enumerate(map(float, truth.esc_current_a)):
-            current = max(current, 0.0)
+            current = 0.0 if 0.0 > current else current          # max(current, 0) without the call
             consumed[i] += current * dt_s * _MAH_PER_AS
             steady = ambient_c + rise_c_per_a * current
             temperature[i] = steady + (temperature[i] - steady) * decay
@@ -118,7 +118,8 @@ class EscTelemetry:
         if self._noise:
             rpm = (np.array(rpm) / (1.0 + self._rng.normal(0.0, self._af.esc_rpm_noise_fraction, ROTOR_COUNT))).tolist()
         pole_pairs = self._af.motor_pole_pairs
-        return [min(int(_dshot_rpm(max(r, 0.0), pole_pairs)), _UINT16) for r in rpm]
+        rpm = [int(_dshot_rpm(0.0 if 0.0 > r else r, pole_pairs)) for r in rpm]     # max(r, 0): without the call
+        return [_UINT16 if _UINT16 < r else r for r in rpm]
 
     def _serial_packet(self, i: int, truth: RotorState) -> tuple[int, int, int, int]:
         af = self._af

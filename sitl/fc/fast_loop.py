@@ -39,4 +39,6 @@ class FastLoop:
         if self._cover is not None and shortfall_n is not None:
             change = [c + sum(g * s for g, s in zip(row, shortfall_n)) for c, row in zip(change, self._cover)]
         lo, hi = self._lo_n, self._hi_n
-        return [min(max(t + c, lo), hi) for t, c in zip(self._thrust_n, change)]
+        thrust = [t + c for t, c in zip(self._thrust_n, change)]
+        thrust = [lo if lo > t else t for t in thrust]              # max(t, lo), min(t, hi): without the
+        return [hi if hi < t else t for t in thrust]                # builtins' calls, several times the sums'

@@ -359,8 +359,10 @@ class FlightController:
 
     def _shortfall_n(self) -> list[float] | None:
         """Each rotor's shortfall, the larger of what the ESCs and the gyro measure (None: neither)."""
-        measures = [m for m in (self._esc_shortfall_n, self._gyro_shortfall_n) if m is not None]
-        return [max(values) for values in zip(*measures)] if measures else None
+        esc, gyro = self._esc_shortfall_n, self._gyro_shortfall_n
+        if esc is None or gyro is None:
+            return gyro if esc is None else esc
+        return [g if g > e else e for e, g in zip(esc, gyro)]          # max(e, g) without the call, every tick
 
     def lost_rotor(self) -> int | None:
         """The rotor the companion last reported lost (confirmed, below LOST_FRACTION of hover

@@ -141,4 +141,5 @@ class GyroShortfallMeter:
         self.lacking_rad_s2 = [value[2] - derivative[0], value[3] - derivative[1]]
         if effectiveness is None:
             return None
-        return [max(s - DEADBAND_N, 0.0) for s in self._prepared[2].shortfall_n(self.lacking_rad_s2)]
+        shortfall = [s - DEADBAND_N for s in self._prepared[2].shortfall_n(self.lacking_rad_s2)]
+        return [0.0 if 0.0 > s else s for s in shortfall]           # max(s, 0) without the call

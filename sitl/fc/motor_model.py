@@ -27,7 +27,8 @@ class MotorModel:
         """The rotors' expected speeds (rad/s, rotors 1..4) one tick after they were commanded
         thrust_cmd_n (4,); the first call takes them as settled there."""
         k_n_s2, decay = self._k_n_s2, self._decay
-        target = [math.sqrt(max(float(t), 0.0) / k_n_s2) for t in thrust_cmd_n]
+        target = [float(t) for t in thrust_cmd_n]
+        target = [math.sqrt((0.0 if 0.0 > t else t) / k_n_s2) for t in target]     # max(t, 0) without the call
         if self.speed_rad_s is not None:
             target = [w + (e - w) * decay for w, e in zip(target, self.speed_rad_s)]
         self.speed_rad_s = target

@@ -52,6 +52,8 @@ class ShortfallMeter:
             if measured <= expected:
                 delivered_n = k_n_s2 * measured * measured
             else:
-                delivered_n = max(expected_n - unload_n_s * (measured - expected), 0.0)
-            shortfall.append(max(expected_n - delivered_n - DEADBAND_N, 0.0))
+                delivered_n = expected_n - unload_n_s * (measured - expected)
+                delivered_n = 0.0 if 0.0 > delivered_n else delivered_n          # max(., 0) without the call
+            short_n = expected_n - delivered_n - DEADBAND_N
+            shortfall.append(0.0 if 0.0 > short_n else short_n)
         return shortfall

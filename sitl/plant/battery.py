@@ -37,5 +37,5 @@ class Battery:
 
     def draw(self, current_a: float, dt_s: float) -> None:
         """`current_a` drawn for `dt_s`; the voltage is the pack's under that load."""
-        self.consumed_mah += max(current_a, 0.0) * dt_s * _MAH_PER_AS
+        self.consumed_mah += (0.0 if 0.0 > current_a else current_a) * dt_s * _MAH_PER_AS   # max(., 0), no call: every physics step
         self.voltage_v = self._voltage(current_a)

@@ -135,7 +135,9 @@ class Plant:
     def _apply_thrust(self) -> None:
         self._state = None
         lo_n, hi_n = self.airframe.thrust_min_n, self._thrust_max_n
-        self._esc_cmd_n = [min(max(t, lo_n), hi_n) for t in self._thrust_request_n]   # np.clip, on floats
+        # np.clip on floats, its max and min written out (the builtins' calls cost more at every tick)
+        esc_cmd_n = [lo_n if lo_n > t else t for t in self._thrust_request_n]
+        self._esc_cmd_n = [hi_n if hi_n < t else t for t in esc_cmd_n]
         self.thrusters.command(self._esc_cmd_n)
         self._update_rotors()
 

@@ -77,7 +77,8 @@ class Thrusters:
 
     def command(self, thrust_n) -> None:
         """The ESC commands: thrusts (N, four) through the nominal propeller. Call update() after."""
-        self._speed_cmd = [math.sqrt(max(t, 0.0) / self._k_t) for t in thrust_n]
+        k_t = self._k_t
+        self._speed_cmd = [math.sqrt((0.0 if 0.0 > t else t) / k_t) for t in thrust_n]      # max(t, 0)
         self._duty = None
 
     def command_duty(self, duty) -> None:
@@ -106,7 +107,8 @@ class Thrusters:
         self._ceiling = None
 
     # -- the motor ------------------------------------------------------------------------
-    # (Each takes and gives lists, one entry a rotor: the FC commands the rotors at every tick.)
+    # Each takes and gives lists, one entry a rotor: the FC commands the rotors at every tick
+    # (`c if c > x else x` is max(x, c), `c if c < x else x` min(x, c), without the builtin's call: it costs several times the comparison, and these run at every tick).
     def _drive_voltages(self, speed_rad_s: list[float]) -> list[float]:
         """The motor voltages that settle the nominal propeller at `speed_rad_s` (0 at rest)."""
         k_e, r, k_q, i0 = self._k_e, self._r, self._k_q, self._i0
@@ -117,14 +119,16 @@ class Thrusters:
         k_e, r, friction_v, k_e_sq, k_e_4 = self._k_e, self._r, self._friction_v, self._k_e_sq, self._k_e_4
         speeds = []
         for u, k in zip(u_v, k_q):
-            drive = k_e * max(u - friction_v, 0.0)
+            drive = u - friction_v
+            drive = k_e * (0.0 if 0.0 > drive else drive)
             speeds.append(2.0 * drive / (k_e_sq + math.sqrt(k_e_4 + 4.0 * k * r * drive)))
         return speeds
 
     def _settle(self, drive_v: list[float], voltage_v: float) -> tuple[list[float], list[float]]:
         """(ESC output voltage, settled speed) for the drive voltages asked for (four), at most the
         pack's, faults applied."""
-        u = [min(min(r, voltage_v), u_max) for r, u_max in zip(drive_v, self._u_max_v)]
+        u = [voltage_v if voltage_v < r else r for r in drive_v]
+        u = [u_max if u_max < u_v else u_v for u_v, u_max in zip(u, self._u_max_v)]
         return u, self._settled_speeds(u, self._k_q_now)
 
     def update(self, voltage_v: float) -> None:
@@ -193,8 +197,8 @@ class Thrusters:
 
     def _motor_currents(self, speed_rad_s: list[float]) -> list[float]:
         k_e, r = self._k_e, self._r
-        return [max((u - k_e * w) / r, 0.0) if driven else 0.0
-                for u, w, driven in zip(self._u_v, speed_rad_s, self._driven)]
+        currents = [(u - k_e * w) / r if driven else 0.0 for u, w, driven in zip(self._u_v, speed_rad_s, self._driven)]
+        return [0.0 if 0.0 > i else i for i in currents]
 
     def _pack_share(self) -> list[float]:
         """Each ESC's draw from the pack per ampere of its motor: its output voltage over the pack's."""
