@@ -77,6 +77,7 @@ class EscTelemetry:
         self._serial_next_ms = [i * self._serial_period_ms // ROTOR_COUNT for i in range(ROTOR_COUNT)]
         self._next_ms = 0
         self._last_ms: int | None = None
+        self._decay = (math.nan, math.nan)                  # (dt_s, the temperature's decay over it)
         self._temperature_c = [af.esc_ambient_temperature_c] * ROTOR_COUNT     # Python floats: four numbers
         self._consumed_mah = [0.0] * ROTOR_COUNT
         self._count = [0] * ROTOR_COUNT                      # serial packets received, per ESC
@@ -104,7 +105,9 @@ class EscTelemetry:
         af = self._af
         dt_s = 0.0 if self._last_ms is None else (now_ms - self._last_ms) / 1000.0
         self._last_ms = now_ms
-        decay = math.exp(-dt_s / af.esc_thermal_time_constant_s)
+        if dt_s != self._decay[0]:           # the tick, but for the first sample
+            self._decay = (dt_s, math.exp(-dt_s / af.esc_thermal_time_constant_s))
+        decay = self._decay[1]
         ambient_c, rise_c_per_a = af.esc_ambient_temperature_c, af.esc_temperature_rise_c_per_a
         consumed, temperature = self._consumed_mah, self._temperature_c
         for i, current in enumerate(map(float, truth.esc_current_a)):

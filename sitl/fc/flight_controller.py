@@ -129,9 +129,10 @@ class _Measured(NamedTuple):
 
 
 class _Gyro(NamedTuple):
-    """The gyro's body rates (FRD, rad/s) at one instant of the FC's clock (read once per instant)."""
+    """The gyro's body rates (FRD, rad/s) at one instant of the FC's clock (read once per instant;
+    Python floats: both fast-loop users take them apart)."""
     time_ms: int
-    rates_frd_rad_s: np.ndarray
+    rates_frd_rad_s: list[float]
 
 
 @dataclass
@@ -210,7 +211,7 @@ class FlightController:
         self.estimator.feed(self.plant.take_sensor_samples())
         return self.estimator.report(measured)
 
-    def _gyro(self, now_ms: int) -> np.ndarray:
+    def _gyro(self, now_ms: int) -> list[float]:
         """The body rates the fast loops fly on, read once per instant: the gyro, less the
         estimator's bias if it has one."""
         if self._gyro_read is None or self._gyro_read.time_ms != now_ms:
@@ -219,7 +220,7 @@ class FlightController:
             else:
                 self.estimator.feed(self.plant.take_sensor_samples())
                 rates = self.estimator.rates_frd_rad_s
-            self._gyro_read = _Gyro(now_ms, rates)
+            self._gyro_read = _Gyro(now_ms, rates.tolist())
         return self._gyro_read.rates_frd_rad_s
 
     def _command_plant(self, thrust_n, hip_rad, hip_rate_rad_s=None) -> None:

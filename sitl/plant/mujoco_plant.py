@@ -381,8 +381,11 @@ def _contiguous(addresses: np.ndarray, what: str) -> slice:
 def _floats(name: str, value, length: int) -> list[float]:
     """_vector(name, value, length) as Python floats; a list of them (the FC's fast loop, every
     tick) without a round trip through numpy."""
-    if type(value) is list and len(value) == length and all(type(v) is float for v in value):
-        return value
+    if type(value) is list and len(value) == length:
+        try:
+            return [float(v) for v in value]
+        except (TypeError, ValueError):
+            pass                           # _vector says what is wrong
     return _vector(name, value, length).tolist()
 
 

@@ -195,18 +195,16 @@ class Thrusters:
         """What each ESC draws from the pack."""
         return np.array(self._pack_currents(self._speed, self._pack_share()))
 
-    def _motor_currents(self, speed_rad_s: list[float]) -> list[float]:
-        k_e, r = self._k_e, self._r
-        currents = [(u - k_e * w) / r if driven else 0.0 for u, w, driven in zip(self._u_v, speed_rad_s, self._driven)]
-        return [0.0 if 0.0 > i else i for i in currents]
-
     def _pack_share(self) -> list[float]:
         """Each ESC's draw from the pack per ampere of its motor: its output voltage over the pack's."""
         return [u / self.voltage_v for u in self._u_v]
 
     def _pack_currents(self, speed_rad_s: list[float], share: list[float]) -> list[float]:
-        """Each ESC's draw from the pack: its motor's current times its share (_pack_share)."""
-        return [s * i for s, i in zip(share, self._motor_currents(speed_rad_s))]
+        """Each ESC's draw from the pack: its motor's current (u - k_e w) / R, at least 0 and 0 when
+        not driven, times its share (_pack_share)."""
+        k_e, r = self._k_e, self._r
+        currents = [(u - k_e * w) / r if driven else 0.0 for u, w, driven in zip(self._u_v, speed_rad_s, self._driven)]
+        return [s * (0.0 if 0.0 > i else i) for s, i in zip(share, currents)]
 
     def thrust_ceiling_n(self, thrust_max_n: float) -> np.ndarray:
         """What each rotor settles at when commanded `thrust_max_n` now (truth: the fault and the
