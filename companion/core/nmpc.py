@@ -103,17 +103,13 @@ class Nmpc:
             self.first_rows = FirstPeriodHipRows.build(n, tau, hip_bounds, airframe.same_side_pairs,
                                                        airframe.same_side_sum_max_rad)
         row_count = self.rows.count + (0 if self.first_rows is None else self.first_rows.count)
-        # The QP's constraint matrix, rewritten every iteration: the state rows on top, the
-        # first period's rows (constant) below.
-        self._row_jac = np.zeros((row_count, n * NU))
-        if self.first_rows is not None:
-            self._row_jac[self.rows.count:] = self.first_rows.jac
         w = config.weights
         state_w = np.tile(w.state_diag(), (n + 1, 1))
         state_w[-1] *= w.terminal_scale
         self.cost = TrackingCost(state_w=state_w, input_w=w.input_diag())
         self._hover_u = np.tile(rom.hover_input(airframe), (n, 1))
         self._diagonal = np.diag_indices(n * NU)         # of the condensed QP's Hessian
+        self._row_count = row_count
         self._sense = np.concatenate([np.zeros(n * NU, dtype=np.int32), np.full(row_count, 8, dtype=np.int32)])
         self._guess: np.ndarray | None = None
         self._duals: np.ndarray | None = None
@@ -202,7 +198,7 @@ class Nmpc:
     def _prepare_at(self, x0, x_ref, d, lo, hi) -> PreparedQp | None:
         ref, u_ref = self.targets(x0, x_ref, d)
         return prepare_qp(self._rti_rollout, self.cost, x0, self._initial_guess(u_ref, lo, hi), d, ref, u_ref,
-                          _LEVENBERG)
+                          _LEVENBERG, self._row_jacobian)
 
     def _rti(self, x0, x_ref, d, lo, hi, t0) -> NmpcResult:
         """The feedback: the prepared QP moved to (x0, x_ref, d), one QP, the full step."""
@@ -214,7 +210,7 @@ class Nmpc:
         n = self.config.horizon
         ref, u_ref = self.targets(x0, x_ref, d)
         xs = prep.states(x0, d)
-        step = self._qp_step(prep.hess, prep.gradient(xs, ref, u_ref), x0, xs, prep.us, prep.gamma,
+        step = self._qp_step(prep.hess, prep.gradient(xs, ref, u_ref), prep.rows, x0, xs, prep.us,
                              np.tile(lo, n), np.tile(hi, n))
         if step is None:
             return self._fallback(x0, lo, hi, "qp_failed", 1, t0)
@@ -227,10 +223,11 @@ class Nmpc:
         return NmpcResult(u=us[0].copy(), x_pred=xs, u_pred=us, solve_ms=_ms_since(t0), iterations=1, status=status,
                           ok=True, cost=self.cost.value(xs, us, ref, u_ref), fallback=False)
 
-    def _qp_step(self, hess, grad, x0, xs, us, gamma, lo_all, hi_all) -> np.ndarray | None:
+    def _qp_step(self, hess, grad, rows, x0, xs, us, lo_all, hi_all) -> np.ndarray | None:
         """The QP's step dU (N, 8) within the input bounds (lo_all, hi_all: every stage's) and the
-        state rows linearised at xs; None when DAQP fails. Its duals warm-start the next QP."""
-        rows, row_lo, row_hi = self._constraint_rows(x0, xs, us, gamma)
+        state rows, their derivatives `rows` (from _row_jacobian) taken from xs; None when DAQP
+        fails. Its duals warm-start the next QP."""
+        row_lo, row_hi = self._row_bounds(x0, xs, us)
         upper = np.concatenate([hi_all - us.ravel(), row_hi])
         lower = np.concatenate([lo_all - us.ravel(), row_lo])
         step, _, flag, info = daqp.solve(hess, grad, rows, upper, lower, self._sense,
@@ -246,16 +243,25 @@ class Nmpc:
             violation += self.first_rows.violation(x0, us)
         return self.cost.value(xs, us, ref, u_ref) + _MERIT_PENALTY * violation
 
-    def _constraint_rows(self, x0, xs, us, gamma):
-        """(rows (m, N*8), lower, upper) of the QP's general constraints on the step dU."""
+    def _row_jacobian(self, gamma) -> np.ndarray:
+        """(m, N*8) the QP's general constraints' derivatives in the step dU, from Gamma: the state
+        rows on top, the first period's rows (constant) below. The real-time iteration takes them
+        at its preparation: Gamma does not move with the arrived state."""
+        rows = np.empty((self._row_count, gamma.shape[1]))
+        self.rows.jacobian(gamma, out=rows[:self.rows.count])
+        if self.first_rows is not None:
+            rows[self.rows.count:] = self.first_rows.jac
+        return rows
+
+    def _row_bounds(self, x0, xs, us):
+        """(lower, upper) of the QP's general constraints on the step dU, at the states xs."""
         c = self.rows.values(xs)
-        self.rows.jacobian(gamma, out=self._row_jac[:self.rows.count])
         lower, upper = self.rows.lo - c, self.rows.hi - c
         if self.first_rows is not None:
             c0 = self.first_rows.values(x0, us)
             lower = np.concatenate([lower, self.first_rows.lo - c0])
             upper = np.concatenate([upper, self.first_rows.hi - c0])
-        return self._row_jac, np.maximum(lower, -_BIG), np.minimum(upper, _BIG)
+        return np.maximum(lower, -_BIG), np.minimum(upper, _BIG)
 
     def _initial_guess(self, u_ref, lo, hi) -> np.ndarray:
         if self._guess is None:
@@ -278,7 +284,7 @@ class Nmpc:
             gamma = sensitivities(a, b)
             hess, grad = self.cost.gauss_newton(gamma, xs, us, ref, u_ref)
             hess[self._diagonal] += _LEVENBERG * hess[self._diagonal].max()
-            step = self._qp_step(hess, grad, x0, xs, us, gamma, lo_all, hi_all)
+            step = self._qp_step(hess, grad, self._row_jacobian(gamma), x0, xs, us, lo_all, hi_all)
             if step is None:
                 return self._fallback(x0, lo, hi, "qp_failed", it, t0)
             decrease = float(grad @ step.ravel())

@@ -14,6 +14,7 @@ and takes the full step.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,6 +41,7 @@ class PreparedQp:
     grad: np.ndarray           # (N*8,)
     grad_state: np.ndarray     # (N*8, N*20) the gradient's change per unit of x_{1..N}
     grad_input: np.ndarray     # (N*8,) the gradient's change per unit of U (negated: of u_ref)
+    rows: np.ndarray           # (m, N*8) the constraint rows' derivatives in dU (row_jacobian of gamma)
 
     def states(self, x0: np.ndarray, d: np.ndarray) -> np.ndarray:
         """(N+1, 20) the prepared rollout moved to initial state x0 and disturbance d (first order).
@@ -61,9 +63,11 @@ class PreparedQp:
 
 
 def prepare_qp(rollout: Linearisation, cost: TrackingCost, x0: np.ndarray, us: np.ndarray, d: np.ndarray,
-               ref: np.ndarray, u_ref: np.ndarray, damping_rel: float) -> PreparedQp | None:
+               ref: np.ndarray, u_ref: np.ndarray, damping_rel: float,
+               row_jacobian: Callable[[np.ndarray], np.ndarray]) -> PreparedQp | None:
     """The QP at (x0, d) along us; damping_rel times the Hessian's largest diagonal entry is added
-    to its diagonal. None when the rollout or its derivatives are not finite."""
+    to its diagonal; row_jacobian gives the constraint rows' derivatives from gamma. None when the
+    rollout or its derivatives are not finite."""
     xs, a, b, c = rollout(x0, us, d)
     if not (np.isfinite(xs).all() and np.isfinite(a).all() and np.isfinite(b).all() and np.isfinite(c).all()):
         return None
@@ -73,4 +77,4 @@ def prepare_qp(rollout: Linearisation, cost: TrackingCost, x0: np.ndarray, us: n
     hess[diagonal] += damping_rel * hess[diagonal].max()
     return PreparedQp(x0=x0.copy(), d=d.copy(), ref=ref, u_ref=u_ref, us=us, xs=xs, gamma=gamma,
                       sens=parameter_sensitivities(a, c), hess=hess, grad=grad, grad_state=grad_state,
-                      grad_input=cost.input_gradient_scale)
+                      grad_input=cost.input_gradient_scale, rows=row_jacobian(gamma))
