@@ -40,12 +40,12 @@ from companion.core.condensing import (
     state_rows,
 )
 from companion.core.control_types import thrust_bounds
+from companion.core.feedback_qp import NO_BOUND, FeedbackQp
 from companion.core.nmpc_config import NmpcConfig
 from companion.core.nmpc_targets import hover_targets
 from companion.core.rti import PreparedQp, prepare_qp
 from companion.core.rom import ND, NU, NX
 
-_BIG = 1e30                  # DAQP's "no bound"
 _MERIT_PENALTY = 1e4         # per unit of state-constraint violation, in the line search
 _ARMIJO = 1e-4
 _MAX_HALVINGS = 6
@@ -111,6 +111,7 @@ class Nmpc:
         self._diagonal = np.diag_indices(n * NU)         # of the condensed QP's Hessian
         self._row_count = row_count
         self._sense = np.concatenate([np.zeros(n * NU, dtype=np.int32), np.full(row_count, 8, dtype=np.int32)])
+        self._feedback_qp = FeedbackQp(n * NU, self._sense, _DAQP_ITER_LIMIT)
         self._guess: np.ndarray | None = None
         self._duals: np.ndarray | None = None
         # The warm start: the previous plan shifted by warm_start_shift stages, interpolated
@@ -196,9 +197,13 @@ class Nmpc:
         return self._sqp(x0, ref, u_ref, d, lo, hi, t0)
 
     def _prepare_at(self, x0, x_ref, d, lo, hi) -> PreparedQp | None:
+        """The QP at (x0, x_ref, d), loaded into the feedback's DAQP model (None: not finite)."""
         ref, u_ref = self.targets(x0, x_ref, d)
-        return prepare_qp(self._rti_rollout, self.cost, x0, self._initial_guess(u_ref, lo, hi), d, ref, u_ref,
+        prep = prepare_qp(self._rti_rollout, self.cost, x0, self._initial_guess(u_ref, lo, hi), d, ref, u_ref,
                           _LEVENBERG, self._row_jacobian)
+        if prep is not None:
+            self._feedback_qp.load(prep.hess, prep.rows, warm=self._duals is not None)
+        return prep
 
     def _rti(self, x0, x_ref, d, lo, hi, t0) -> NmpcResult:
         """The feedback: the prepared QP moved to (x0, x_ref, d), one QP, the full step."""
@@ -210,8 +215,8 @@ class Nmpc:
         n = self.config.horizon
         ref, u_ref = self.targets(x0, x_ref, d)
         xs = prep.states(x0, d)
-        step = self._qp_step(prep.hess, prep.gradient(xs, ref, u_ref), prep.rows, x0, xs, prep.us,
-                             np.tile(lo, n), np.tile(hi, n))
+        upper, lower = self._qp_bounds(x0, xs, prep.us, np.tile(lo, n), np.tile(hi, n))
+        step = self._step(*self._feedback_qp.solve(prep.gradient(xs, ref, u_ref), upper, lower))
         if step is None:
             return self._fallback(x0, lo, hi, "qp_failed", 1, t0)
         us = np.clip(prep.us + step, lo, hi)
@@ -227,14 +232,23 @@ class Nmpc:
         """The QP's step dU (N, 8) within the input bounds (lo_all, hi_all: every stage's) and the
         state rows, their derivatives `rows` (from _row_jacobian) taken from xs; None when DAQP
         fails. Its duals warm-start the next QP."""
-        row_lo, row_hi = self._row_bounds(x0, xs, us)
-        upper = np.concatenate([hi_all - us.ravel(), row_hi])
-        lower = np.concatenate([lo_all - us.ravel(), row_lo])
+        upper, lower = self._qp_bounds(x0, xs, us, lo_all, hi_all)
         step, _, flag, info = daqp.solve(hess, grad, rows, upper, lower, self._sense,
                                          dual_start=self._duals, iter_limit=_DAQP_ITER_LIMIT)
+        return self._step(step, flag, info["lam"])
+
+    def _qp_bounds(self, x0, xs, us, lo_all, hi_all) -> tuple[np.ndarray, np.ndarray]:
+        """(upper, lower) of the QP on the step dU from us: the input bounds (lo_all, hi_all: every
+        stage's) first, then the state rows at xs."""
+        row_lo, row_hi = self._row_bounds(x0, xs, us)
+        return np.concatenate([hi_all - us.ravel(), row_hi]), np.concatenate([lo_all - us.ravel(), row_lo])
+
+    def _step(self, step, flag, duals) -> np.ndarray | None:
+        """DAQP's solution as the step dU (N, 8), its duals kept to warm-start the next QP; None
+        when it failed."""
         if flag not in _DAQP_OK or not np.isfinite(step).all():
             return None
-        self._duals = np.asarray(info["lam"])
+        self._duals = np.asarray(duals)
         return np.asarray(step).reshape(self.config.horizon, NU)
 
     def _merit(self, x0, xs, us, ref, u_ref):
@@ -261,7 +275,7 @@ class Nmpc:
             c0 = self.first_rows.values(x0, us)
             lower = np.concatenate([lower, self.first_rows.lo - c0])
             upper = np.concatenate([upper, self.first_rows.hi - c0])
-        return np.maximum(lower, -_BIG), np.minimum(upper, _BIG)
+        return np.maximum(lower, -NO_BOUND), np.minimum(upper, NO_BOUND)
 
     def _initial_guess(self, u_ref, lo, hi) -> np.ndarray:
         if self._guess is None:
