@@ -55,11 +55,15 @@ class DisturbanceEstimator:
         self.lower = np.r_[f_low, np.full(3, -t_max)]
         self.upper = np.r_[f_high, np.full(3, t_max)]
         step = rom.build_rom(airframe, period_s, substeps=2).step
-        x, u, d = ca.SX.sym("x", NX), ca.SX.sym("u", NU), ca.SX.sym("d", ND)
-        x_next = step(x, u, d)
-        predict = ca.Function("m4_disturbance_predict", [x, u, d],
-                              [x_next[_MEASURED], ca.jacobian(x_next[_MEASURED], d)])
-        self._predict = BufferedFunction(compiled(predict) if codegen else predict)
+        x, u, d, measured = ca.SX.sym("x", NX), ca.SX.sym("u", NU), ca.SX.sym("d", ND), ca.SX.sym("m", len(_MEASURED))
+        predicted = step(x, u, d)[_MEASURED]
+        # One call from the measurement to the correction: the innovation mapped back through the
+        # sensitivity dx+/dd (square, 6 x 6) by a solve generated with the model (CasADi's
+        # symbolic QR), not by numpy operations after it. A sensitivity it cannot invert gives a
+        # non-finite correction: no update.
+        correction = ca.Function("m4_disturbance_correction", [x, u, d, measured],
+                                 [ca.solve(ca.jacobian(predicted, d), measured - predicted)])
+        self._correction = BufferedFunction(compiled(correction) if codegen else correction)
         self.estimate = np.zeros(ND)
 
     def reset(self) -> None:
@@ -69,18 +73,10 @@ class DisturbanceEstimator:
         """New estimate (6,) after the robot went from x_prev to x_new under u_applied; the
         step is gain x gain_scale (in (0, 1]) of the innovation."""
         x_prev, u_applied, x_new = (np.asarray(v, dtype=float).ravel() for v in (x_prev, u_applied, x_new))
-        if not all(np.isfinite(v).all() for v in (x_prev, u_applied, x_new)):
+        if not np.isfinite(np.concatenate([x_prev, u_applied, x_new])).all():
             return self.estimate.copy()
-        with np.errstate(over="ignore", invalid="ignore"):
-            predicted, sensitivity = self._predict(x_prev, u_applied, self.estimate)
-            innovation = x_new[_MEASURED] - predicted.ravel()
-            if not (np.isfinite(innovation).all() and np.isfinite(sensitivity).all()):
-                return self.estimate.copy()           # a state too wild for the model to step
-            try:                                      # square (6 x 6): a solve, a third of a least squares' time
-                correction = np.linalg.solve(sensitivity, innovation)
-            except np.linalg.LinAlgError:             # singular: the least squares' smallest correction
-                correction = np.linalg.lstsq(sensitivity, innovation, rcond=None)[0]
-        if np.isfinite(correction).all():
-            step = self.gain * float(np.clip(gain_scale, 0.0, 1.0))
+        correction = self._correction.evaluate(x_prev, u_applied, self.estimate, x_new[_MEASURED])[0]
+        if np.isfinite(correction).all():             # else a state too wild for the model to step
+            step = self.gain * min(max(float(gain_scale), 0.0), 1.0)
             self.estimate = (self.estimate + step * correction).clip(self.lower, self.upper)
         return self.estimate.copy()

@@ -102,20 +102,6 @@ def test_non_finite_measurements_leave_the_estimate_unchanged():
     assert np.all(est.estimate == 0)
 
 
-def test_a_sensitivity_that_cannot_tell_two_disturbances_apart_gets_the_smallest_correction():
-    # The square solve's fallback: two torque axes moving the same rate alike, half of the
-    # innovation to each (the least squares' minimum-norm answer), not an error.
-    est = DisturbanceEstimator(AF, PERIOD, gain=1.0)
-    sensitivity = np.eye(6)
-    sensitivity[:, 4] = sensitivity[:, 3]
-    x, u = rom.hover_state(AF), rom.hover_input(AF)
-    predicted = x[np.r_[rom.V, rom.RATES]]
-    est._predict = lambda *args: (predicted.copy(), sensitivity)
-    x_new = x.copy()
-    x_new[rom.RATES.start] += 0.01
-    assert est.update(x, u, x_new) == pytest.approx([0, 0, 0, 0.005, 0.005, 0])
-
-
 @pytest.mark.parametrize("kwargs", [{"gain": 0.0}, {"gain": 1.5}, {"period_s": 0.0}])
 def test_bad_settings_are_rejected(kwargs):
     args = {"period_s": PERIOD, **kwargs}
