@@ -106,10 +106,15 @@ def safe_setpoint(af: Airframe, thrust_n, hip_rad, hip_rate_rad_s, thrust_bound_
             hip[list(pair)] = np.maximum(hip[list(pair)] - excess / 2, af.hip_min_rad)
     rate = np.asarray(hip_rate_rad_s, dtype=float).reshape(ROTOR_COUNT)
     rate = np.where(np.isfinite(rate), rate, 0.0).clip(-af.hip_rate_max_rad_s, af.hip_rate_max_rad_s)
-    return Setpoint(thrust_n=_float32_within(thrust, 0.0 if thrust_cut else af.thrust_min_n, bound),
-                    hip_rad=_float32_within(hip, af.hip_min_rad, hip),
-                    hip_rate_rad_s=_float32_within(rate, -af.hip_rate_max_rad_s, af.hip_rate_max_rad_s),
-                    thrust_cut=thrust_cut)
+    # The three as float32 in one pass: thrusts within [thrust_min (0 when cut), bound], the
+    # hips at most themselves, the rates within +-hip_rate_max.
+    r = ROTOR_COUNT
+    values, lo, hi = np.empty(3 * r), np.empty(3 * r), np.empty(3 * r)
+    values[:r], values[r:2 * r], values[2 * r:] = thrust, hip, rate
+    lo[:r], lo[r:2 * r], lo[2 * r:] = 0.0 if thrust_cut else af.thrust_min_n, af.hip_min_rad, -af.hip_rate_max_rad_s
+    hi[:r], hi[r:2 * r], hi[2 * r:] = bound, hip, af.hip_rate_max_rad_s
+    sent = _float32_within(values, lo, hi)
+    return Setpoint(thrust_n=sent[:r], hip_rad=sent[r:2 * r], hip_rate_rad_s=sent[2 * r:], thrust_cut=thrust_cut)
 
 
 def _float32_within(values: np.ndarray, lo, hi) -> np.ndarray:
