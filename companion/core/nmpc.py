@@ -215,7 +215,7 @@ class Nmpc:
         n = self.config.horizon
         ref, u_ref = self.targets(x0, x_ref, d)
         xs = prep.states(x0, d)
-        upper, lower = self._qp_bounds(x0, xs, prep.us, np.tile(lo, n), np.tile(hi, n))
+        upper, lower = self._qp_bounds(x0, xs, prep.us, lo, hi)
         step = self._step(*self._feedback_qp.solve(prep.gradient(xs, ref, u_ref), upper, lower))
         if step is None:
             return self._fallback(x0, lo, hi, "qp_failed", 1, t0)
@@ -228,20 +228,20 @@ class Nmpc:
         return NmpcResult(u=us[0].copy(), x_pred=xs, u_pred=us, solve_ms=_ms_since(t0), iterations=1, status=status,
                           ok=True, cost=self.cost.value(xs, us, ref, u_ref), fallback=False)
 
-    def _qp_step(self, hess, grad, rows, x0, xs, us, lo_all, hi_all) -> np.ndarray | None:
-        """The QP's step dU (N, 8) within the input bounds (lo_all, hi_all: every stage's) and the
+    def _qp_step(self, hess, grad, rows, x0, xs, us, lo, hi) -> np.ndarray | None:
+        """The QP's step dU (N, 8) within the input bounds (lo, hi: one stage's, (8,)) and the
         state rows, their derivatives `rows` (from _row_jacobian) taken from xs; None when DAQP
         fails. Its duals warm-start the next QP."""
-        upper, lower = self._qp_bounds(x0, xs, us, lo_all, hi_all)
+        upper, lower = self._qp_bounds(x0, xs, us, lo, hi)
         step, _, flag, info = daqp.solve(hess, grad, rows, upper, lower, self._sense,
                                          dual_start=self._duals, iter_limit=_DAQP_ITER_LIMIT)
         return self._step(step, flag, info["lam"])
 
-    def _qp_bounds(self, x0, xs, us, lo_all, hi_all) -> tuple[np.ndarray, np.ndarray]:
-        """(upper, lower) of the QP on the step dU from us: the input bounds (lo_all, hi_all: every
-        stage's) first, then the state rows at xs."""
+    def _qp_bounds(self, x0, xs, us, lo, hi) -> tuple[np.ndarray, np.ndarray]:
+        """(upper, lower) of the QP on the step dU from us: the input bounds (lo, hi: one stage's, at
+        every stage) first, then the state rows at xs."""
         row_lo, row_hi = self._row_bounds(x0, xs, us)
-        return np.concatenate([hi_all - us.ravel(), row_hi]), np.concatenate([lo_all - us.ravel(), row_lo])
+        return np.concatenate([(hi - us).ravel(), row_hi]), np.concatenate([(lo - us).ravel(), row_lo])
 
     def _step(self, step, flag, duals) -> np.ndarray | None:
         """DAQP's solution as the step dU (N, 8), its duals kept to warm-start the next QP; None
@@ -285,20 +285,18 @@ class Nmpc:
         return np.clip(us, lo, hi)
 
     def _sqp(self, x0, ref, u_ref, d, lo, hi, t0) -> NmpcResult:
-        n = self.config.horizon
         us = self._initial_guess(u_ref, lo, hi)
         xs, a, b = self._rollout(x0, us, d)
         merit = self._merit(x0, xs, us, ref, u_ref)
         status, it = "max_iterations", 0
         budget_s = self.config.time_budget_s
-        lo_all, hi_all = np.concatenate((lo,) * n), np.concatenate((hi,) * n)
         for it in range(1, self.config.max_iterations + 1):
             if not (np.isfinite(merit) and np.isfinite(a).all() and np.isfinite(b).all()):
                 return self._fallback(x0, lo, hi, "qp_failed", it, t0)
             gamma = sensitivities(a, b)
             hess, grad = self.cost.gauss_newton(gamma, xs, us, ref, u_ref)
             hess[self._diagonal] += _LEVENBERG * hess[self._diagonal].max()
-            step = self._qp_step(hess, grad, self._row_jacobian(gamma), x0, xs, us, lo_all, hi_all)
+            step = self._qp_step(hess, grad, self._row_jacobian(gamma), x0, xs, us, lo, hi)
             if step is None:
                 return self._fallback(x0, lo, hi, "qp_failed", it, t0)
             decrease = float(grad @ step.ravel())
