@@ -47,6 +47,7 @@ from m4.setpoint import (EFFECTIVENESS_MAX_RAD_S2_PER_N, RATE_GAIN_MAX_N_PER_RAD
                          ShortfallCover)
 
 LIVE_SHARE = 0.5
+_OTHERS = np.array([[i for i in range(ROTOR_COUNT) if i != short] for short in range(ROTOR_COUNT)])   # (4, 3)
 
 
 class _Kept:
@@ -95,8 +96,13 @@ class RateFeedbackDesign:
             return None
         allocation, inertia = self._allocation(hip)
         torque_per_error = self.bandwidth_rad_s * inertia[:2, :2]
+        rows = allocation[:, live]              # full row rank: the least-norm inverse is rows^T (rows rows^T)^-1
+        try:
+            least_norm = np.linalg.solve(rows @ rows.T, rows).T     # a third of np.linalg.pinv's time (its SVD)
+        except np.linalg.LinAlgError:
+            return None
         gain = np.zeros((ROTOR_COUNT, 3))
-        gain[live, :2] = np.linalg.pinv(allocation[:, live])[:, :2] @ torque_per_error
+        gain[live, :2] = least_norm[:, :2] @ torque_per_error
         if not np.isfinite(gain).all() or np.abs(gain).max() > RATE_GAIN_MAX_N_PER_RAD_S:
             return None
         return gain
@@ -112,13 +118,12 @@ class RateFeedbackDesign:
         if not self.shortfall_cover or fault_confirmed or not np.isfinite(hip).all():
             return None
         allocation, inertia = self._allocation(hip)
+        try:                                    # the four 3 x 3 systems in one stacked solve
+            covered = np.linalg.solve(allocation[:, _OTHERS].transpose(1, 0, 2), allocation.T[:, :, None])[:, :, 0]
+        except np.linalg.LinAlgError:
+            return None
         gain = np.zeros((ROTOR_COUNT, ROTOR_COUNT))
-        for short in range(ROTOR_COUNT):
-            others = [i for i in range(ROTOR_COUNT) if i != short]
-            try:
-                gain[others, short] = np.linalg.solve(allocation[:, others], allocation[:, short])
-            except np.linalg.LinAlgError:
-                return None
+        gain[_OTHERS, np.arange(ROTOR_COUNT)[:, None]] = covered
         if not np.isfinite(gain).all() or np.abs(gain).max() > SHORTFALL_GAIN_MAX:
             return None
         torque = np.vstack([allocation[:2], self.af.moment_coefficient_m * np.asarray(self.af.spin_sign, dtype=float)])
