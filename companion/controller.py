@@ -196,7 +196,7 @@ class Controller:
         self._new_reference = new_reference or (
             lambda t0_s, start_ned_m: MissionReference(self.mission, start_ned_m, af, s.reference, t0_s=t0_s))
         self.disturbance = DisturbanceEstimator(af, self.period_s, s.disturbance_gain, codegen=codegen)
-        self.predictor = Predictor(af, self.nmpc.rom.f, self.period_s)
+        self.predictor = Predictor(af, self.nmpc.rom.f, self.period_s, codegen)
         self.rate_feedback = RateFeedbackDesign(af, s.rate_feedback_bandwidth_rad_s, s.shortfall_cover)
         self.detector = self._new_detector()
         self.flight: Flight | None = None

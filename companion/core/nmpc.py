@@ -83,7 +83,7 @@ class Nmpc:
         if config.scheme == "rti":
             self._rti_rollout = Linearisation(build(linearisation(self.rom.step, n, disturbance_jacobian=True)), n)
             period_s = config.dt_s * config.warm_start_shift
-            self._advance = BufferedFunction(rom.rk4_step(self.rom.f, period_s, config.rk4_substeps))
+            self._advance = BufferedFunction(build(rom.rk4_step(self.rom.f, period_s, config.rk4_substeps)))
         self._prepared: PreparedQp | None = None
         self._planned: tuple[np.ndarray, np.ndarray] | None = None   # (x0, u0) of the last plan
         self.prepare_ms = 0.0            # how long the last `prepare` took

@@ -25,6 +25,8 @@ import casadi as ca
 import numpy as np
 
 from companion.core import rom
+from companion.core.casadi_call import BufferedFunction
+from companion.core.codegen_cache import compiled
 from companion.core.control_types import thrust_bounds
 from companion.core.rom import ND, NU, NX
 from m4.airframe import ROTOR_COUNT, Airframe
@@ -87,13 +89,16 @@ class CommandHistory:
 
 class Predictor:
     """Forward prediction with the ROM dynamics `f` (rom.RomFunctions.f: x, u, d -> xdot) for
-    commands sent every period_s (the rate feedback's planned rates are held after it)."""
+    commands sent every period_s (the rate feedback's planned rates are held after it); codegen:
+    its flow compiled to C (cached, companion.core.codegen_cache), else CasADi's VM, on
+    preallocated buffers either way (a piece of a lead costs one call, not a DM round trip)."""
 
-    def __init__(self, af: Airframe, f: ca.Function, period_s: float):
+    def __init__(self, af: Airframe, f: ca.Function, period_s: float, codegen: bool = False):
         self._af = af
         self._period_s = period_s
         x, u, d, dt = ca.SX.sym("x", NX), ca.SX.sym("u", NU), ca.SX.sym("d", ND), ca.SX.sym("dt")
-        self._flow = ca.Function("m4_rom_flow", [x, u, d, dt], [rom.rk4(f, x, u, d, dt, _SUBSTEPS)])
+        flow = ca.Function("m4_rom_flow", [x, u, d, dt], [rom.rk4(f, x, u, d, dt, _SUBSTEPS)])
+        self._flow = BufferedFunction(compiled(flow) if codegen else flow)
 
     def predict(self, x, time_s: float, lead_s: float, history: CommandHistory, disturbance,
                 thrust_bound_n, thrust_now_n=None) -> np.ndarray:
@@ -123,7 +128,7 @@ class Predictor:
             for k in range(pieces):
                 command = self._command(sent, xk, a + k * h - (sent.time_s + lead_s), bound)
                 u = np.concatenate([thrust + (command - thrust) * average, np.zeros(ROTOR_COUNT)])   # hips: on their goal
-                xk = np.asarray(self._flow(xk, u, disturbance, h)).ravel()
+                xk = self._flow(xk, u, disturbance, h)[0].ravel()
                 thrust = command + (thrust - command) * decay
         if not np.isfinite(xk).all():
             return x.copy()
