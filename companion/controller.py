@@ -336,9 +336,9 @@ class Controller:
         x_ref = self._reference(time_s, lead_s, c.horizon, c.dt_s)
         res = self.nmpc.solve(x_plan, x_ref, fault.thrust_bound_n, d)
         sp = self._setpoint(x_plan, res, fault.thrust_bound_n)
-        sp = replace(sp, thrust_n=self.ramp.limit(sp.thrust_n, fault.thrust_bound_n))
         x_next = res.x_pred[1] if res.ok else x_plan          # a failed solve plans no change of the rates
-        sp = replace(sp, rate_feedback=self.rate_feedback.feedback(x_plan, x_next, c.dt_s, fault.thrust_bound_n),
+        sp = replace(sp, thrust_n=self.ramp.limit(sp.thrust_n, fault.thrust_bound_n),
+                     rate_feedback=self.rate_feedback.feedback(x_plan, x_next, c.dt_s, fault.thrust_bound_n),
                      shortfall_cover=self.rate_feedback.cover(x_plan[rom.HIP], fault.state is FaultState.CONFIRMED))
         self.sent.add(SentCommand(time_s, x, np.concatenate([sp.thrust_n, res.u[rom.HIP_ACCEL]]), sp.rate_feedback,
                                   sp.shortfall_cover))
@@ -445,8 +445,9 @@ class Controller:
             self.detector.hold()
             return self.detector.status, False
         cap = self.af.thrust_max_n
-        if limit_n is not None and np.isfinite(limit_n).any():          # already a (4,) array (_thrust_telemetry)
-            cap = float(np.clip(np.nanmax(limit_n), self.af.thrust_min_n, self.af.thrust_max_n))
+        known = [] if limit_n is None else [v for v in limit_n.tolist() if v == v]   # (4,) from _thrust_telemetry: NaN or finite
+        if known:
+            cap = min(max(max(known), self.af.thrust_min_n), self.af.thrust_max_n)
         frame = (time_s, x, in_force.thrust_n, np.full(ROTOR_COUNT, cap), esc)
         if self.detector.cannot_confirm(time_s, frame[3]):
             self._deferred = frame
