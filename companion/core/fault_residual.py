@@ -69,19 +69,27 @@ class IntervalFit:
 
 
 class ThrustResidualModel:
-    """One-step prediction of the ROM and the per-rotor sensitivity of (v, rates) to thrust;
-    codegen: compiled to C (cached, companion.core.codegen_cache), else CasADi's VM."""
+    """One-step prediction of the ROM, the per-rotor sensitivity of (v, rates) to thrust and the
+    weighted fit of each hypothesis, in one CasADi function; codegen: compiled to C (cached,
+    companion.core.codegen_cache), else CasADi's VM."""
 
     def __init__(self, af: Airframe, noise: ResidualNoise, codegen: bool = False):
-        self._af, self._noise = af, noise
+        self._af = af
         f = rom.dynamics(af)
         x, u, dt = ca.SX.sym("x", rom.NX), ca.SX.sym("u", rom.NU), ca.SX.sym("dt")
-        xk = rom.rk4(f, x, u, ca.DM.zeros(rom.ND), dt, _PREDICTION_SUBSTEPS)
+        measured, bias_per_s = ca.SX.sym("measured", len(CHANNELS)), ca.SX.sym("bias_per_s", len(CHANNELS))
+        xk = rom.rk4(f, x, u, ca.DM.zeros(rom.ND), dt, _PREDICTION_SUBSTEPS)[CHANNELS.tolist()]
         com, inertia = rom.mass_properties(af, x[rom.HIP])
         torque = rom.thrust_torque_frd(af, x[rom.HIP], com, u[rom.THRUST])
-        predict = ca.Function("m4_fault_predict", [x, u, dt],
-                              [xk, ca.jacobian(xk, u[rom.THRUST]), ca.diag(inertia), torque])
-        self._predict = BufferedFunction(compiled(predict) if codegen else predict)
+        sens = ca.jacobian(xk, u[rom.THRUST])                       # (6, 4)
+        raw = measured - xk
+        r = raw - bias_per_s * dt
+        w = 1.0 / _residual_variance(af, noise, dt, ca.diag(inertia), torque)
+        w_size = 1.0 / _residual_variance(af, noise, dt, ca.diag(inertia), ca.DM.zeros(3))
+        a, a_size = ((sens * sens).T @ weights for weights in (w, w_size))
+        b, b_size = (-(sens.T @ (weights * r)) for weights in (w, w_size))
+        fit = ca.Function("m4_fault_fit", [x, u, dt, measured, bias_per_s], [a, b, ca.dot(r, w * r), a_size, b_size, raw])
+        self._fit = BufferedFunction(compiled(fit) if codegen else fit)
 
     def motor_decay(self, dt_s: float) -> float:
         """Share of a thrust step the first-order motor lag has still to go after dt_s (0: no lag)."""
@@ -115,24 +123,18 @@ class ThrustResidualModel:
         u = np.zeros(rom.NU)
         u[rom.THRUST] = expected_thrust_n
         u[rom.HIP_ACCEL] = (x_now[rom.HIP_RATE] - x_prev[rom.HIP_RATE]) / dt_s
-        x_pred, jac, inertia_diag, torque = self._predict(x_prev, u, dt_s)
-        x_pred, inertia_diag, torque = (v.ravel() for v in (x_pred, inertia_diag, torque))
-        raw = x_now[CHANNELS] - x_pred[CHANNELS]
-        r = raw - bias_per_s * dt_s
-        sens = jac[CHANNELS, :]                          # (6, 4)
-        w = 1.0 / self._residual_variance(dt_s, inertia_diag, torque)
-        w_size = 1.0 / self._residual_variance(dt_s, inertia_diag, np.zeros(3))
-        a, a_size = (np.einsum("ci,c,ci->i", sens, weights, sens) for weights in (w, w_size))
-        b, b_size = (-np.einsum("ci,c,c->i", sens, weights, r) for weights in (w, w_size))
-        return IntervalFit(a=a, b=b, chi2=float(r @ (w * r)), a_size=a_size, b_size=b_size,
+        a, b, chi2, a_size, b_size, raw = (v.copy() for v in self._fit.evaluate(x_prev, u, dt_s, x_now[CHANNELS],
+                                                                                 bias_per_s))
+        return IntervalFit(a=a, b=b, chi2=float(chi2[0]), a_size=a_size, b_size=b_size,
                            expected_thrust_n=expected_thrust_n), raw
 
-    def _residual_variance(self, dt_s: float, inertia_diag_kg_m2: np.ndarray, torque_n_m: np.ndarray) -> np.ndarray:
-        n = self._noise
-        v = 2 * n.velocity_m_s**2 + (n.force_n * dt_s / self._af.total_mass_kg) ** 2
-        torque_error = np.hypot(n.torque_n_m, n.torque_share * torque_n_m)
-        w = 2 * n.rates_rad_s**2 + (torque_error * dt_s / inertia_diag_kg_m2) ** 2
-        return np.concatenate([np.full(3, v), w])
+
+def _residual_variance(af: Airframe, n: ResidualNoise, dt_s, inertia_diag_kg_m2, torque_n_m):
+    """(6,) the residual's variance per channel (velocity, then body rates), as CasADi expressions."""
+    v = 2 * n.velocity_m_s**2 + (n.force_n * dt_s / af.total_mass_kg) ** 2
+    torque_error = ca.hypot(n.torque_n_m, n.torque_share * torque_n_m)
+    w = 2 * n.rates_rad_s**2 + (torque_error * dt_s / inertia_diag_kg_m2) ** 2
+    return ca.vertcat(v, v, v, w)
 
 
 def combine(fits: list[IntervalFit]) -> IntervalFit:
