@@ -30,8 +30,9 @@ _MEASURED = np.r_[np.arange(NX)[rom.V], np.arange(NX)[rom.RATES]]   # rows of x 
 
 
 class DisturbanceEstimator:
-    """Filtered, bounded disturbance estimate for control period `period_s`; codegen: its model
-    step compiled to C (cached, companion.core.codegen_cache), else CasADi's VM."""
+    """Filtered, bounded disturbance estimate for control period `period_s`; codegen: its correction
+    (the model's step and the solve) compiled to C (cached, companion.core.codegen_cache), else
+    CasADi's VM."""
 
     def __init__(self, airframe: Airframe, period_s: float, gain: float = 0.3,
                  force_max_n: float | None = None, torque_max_n_m: float | None = None, codegen: bool = False):
