@@ -107,6 +107,7 @@ def setting_bounds(af: Airframe) -> dict[type, dict[str, Bounds]]:
             "roll_pitch_rate": weight, "hip_rate": weight, "thrust": weight_positive,
             "hip_accel": weight_positive,
             "terminal_scale": Bounds(0.0, 100.0, why="more makes the plan a one-point problem"),
+            "horizontal_saturated_scale": Bounds(0.0, 1.0, why="a share of the weights"),
         },
         ReferenceConfig: {
             "accel_max_m_s2": Bounds(0.1, 5.0, why="5 m/s^2 leans the robot 27 deg, what three rotors still allow"),

@@ -98,6 +98,8 @@ def _specs(config: CompanionConfig) -> list[_Spec]:
         weight("NMPC_W_THRUST", ("thrust",), "thrust weight"),
         weight("NMPC_W_HIP_ACC", ("hip_accel",), "hip acceleration weight"),
         weight("NMPC_W_TERMINAL", ("terminal_scale",), "terminal weight, times the stage's"),
+        weight("NMPC_W_SAT_HORIZ", ("horizontal_saturated_scale",),
+               "north and east weights, times this while the rotors saturate"),
         detector("DET_CHI2_MIN", "chi2_min", "", "smallest residual chi2 a rotor must explain"),
         detector("DET_DEFICIT_MIN", "deficit_min_n", "N", "smallest thrust deficit that votes"),
         detector("DET_UNEXPLAINED", "unexplained_max", "", "chi2 the best rotor may leave, as a share"),

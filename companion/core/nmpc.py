@@ -9,8 +9,10 @@ inputs after condensing; they are soft in the QP (a huge penalty, exact whenever
 so that a measured state just outside a bound never makes the QP infeasible.
 
 Fault-agnostic: each rotor's thrust upper bound is an argument of `solve`; a fault lowers a
-bound and nothing else changes. A solve never returns NaN or an input out of its bounds: on
-bad input or solver failure it returns a bounded fallback and says so (`fallback=True`).
+bound and nothing else changes. While its plans saturate the rotors for want of thrust, the
+cost's horizontal weights drop (companion.core.altitude_first: altitude before place). A solve
+never returns NaN or an input out of its bounds: on bad input or solver failure it returns a
+bounded fallback and says so (`fallback=True`).
 
 Two schemes ([nmpc] scheme): "sqp" iterates to the optimum at every solve (with a line search
 on a merit function); "rti", the real-time iteration, takes one full QP step per solve from a
@@ -29,6 +31,7 @@ import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
 from companion.core import rom
+from companion.core.altitude_first import AltitudeFirst, horizontal_scaled
 from companion.core.casadi_call import BufferedFunction
 from companion.core.codegen_cache import compiled
 from companion.core.condensing import (
@@ -106,7 +109,12 @@ class Nmpc:
         w = config.weights
         state_w = np.tile(w.state_diag(), (n + 1, 1))
         state_w[-1] *= w.terminal_scale
-        self.cost = TrackingCost(state_w=state_w, input_w=w.input_diag())
+        self._costs = (TrackingCost(state_w=state_w, input_w=w.input_diag()),
+                       TrackingCost(state_w=horizontal_scaled(state_w, rom.P, rom.V, w.horizontal_saturated_scale),
+                                    input_w=w.input_diag()))
+        self.altitude_first = AltitudeFirst(config.dt_s * config.warm_start_shift,
+                                            airframe.total_mass_kg * airframe.gravity_m_s2)
+        self.cost = self._costs[0]
         self._hover_u = np.tile(rom.hover_input(airframe), (n, 1))
         self._diagonal = np.diag_indices(n * NU)         # of the condensed QP's Hessian
         self._row_count = row_count
@@ -125,6 +133,8 @@ class Nmpc:
     # ----------------------------------------------------------------- public API
     def reset(self) -> None:
         """Drop the warm start (e.g. after a jump of the reference)."""
+        self.altitude_first.reset()
+        self.cost = self._costs[0]
         self._guess = None
         self._duals = None
         self._prepared = None
@@ -145,7 +155,11 @@ class Nmpc:
     def solve(self, x0, x_ref, thrust_bound_n, disturbance=None) -> NmpcResult:
         """One receding-horizon step from state x0 (20,) along x_ref (N+1, 20)."""
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):   # every result is checked
-            return self._solve(x0, x_ref, thrust_bound_n, disturbance)
+            res = self._solve(x0, x_ref, thrust_bound_n, disturbance)
+        hi = self.input_bounds(thrust_bound_n)[1]
+        down_n = _finite_disturbance(disturbance)[2]
+        self.cost = self._costs[self.altitude_first.update(res.u[rom.THRUST], hi[rom.THRUST], down_n)]
+        return res
 
     def prepare(self, x_ref, thrust_bound_n, disturbance=None) -> None:
         """The real-time iteration's preparation of the next solve, to call between two solves

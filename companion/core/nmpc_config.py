@@ -47,6 +47,8 @@ class NmpcWeights:
     thrust: float = 0.01
     hip_accel: float = 5e-4
     terminal_scale: float = 5.0
+    horizontal_saturated_scale: float = 0.1   # north and east position and velocity weights times this
+                                               # while the plans saturate the rotors (altitude_first)
 
     def state_diag(self) -> np.ndarray:
         q = np.zeros(rom.NX)
@@ -65,9 +67,12 @@ class NmpcWeights:
         return r
 
     def validate(self) -> None:
-        values = np.concatenate([self.state_diag(), self.input_diag(), [self.terminal_scale]])
+        values = np.concatenate([self.state_diag(), self.input_diag(), [self.terminal_scale,
+                                                                         self.horizontal_saturated_scale]])
         if not np.all(np.isfinite(values)) or np.any(values < 0):
             raise ValueError("NmpcWeights: every weight must be finite and >= 0")
+        if not 0 <= self.horizontal_saturated_scale <= 1:
+            raise ValueError("NmpcWeights: horizontal_saturated_scale must lie in [0, 1]")
         if self.thrust <= 0 or self.hip_accel <= 0:
             raise ValueError("NmpcWeights: thrust and hip_accel weights must be > 0 (they keep the QP convex)")
 

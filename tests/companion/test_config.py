@@ -160,6 +160,7 @@ def test_each_bad_key_or_value_is_rejected_with_its_name(tmp_path, text, names):
     ("[nmpc.weights]\nposition = [1e300, 20.0, 40.0]", "position"),
     ("[nmpc.weights]\nhip_accel = 1e-300", "hip_accel"),
     ("[nmpc.weights]\nterminal_scale = 1e9", "terminal_scale"),
+    ("[nmpc.weights]\nhorizontal_saturated_scale = 2.0", "horizontal_saturated_scale must be <= 1"),
     ("[reference]\naccel_max_m_s2 = 1e9", "accel_max_m_s2"),
     ("[touchdown]\ndwell_s = 1e9", "dwell_s"),
     ("[touchdown]\nheight_tolerance_m = 2.0", "height_tolerance_m"),

@@ -210,6 +210,8 @@ def test_the_uncompiled_route_solves_the_same_problem(nmpc):
 
 @pytest.mark.parametrize("kwargs, field", [({"horizon": 0}, "horizon"), ({"dt_s": -0.1}, "dt_s"),
                                            ({"weights": NmpcWeights(thrust=0.0)}, "thrust"),
+                                           ({"weights": NmpcWeights(horizontal_saturated_scale=1.5)},
+                                            "horizontal_saturated_scale"),
                                            ({"fixed_hip_rad": math.radians(120)}, "fixed_hip_rad")])
 def test_bad_settings_are_rejected_by_name(kwargs, field):
     with pytest.raises(ValueError, match=field):
