@@ -1,8 +1,10 @@
 """`m4-companion`: the companion's command line.
 
 Each subcommand is one `_add_<name>(subparsers)` function that declares its arguments and
-sets `func` (called with the parsed arguments, returns the exit code), registered by one
-line in SUBCOMMANDS.
+sets `func` (called with the parsed arguments, returns the exit code), registered under its
+name by one line in SUBCOMMANDS. A command line that names one builds that parser alone: the
+others import their modules (the dashboard's loads pymavlink's tlog reader and its dialects),
+a cost at every `run` a flight starts.
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 
 from m4.arguments import positive_int, positive_number
 
@@ -86,14 +89,14 @@ def _add_plot(sub: argparse._SubParsersAction) -> None:
 
 
 # One line per subcommand.
-SUBCOMMANDS = (
-    _add_bench,
-    _add_watch,
-    _add_dashboard,
-    _add_run,
-    _add_keygen,
-    _add_plot,
-)
+SUBCOMMANDS = {
+    "bench": _add_bench,
+    "watch": _add_watch,
+    "dashboard": _add_dashboard,
+    "run": _add_run,
+    "keygen": _add_keygen,
+    "plot": _add_plot,
+}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -102,7 +105,8 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     parser = argparse.ArgumentParser(prog="m4-companion", description="M4 companion: NMPC fault recovery")
     sub = parser.add_subparsers(dest="command", required=True)
-    for add in SUBCOMMANDS:
+    named = sys.argv[1:2] if argv is None else argv[:1]
+    for add in [SUBCOMMANDS[named[0]]] if named and named[0] in SUBCOMMANDS else SUBCOMMANDS.values():
         add(sub)
     args = parser.parse_args(argv)
     return args.func(args)

@@ -232,3 +232,13 @@ def test_what_was_built_before_the_loop_is_frozen_out_of_the_garbage_collector(m
     finally:
         gc.unfreeze()
     assert code == 0 and frozen and frozen[0] > 10_000
+
+
+def test_a_command_line_builds_the_parser_of_the_subcommand_it_names_alone():
+    """Every flight starts `m4-companion run`: the other subcommands' modules (the dashboard's loads
+    pymavlink's tlog reader and its dialects) stay out of its start."""
+    code = ("import sys; from companion.cli import main\ntry:\n    main(['run', '--help'])\nexcept SystemExit:\n    pass\n"
+            "print(sorted(m for m in ('companion.dashboard.command', 'companion.watch', 'pymavlink.mavutil') "
+            "if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert "--ready-fd" in out and out.splitlines()[-1] == "[]"
