@@ -8,8 +8,9 @@ says which (`Batch.failed`): the commands exit non-zero on them. The jobs' paths
 absolute here, before they reach a worker (a Dask worker's working folder is not ours). A
 progress bar (tqdm) counts flights. With Dask, the output folders must be on a file system
 every worker shares; without a scheduler address a local cluster (127.0.0.1, no dashboard)
-is used. Throughput: flights per core-minute, the cores being those of the machines the
-flights ran on (local: the cores this process may use; Dask: each worker host's cores once).
+is used. Throughput: flights per core-minute, the cores being those the flights could use:
+local, one per worker up to the cores this process may use (`--jobs 1` flies on one core of
+many); Dask, each worker host's cores once (a local cluster's: one per worker up to them).
 """
 
 from __future__ import annotations
@@ -106,6 +107,8 @@ def fly_all(jobs: list[FlightJob], workers: int | None = None, desc: str = "flig
         results, cores = _fly_all_dask(jobs, workers, desc, scheduler)
     else:
         results, cores = _fly_all_local(jobs, workers, desc), _local_cores()
+    if workers is not None and scheduler is None:         # workers on this machine: one core each at most
+        cores = min(cores, workers)
     return Batch(results, [job.out_dir.name for job in jobs], time.monotonic() - start, cores)
 
 

@@ -3,6 +3,7 @@ error row, on local processes and on a local Dask cluster alike (no flight is fl
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -21,6 +22,16 @@ def test_results_keep_the_order_of_the_jobs_and_failures_are_rows(tmp_path, engi
         pytest.importorskip("distributed")
     results = fly_all(_jobs(tmp_path), workers=2, engine=engine).results
     assert [f"missing-{i}.toml" in r["error"] for i, r in enumerate(results)] == [True] * 3
+
+
+@pytest.mark.parametrize("engine", ["local", "dask"])
+def test_the_throughput_counts_the_cores_the_workers_could_use_not_the_machines(tmp_path, engine):
+    """`--jobs 1` flies one flight at a time: one core, however many the machine has."""
+    if engine == "dask":
+        pytest.importorskip("distributed")
+    assert fly_all(_jobs(tmp_path), workers=1, engine=engine).cores == 1
+    cores = len(os.sched_getaffinity(0))
+    assert fly_all(_jobs(tmp_path), workers=cores + 1, engine="local").cores == cores
 
 
 def test_an_unknown_engine_is_refused(tmp_path):
