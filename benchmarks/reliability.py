@@ -52,8 +52,8 @@ from sitl import scenarios
 from m4.arguments import positive_number
 from m4.mavlink.signing import load_key, write_new_key
 from m4.toml_fields import ConfigError
-from sitl.flights.flight_run import (SIGNING_KEY, FlightError, FlightOptions, _await_ready, _start,
-                                     companion_config_text, free_port, make_output_dir)
+from sitl.flights.flight_run import (COMPANION, SIGNING_KEY, SITL, FlightError, FlightOptions, _await_ready, _start,
+                                     companion_config_text, free_port, make_output_dir, start_process)
 from sitl.plant.truth import Truth, load_truth
 
 m = mavlink
@@ -93,11 +93,11 @@ class Rig:
         self.ready_unix_s: list[float] = []
         self.starts = 0
         self.start_companion()
-        self.sitl = _start(stack, [sys.executable, "-m", "sitl.cli", "serve", "--realtime", "--scenario",
-                                   str(self.scenario), "--duration", f"{seconds:g}", "--tlog", str(out / "flight.tlog"),
-                                   "--truth-log", str(out / "truth.npz"), "--signing-key", str(key),
-                                   "--mavlink", f"udpout:127.0.0.1:{self.port}",
-                                   "--mavlink", f"udpin:127.0.0.1:{self.gcs_port}"], out / "sitl.log")
+        self.sitl = _start(stack, start_process(SITL, [
+            "serve", "--realtime", "--scenario", str(self.scenario), "--duration", f"{seconds:g}",
+            "--tlog", str(out / "flight.tlog"), "--truth-log", str(out / "truth.npz"), "--signing-key", str(key),
+            "--mavlink", f"udpout:127.0.0.1:{self.port}", "--mavlink", f"udpin:127.0.0.1:{self.gcs_port}"],
+            out / "sitl.log"))
         # the ground station's link, as the paired companion's ids (the FC answers only those
         # there), signed with the key on a signing link of its own
         self.gcs = UdpLink(f"udpout:127.0.0.1:{self.gcs_port}", FC_SYSTEM_ID, COMPANION_COMPONENT_ID,
@@ -108,13 +108,13 @@ class Rig:
 
     def start_companion(self) -> None:
         self.starts += 1
-        cmd = [sys.executable, "-m", "companion.cli", "run", "--config", str(self.config)]
+        args = ["run", "--config", str(self.config)]
         if "mission" in tomllib.loads(self.scenario.read_text()):
-            cmd += ["--mission", str(self.scenario)]
+            args += ["--mission", str(self.scenario)]
         log = self.out / f"companion-{self.starts}.log"
         ready_r, ready_w = os.pipe()
         try:
-            self.companion = _start(self.stack, [*cmd, "--ready-fd", str(ready_w)], log, pass_fds=(ready_w,))
+            self.companion = _start(self.stack, start_process(COMPANION, args, log, ("--ready-fd", ready_w)))
         finally:
             os.close(ready_w)
         try:

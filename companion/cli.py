@@ -99,10 +99,14 @@ SUBCOMMANDS = {
 }
 
 
-def main(argv: list[str] | None = None) -> int:
-    # The control loop's matrices are small: BLAS worker threads only contend with it on a
-    # 2-core computer (they gave 10x tails at N = 20). Takes effect before numpy loads.
+def single_thread_blas() -> None:
+    """The control loop's matrices are small: BLAS worker threads only contend with it on a
+    2-core computer (they gave 10x tails at N = 20). Takes effect before numpy loads."""
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+
+def main(argv: list[str] | None = None) -> int:
+    single_thread_blas()
     parser = argparse.ArgumentParser(prog="m4-companion", description="M4 companion: NMPC fault recovery")
     sub = parser.add_subparsers(dest="command", required=True)
     named = sys.argv[1:2] if argv is None else argv[:1]

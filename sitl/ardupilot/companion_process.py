@@ -12,10 +12,9 @@ from __future__ import annotations
 import contextlib
 import os
 import subprocess
-import sys
 from pathlib import Path
 
-from sitl.flights.flight_run import COMPANION_LOG_DIR, _await_ready, _start
+from sitl.flights.flight_run import COMPANION, COMPANION_LOG_DIR, _await_ready, _start, start_process
 
 
 def companion_config_text(port: int, priority: int = 0, shortfall_cover: bool = True) -> str:
@@ -37,13 +36,13 @@ def start_companion(stack: contextlib.ExitStack, out_dir: Path, port: int, scena
     control loop in SCHED_FIFO at `priority` (0: normal); the applet's shortfall cover asked for or not."""
     config = out_dir / "companion.toml"
     config.write_text(companion_config_text(port, priority, shortfall_cover))
-    cmd = [sys.executable, "-m", "companion.cli", "run", "--config", str(config)]
+    args = ["run", "--config", str(config)]
     if has_mission:
-        cmd += ["--mission", str(scenario_path)]
+        args += ["--mission", str(scenario_path)]
     ready_r, ready_w = os.pipe()
     stack.callback(os.close, ready_r)
     try:
-        companion = _start(stack, [*cmd, "--ready-fd", str(ready_w)], out_dir / "companion.log", pass_fds=(ready_w,))
+        companion = _start(stack, start_process(COMPANION, args, out_dir / "companion.log", ("--ready-fd", ready_w)))
     finally:
         os.close(ready_w)
     _await_ready(companion, ready_r, out_dir / "companion.log")

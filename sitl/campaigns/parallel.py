@@ -1,8 +1,10 @@
 """Many flights side by side: on the local cores (concurrent.futures processes), or on a Dask
 cluster (`engine="dask"`, the optional `cluster` extra).
 
-Each flight is one `sitl.flights.fly.fly()` in a worker process, which itself starts the SITL and the
-companion; every flight takes its own free loopback ports of the machine it runs on. A flight
+Each flight is one `sitl.flights.fly.fly()` in a worker process, which starts the SITL and the
+companion as forks of its two fork servers (sitl/flights/forks.py: `m4-sitl serve` and
+`m4-companion run` pre-loaded once a worker, the flights those of new processes bit for bit);
+every flight takes its own free loopback ports of the machine it runs on. A flight
 that cannot run gives an `{"error": ...}` row instead of stopping the others, and the batch
 says which (`Batch.failed`): the commands exit non-zero on them. The jobs' paths are made
 absolute here, before they reach a worker (a Dask worker's working folder is not ours). A
@@ -15,7 +17,9 @@ many); Dask, each worker host's cores once (a local cluster's: one per worker up
 
 from __future__ import annotations
 
+import atexit
 import dataclasses
+import functools
 import multiprocessing
 import os
 import time
@@ -85,11 +89,22 @@ def _local_cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
+@functools.cache
+def _forked_start():
+    """The worker's ForkedStart: its fork servers start at its first flight and serve all of its flights."""
+    from sitl.flights.forks import ForkedStart
+
+    start = ForkedStart()
+    atexit.register(start.close)        # the servers waited for at the worker's end: their CPU counts as its own
+    return start
+
+
 def _fly(job: FlightJob) -> dict:
     from sitl.flights.fly import fly
 
     try:
-        return fly(job.scenario, job.out_dir, job.options, figures=job.figures, progress=False)
+        return fly(job.scenario, job.out_dir, job.options, figures=job.figures, progress=False,
+                   start=_forked_start())
     except (FlightError, ConfigError) as e:
         return {"error": str(e)}
     except Exception as e:  # noqa: BLE001 - whatever stops one flight is its row's error; the others go on

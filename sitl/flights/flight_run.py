@@ -45,6 +45,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from m4.airframe import load_airframe
+from m4.fork_server import Run
 from m4.mavlink.signing import write_new_key
 from sitl.flights.feed_recorder import FeedRecorder
 from sitl.links.emulation import LinkEmulation
@@ -94,6 +95,9 @@ class FlightOptions:
         return {"delay_ms": link.delay_ms, "loss": link.loss, "mode": mode}
 
 
+COMPANION, SITL = "companion.cli", "sitl.cli"   # the two programs of a flight, as `python -m` runs them
+Process = subprocess.Popen | Run                 # a program started: waited for, polled and signalled
+Start = Callable[[str, list[str], Path, tuple[str, int]], Process]   # (program, args, stderr's log, pass_fd)
 COMPANION_LOG_DIR = "companion-log"      # the companion's own flight log, in the flight's folder
 SIGNING_KEY = "mavlink.key"              # both ends', in the flight's folder
 
@@ -113,6 +117,17 @@ class FlightFiles:
         self.companion_log = self.out_dir / "companion.log"
         self.companion_tlogs = self.out_dir / COMPANION_LOG_DIR
         self.metrics = self.out_dir / "metrics.json"
+
+
+def start_process(program: str, args: list[str], log_path: Path, pass_fd: tuple[str, int] | None = None
+                  ) -> subprocess.Popen:
+    """`python -m PROGRAM ARGS [OPTION FD]` as a new process, stderr to `log_path`; `pass_fd`:
+    (OPTION, FD), the descriptor passed to it and named by the option."""
+    fds = () if pass_fd is None else (pass_fd[1],)
+    named = [] if pass_fd is None else [pass_fd[0], str(pass_fd[1])]
+    with log_path.open("w") as log:
+        return subprocess.Popen([sys.executable, "-m", program, *args, *named], stdout=subprocess.DEVNULL,
+                                stderr=log, stdin=subprocess.DEVNULL, pass_fds=fds)
 
 
 def free_port(kind: int = socket.SOCK_DGRAM) -> int:
@@ -200,7 +215,7 @@ def _last_line(path: Path) -> str:
     return _PREFIX.sub("", lines[-1]) if lines else "(no output)"
 
 
-def _stop(proc: subprocess.Popen) -> None:
+def _stop(proc: Process) -> None:
     if proc.poll() is None:
         proc.send_signal(signal.SIGTERM)
         try:
@@ -211,9 +226,10 @@ def _stop(proc: subprocess.Popen) -> None:
 
 
 def run_flight(scenario: Scenario, scenario_text: str, out_dir: Path, options: FlightOptions = FlightOptions(),
-               progress: Callable[[float], None] | None = None) -> FlightFiles:
+               progress: Callable[[float], None] | None = None, start: Start = start_process) -> FlightFiles:
     """Fly `scenario` (its file's text: `scenario_text`); `progress(t_s)` is called with the
-    newest simulated time the feed has shown, about every POLL_S wall seconds."""
+    newest simulated time the feed has shown, about every POLL_S wall seconds; `start` starts
+    the companion and the SITL (each a new process by default)."""
     if options.controller not in CONTROLLERS:
         raise FlightError(f"unknown controller {options.controller!r}; choose from {', '.join(CONTROLLERS)}")
     if options.port is not None:
@@ -232,13 +248,13 @@ def run_flight(scenario: Scenario, scenario_text: str, out_dir: Path, options: F
             recorder = FeedRecorder(files.feed, f"tcp/127.0.0.1:{feed_port}", VEHICLE)
             stack.callback(recorder.close)
         files.companion_config.write_text(companion_config_text(options, port, feed_port))
-        cmd = [sys.executable, "-m", "companion.cli", "run", "--config", str(files.companion_config)]
+        args = ["run", "--config", str(files.companion_config)]
         if "mission" in tomllib.loads(scenario_text):          # none: hold where the flight starts
-            cmd += ["--mission", str(files.scenario)]
+            args += ["--mission", str(files.scenario)]
         ready_r, ready_w = os.pipe()
         stack.callback(os.close, ready_r)
         try:
-            companion = _start(stack, [*cmd, "--ready-fd", str(ready_w)], files.companion_log, pass_fds=(ready_w,))
+            companion = _start(stack, start(COMPANION, args, files.companion_log, ("--ready-fd", ready_w)))
         finally:
             os.close(ready_w)                    # the companion holds the only writing end now
         sitl_port = port
@@ -248,19 +264,19 @@ def run_flight(scenario: Scenario, scenario_text: str, out_dir: Path, options: F
                           duration_s=2 * scenario.duration_s + 60.0).start()
             stack.callback(proxy.close)
             sitl_port = proxy.listen_port
-        cmd = [sys.executable, "-m", "sitl.cli", "serve", "--scenario", str(files.scenario),
-               "--mavlink", f"udpout:127.0.0.1:{sitl_port}", "--duration", f"{scenario.duration_s:g}",
-               "--tlog", str(files.tlog), "--truth-log", str(files.truth), "--seed", str(options.seed),
-               "--signing-key", str(files.signing_key)]
+        args = ["serve", "--scenario", str(files.scenario),
+                "--mavlink", f"udpout:127.0.0.1:{sitl_port}", "--duration", f"{scenario.duration_s:g}",
+                "--tlog", str(files.tlog), "--truth-log", str(files.truth), "--seed", str(options.seed),
+                "--signing-key", str(files.signing_key)]
         if not options.realtime:
-            cmd += ["--lockstep-timeout", f"{options.lockstep_timeout_s:g}"]
+            args += ["--lockstep-timeout", f"{options.lockstep_timeout_s:g}"]
         if options.link is not None and not options.realtime:
-            cmd += ["--link-delay-ms", f"{options.link.delay_ms:g}", "--link-loss", f"{options.link.loss:g}"]
-        cmd += ["--realtime"] * options.realtime + ["--viewer"] * options.viewer
+            args += ["--link-delay-ms", f"{options.link.delay_ms:g}", "--link-loss", f"{options.link.loss:g}"]
+        args += ["--realtime"] * options.realtime + ["--viewer"] * options.viewer
         # The SITL builds its plant while the companion builds its NMPC, and serves once told to.
         start_r, start_w = os.pipe()
         try:
-            sitl = _start(stack, [*cmd, "--start-fd", str(start_r)], files.sitl_log, pass_fds=(start_r,))
+            sitl = _start(stack, start(SITL, args, files.sitl_log, ("--start-fd", start_r)))
         finally:
             os.close(start_r)
         stack.callback(os.close, start_w)      # first on the way out: a SITL still waiting reads the end, exits
@@ -284,15 +300,12 @@ def stalled(files: FlightFiles) -> bool:
     return files.sitl_log.exists() and STALL_MARK in files.sitl_log.read_text(errors="replace")
 
 
-def _start(stack: contextlib.ExitStack, cmd: list[str], log_path: Path, pass_fds: tuple[int, ...] = ()
-           ) -> subprocess.Popen:
-    log = stack.enter_context(log_path.open("w"))
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=log, stdin=subprocess.DEVNULL, pass_fds=pass_fds)
+def _start(stack: contextlib.ExitStack, proc: Process) -> Process:
     stack.callback(_stop, proc)
     return proc
 
 
-def _exited(proc: subprocess.Popen, within_s: float) -> bool:
+def _exited(proc: Process, within_s: float) -> bool:
     try:
         proc.wait(within_s)
     except subprocess.TimeoutExpired:
@@ -306,7 +319,7 @@ def _say_start(fd: int) -> None:
         os.write(fd, b"start\n")
 
 
-def _real_time(proc: subprocess.Popen, priority: int) -> None:
+def _real_time(proc: Process, priority: int) -> None:
     """SCHED_FIFO for a process just started (its threads, started later, inherit it)."""
     try:
         os.sched_setscheduler(proc.pid, os.SCHED_FIFO, os.sched_param(priority))
@@ -315,7 +328,7 @@ def _real_time(proc: subprocess.Popen, priority: int) -> None:
                           f"{getattr(e, 'strerror', None) or e}") from None
 
 
-def _await_ready(proc: subprocess.Popen, ready_fd: int, log_path: Path) -> None:
+def _await_ready(proc: Process, ready_fd: int, log_path: Path) -> None:
     """Until the companion writes its ready line to the pipe; end of file first means it stopped."""
     deadline = time.monotonic() + COMPANION_START_TIMEOUT_S
     while not select.select([ready_fd], [], [], POLL_S)[0]:

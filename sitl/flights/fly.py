@@ -17,7 +17,7 @@ from tqdm import tqdm
 from m4.airframe import Airframe, load_airframe
 from m4.scenario import Scenario, load_scenario
 from sitl import scenarios
-from sitl.flights.flight_run import FlightFiles, FlightOptions, run_flight
+from sitl.flights.flight_run import FlightFiles, FlightOptions, Start, run_flight, start_process
 from sitl.flights.metrics import flight_metrics, reference_track
 from sitl.flights.records import nmpc_log, read_fault_status, read_feed, setpoint_lead_ms
 from sitl.plant.truth import load_truth
@@ -31,16 +31,17 @@ def default_out_dir(name: str) -> Path:
 
 
 def fly(scenario_arg: str, out_dir: Path | None = None, options: FlightOptions = DEFAULT_OPTIONS,
-        figures: bool = True, progress: bool = True) -> dict:
+        figures: bool = True, progress: bool = True, start: Start = start_process) -> dict:
     """Fly a built-in scenario or a scenario file; returns the metrics (also in metrics.json).
-    A bad scenario raises ConfigError, a flight that cannot start FlightError."""
+    A bad scenario raises ConfigError, a flight that cannot start FlightError. `start` starts the
+    companion and the SITL (run_flight's)."""
     path = scenarios.scenario_path(scenario_arg)
     scenario = load_scenario(path)
     out_dir = Path(out_dir) if out_dir is not None else default_out_dir(scenario.name)
     # A progress bar in simulated seconds, on a terminal only (disable=None: off when not a TTY).
     with tqdm(total=scenario.duration_s, desc=f"fly {scenario.name}", unit="s", disable=None if progress else True,
               bar_format="{desc}: {bar} {n:.1f}/{total:g} s simulated [{elapsed}]") as bar:
-        files = run_flight(scenario, path.read_text(), out_dir, options, lambda t_s: bar.update(t_s - bar.n))
+        files = run_flight(scenario, path.read_text(), out_dir, options, lambda t_s: bar.update(t_s - bar.n), start)
     return evaluate(files, scenario, options.controller, load_airframe(), figures, options.link_conditions())
 
 

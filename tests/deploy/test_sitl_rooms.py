@@ -15,7 +15,8 @@ ROOT = Path(__file__).resolve().parents[2]
 OURS = {"sitl", "companion", "research", "analysis", "benchmarks", "tests", "m4"}
 
 SCENARIOS = ("sitl.scenarios",)   # the built-in scenarios (their format, m4.scenario, is on the shared floor)
-TOP = ("sitl.cli", "sitl.cli_args", "sitl.flight_cli", "sitl.serve", "sitl.vehicle", "sitl.standin_companion")
+TOP = ("sitl.cli", "sitl.cli_args", "sitl.flight_cli", "sitl.serve", "sitl.vehicle", "sitl.standin_companion",
+       "sitl.forks")
 # room -> the sitl modules (or packages) it may import besides its own and `m4`
 ALLOWED = {
     "sitl.scenarios": (),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import subprocess
 import sys
 import tomllib
 
@@ -19,7 +20,9 @@ def _companion(tmp_path, code: str):
     stack.callback(os.close, read_end)
     log = tmp_path / "companion.log"
     try:
-        proc = _start(stack, [sys.executable, "-c", code, str(write_end)], log, pass_fds=(write_end,))
+        with log.open("w") as stderr:
+            proc = _start(stack, subprocess.Popen([sys.executable, "-c", code, str(write_end)], stderr=stderr,
+                                                  pass_fds=(write_end,)))
     finally:
         os.close(write_end)
     return stack, proc, read_end, log
@@ -86,21 +89,20 @@ def test_the_sitl_starts_alongside_the_companion_and_waits_on_its_start_pipe(tmp
     started: list[list[str]] = []
     at_ready: list[list[str]] = []
 
-    def start(stack, cmd, log_path, pass_fds=()):
-        started.append(cmd)
-        return _start(stack, [sys.executable, "-c", "import time; time.sleep(30)"], log_path)
+    def start(program, args, log_path, pass_fd):
+        started.append([program, *args, *map(str, pass_fd)])
+        return subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
 
     def ready(*_):
         at_ready.extend(started)
         raise FlightError("the companion did not start: stand-in")
 
-    monkeypatch.setattr(flight_run, "_start", start)
     monkeypatch.setattr(flight_run, "_await_ready", ready)
     path = scenarios.scenario_path("hover-rotor-loss")
     with pytest.raises(FlightError, match="stand-in"):
         flight_run.run_flight(load_scenario(path), path.read_text(), tmp_path / "flight",
-                              flight_run.FlightOptions(record_feed=False))
-    assert [cmd[2] for cmd in at_ready] == ["companion.cli", "sitl.cli"] and "--start-fd" in at_ready[1]
+                              flight_run.FlightOptions(record_feed=False), start=start)
+    assert [cmd[0] for cmd in at_ready] == ["companion.cli", "sitl.cli"] and "--start-fd" in at_ready[1]
 
 
 def _hover(tmp_path, name: str, lockstep_timeout_s: float):
