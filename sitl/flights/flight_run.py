@@ -24,6 +24,10 @@ its NMPC, then waits); the companion opens its link and says so on a pipe (`m4-c
 --ready-fd`), the SITL is told to start, flies the scenario's duration and exits; the companion
 is then stopped with SIGTERM. Each flight takes its own free loopback ports, so flights can run side
 by side. Anything that keeps the flight from starting raises FlightError with one line.
+
+The two are new processes (`python -m companion.cli run ...`, `python -m sitl.cli serve ...`:
+`start_process`), or whatever `start` makes of the same command lines: campaigns fork them from
+pre-loaded parents (sitl/flights/forks.py).
 """
 
 from __future__ import annotations
