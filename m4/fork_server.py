@@ -38,6 +38,7 @@ STATUS_MAX_BYTES = 64
 RESERVED_FD = 100              # the server's own descriptors sit at or above it, out of a child's way
 LOST_EXIT_CODE = 255           # a run whose server vanished before saying how it ended
 END_WAIT_S = 10.0              # for the runs to stop when the client is gone, before they are killed
+EXIT_WAIT_S = 1.0              # for a server found unreachable to be seen exited
 START_TIMEOUT_S = 300.0        # for the server's answer to a request (its first: after its imports, under load)
 
 
@@ -249,5 +250,8 @@ class ForkServer:
         return self._control
 
     def _said(self) -> str:
-        code = None if self._server is None else self._server.poll()
-        return "it is still running" if code is None else f"it exited with code {code}"
+        """Whether the server is still running (waited for a moment: it may be exiting)."""
+        try:
+            return f"it exited with code {self._server.wait(EXIT_WAIT_S)}"  # type: ignore[union-attr]
+        except subprocess.TimeoutExpired:
+            return "it is still running"

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from m4.fork_server import ForkServer
+from m4.fork_server import ForkServer, ForkServerError
 
 WAIT_S = 120.0          # a server's first run waits for its imports (MuJoCo, CasADi), on a loaded machine
 
@@ -86,3 +86,13 @@ def test_the_companions_server_forks_without_a_thread_of_its_own(tmp_path):
     finally:
         server.close()
     assert threads == 1
+
+
+def test_a_server_that_cannot_start_is_one_line_at_each_run(tmp_path):
+    server = ForkServer("m4.no_such_fork_server")
+    try:
+        for _ in range(2):
+            with pytest.raises(ForkServerError, match="^the fork server m4.no_such_fork_server .*: it exited with code 1$"):
+                server.start(["serve"], tmp_path / "sitl.log")
+    finally:
+        server.close()
