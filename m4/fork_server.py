@@ -207,18 +207,18 @@ class ForkServer:
         """Run `python -m MODULE ARGV` in a fork of the server, stderr to `stderr_path`; `pass_fd`:
         (option, descriptor), the descriptor passed and named to the run by the option."""
         control = self._connected()
-        status, status_there = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         fields = {"argv": argv, "cwd": os.getcwd(), "fd_option": pass_fd[0] if pass_fd else None}
-        try:
-            with stderr_path.open("wb") as stderr:
-                fds = [stderr.fileno(), status_there.fileno(), *([pass_fd[1]] if pass_fd else [])]
+        with stderr_path.open("wb") as stderr:
+            status, status_there = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+            fds = [stderr.fileno(), status_there.fileno(), *([pass_fd[1]] if pass_fd else [])]
+            try:
                 socket.send_fds(control, [json.dumps(fields).encode()], fds)
-        except OSError as e:
-            status.close()
-            raise ForkServerError(f"the fork server {self.module} cannot be reached ({e.strerror or e}): "
-                                  f"{self._said()}") from None
-        finally:
-            status_there.close()
+            except OSError as e:
+                status.close()
+                raise ForkServerError(f"the fork server {self.module} cannot be reached ({e.strerror or e}): "
+                                      f"{self._said()}") from None
+            finally:
+                status_there.close()
         reply = status.recv(STATUS_MAX_BYTES) if select.select([status], [], [], START_TIMEOUT_S)[0] else b""
         if not reply:
             status.close()
