@@ -296,8 +296,7 @@ class CompanionApp:
         status_later = self.controller.frame_unread      # the detector reads the frame after the send
         self.fc.send_setpoint(t_ms, self.period_ms, step.setpoint, sent_s, None if status_later else step.fault,
                               self.controller.mission_progress(t_s))
-        out_s = self.clock()                                   # the setpoint is on the wire: the answer ends
-        self.timing.answered(read_s, out_s)
+        self.timing.answered(read_s, sent_s)
         try:
             if (fault := self.controller.read_deferred()) is not None:
                 self.fc.send_fault_status(t_ms, fault, self.controller.mission_progress(t_s))   # the frame's own status
@@ -310,7 +309,7 @@ class CompanionApp:
         if (report := self.timing.report(sent_s)) is not None:
             log.warning("t=%.3f s: %s", t_s, report.text)
             self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, report.statustext)
-        self.flight_log.decision(t_ms, step, out_s - read_s)
+        self.flight_log.decision(t_ms, step, sent_s - read_s)
         if self.fc_mission is not None and (item := self.controller.mission_item(t_s)) is not None:
             self.fc_mission.report(item)
         self._last_answered_ms = t_ms
