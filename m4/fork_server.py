@@ -22,6 +22,7 @@ which a caller waits for, polls and signals as it would a `subprocess.Popen`.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import fcntl
 import json
 import os
@@ -40,6 +41,7 @@ LOST_EXIT_CODE = 255           # a run whose server vanished before saying how i
 END_WAIT_S = 10.0              # for the runs to stop when the client is gone, before they are killed
 EXIT_WAIT_S = 1.0              # for a server found unreachable to be seen exited
 START_TIMEOUT_S = 300.0        # for the server's answer to a request (its first: after its imports, under load)
+PR_SET_PDEATHSIG = 1           # Linux prctl: the signal a process gets when its parent dies
 
 
 class ForkServerError(RuntimeError):
@@ -99,7 +101,16 @@ def _fork(request: tuple[dict, list[int]], runs: dict[int, socket.socket]) -> tu
     status = socket.socket(fileno=status_fd)
     sys.stdout.flush()
     sys.stderr.flush()
-    pid = os.fork()
+    server_pid = os.getpid()
+    try:
+        pid = os.fork()
+    except OSError as e:                 # no memory or process left for it: this run fails, the server serves on
+        for fd in (stderr_fd, *passed):
+            os.close(fd)
+        with contextlib.suppress(OSError):
+            status.sendall(json.dumps({"error": f"cannot fork ({e.strerror or e})"}).encode())
+        status.close()
+        return [], False
     if pid:
         os.close(stderr_fd)
         for fd in passed:
@@ -109,6 +120,7 @@ def _fork(request: tuple[dict, list[int]], runs: dict[int, socket.socket]) -> tu
             status.sendall(json.dumps({"pid": pid}).encode())
         return [], False
     status.close()
+    _die_with(server_pid)
     signal.set_wakeup_fd(-1)
     for sig in (signal.SIGCHLD, signal.SIGTERM):
         signal.signal(sig, signal.SIG_DFL)
@@ -124,6 +136,18 @@ def _fork(request: tuple[dict, list[int]], runs: dict[int, socket.socket]) -> tu
         argv += [fields["fd_option"], str(passed[0])]
     sys.argv = [sys.argv[0], *argv]
     return argv, True
+
+
+def _die_with(server_pid: int) -> None:
+    """A run is killed when its server dies (Linux: PR_SET_PDEATHSIG), so a server killed outright
+    leaves no run that nobody would stop; where prctl is missing the run goes on alone."""
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return
+    prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    if os.getppid() != server_pid:      # the server died before prctl took effect
+        os._exit(LOST_EXIT_CODE)
 
 
 def _reap(runs: dict[int, socket.socket]) -> None:
@@ -223,7 +247,11 @@ class ForkServer:
         if not reply:
             status.close()
             raise ForkServerError(f"the fork server {self.module} did not start the run: {self._said()}")
-        return Run(json.loads(reply)["pid"], status, argv)
+        answer = json.loads(reply)
+        if "error" in answer:
+            status.close()
+            raise ForkServerError(f"the fork server {self.module} did not start the run: {answer['error']}")
+        return Run(answer["pid"], status, argv)
 
     @property
     def pid(self) -> int | None:
@@ -240,6 +268,9 @@ class ForkServer:
             self._server = None
 
     def _connected(self) -> socket.socket:
+        if self._server is not None and self._server.poll() is not None:    # it died: a new one serves on
+            self._control.close()
+            self._control, self._server = None, None
         if self._control is None:
             ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
             with theirs:

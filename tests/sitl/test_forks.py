@@ -8,11 +8,12 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
+import time
 from pathlib import Path
 
 import pytest
 
-from m4.fork_server import ForkServer, ForkServerError
+from m4.fork_server import LOST_EXIT_CODE, ForkServer, ForkServerError
 
 WAIT_S = 120.0          # a server's first run waits for its imports (MuJoCo, CasADi), on a loaded machine
 
@@ -72,6 +73,33 @@ def test_a_closed_client_ends_its_server_and_the_runs_still_going(tmp_path):
         assert run.wait(WAIT_S) == -signal.SIGTERM
     finally:
         os.close(start)
+
+
+def _gone(pid: int) -> bool:
+    """Exited (a zombie waiting for init counts as gone)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split()[2] == "Z"
+    except FileNotFoundError:
+        return True
+
+
+def test_a_server_killed_outright_takes_its_runs_with_it_and_the_next_run_gets_a_new_one(tmp_path):
+    server = ForkServer("sitl.forks")
+    run, start = _waiting_serve(server, tmp_path / "sitl.log")
+    try:
+        killed = server.pid
+        os.kill(killed, signal.SIGKILL)
+        assert run.wait(WAIT_S) == LOST_EXIT_CODE
+        deadline = time.monotonic() + WAIT_S
+        while not _gone(run.pid) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert _gone(run.pid)                      # not left waiting on its start pipe with nobody to stop it
+        again, start_again = _waiting_serve(server, tmp_path / "sitl-again.log")
+        os.close(start_again)                      # end of file: the run is called off and exits 0
+        assert server.pid != killed and again.wait(WAIT_S) == 0
+    finally:
+        os.close(start)
+        server.close()
 
 
 def test_the_companions_server_forks_without_a_thread_of_its_own(tmp_path):
