@@ -90,6 +90,8 @@ def differences(reference: Path, flight: Path) -> list[str]:
         found = sorted(k for k in names if k not in a.files or k not in b.files
                        or not np.array_equal(a[k], b[k], equal_nan=True))
     ma, mb = without_timing(load_metrics(reference)), without_timing(load_metrics(flight))
+    if ma is None or mb is None:
+        return [*found, "metrics.json missing"]
     found += sorted(f"metrics.{k}" for k in set(ma) | set(mb) if ma.get(k) != mb.get(k))
     return found
 

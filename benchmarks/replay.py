@@ -21,41 +21,28 @@ from pathlib import Path
 import numpy as np
 
 from m4.airframe import load_airframe
-from m4.mavlink import COMPANION_COMPONENT_ID, mavlink
-from m4.mavlink.dialect import new_mav
-from m4.mavlink.tlog import TLOG_TIME
+from m4.mavlink import COMPANION_COMPONENT_ID, DIALECT, mavlink, mavutil
 from m4.scenario import load_scenario
+from m4.toml_fields import ConfigError
 from sitl.plant.truth import TruthRecorder, load_truth
 from sitl.vehicle import Vehicle
 
-_HEADER_V2, _HEADER_V1, _SIGNATURE = 12, 8, 13     # MAVLink 2 header + CRC; MAVLink 1; the signature
-
-
-def _packets(tlog: bytes):
-    """The raw packets of a tlog (each after its 8-byte time)."""
-    i = 0
-    while i < len(tlog):
-        i += TLOG_TIME.size
-        if tlog[i] == mavlink.PROTOCOL_MARKER_V2:
-            n = _HEADER_V2 + tlog[i + 1] + (_SIGNATURE if tlog[i + 2] & mavlink.MAVLINK_IFLAG_SIGNED else 0)
-        else:
-            n = _HEADER_V1 + tlog[i + 1]
-        yield tlog[i:i + n]
-        i += n
-
-
 def companion_steps(tlog_path: Path) -> list[tuple[int, list]]:
-    """[(frame instant ms, the companion's messages that followed that frame)], in order."""
-    mav = new_mav(None, 255, 0)
-    mav.robust_parsing = True
+    """[(frame instant ms, the companion's messages that followed that frame)], in order (a tlog
+    cut short, as a killed flight leaves it, is read up to its last whole packet)."""
+    conn = mavutil.mavlink_connection(str(tlog_path), dialect=DIALECT)
     steps, frame_ms, following = [], 0, []
-    for packet in _packets(tlog_path.read_bytes()):
-        for msg in mav.parse_buffer(packet) or []:
+    try:
+        while (msg := conn.recv_match()) is not None:
+            if msg.get_type() == "BAD_DATA":
+                continue
             if msg.get_srcComponent() == COMPANION_COMPONENT_ID:
                 following.append(msg)
             elif msg.get_msgId() == mavlink.MAVLINK_MSG_ID_M4_THRUSTER_STATUS and msg.time_boot_ms != frame_ms:
                 steps.append((frame_ms, following))
                 frame_ms, following = msg.time_boot_ms, []
+    finally:
+        conn.close()
     steps.append((frame_ms, following))
     return steps
 
@@ -107,7 +94,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.repeat < 1:
         parser.error("--repeat must be at least 1")
     steps = companion_steps(args.flight / "flight.tlog")
-    runs = [replay(args.flight, steps, args.seed) for _ in range(args.repeat)]
+    try:
+        runs = [replay(args.flight, steps, args.seed) for _ in range(args.repeat)]
+    except ConfigError as e:
+        parser.error(f"{args.flight / 'scenario.toml'}: {e}")
     cpu_s = min(cpu for cpu, _ in runs)
     print(f"{args.flight.name}: the vehicle (plant and FC, no MAVLink) {1e3 * cpu_s / len(steps):.3f} ms of CPU "
           f"per control step ({len(steps)} steps, least of {args.repeat}); truth against the flight's: "

@@ -47,6 +47,14 @@ def test_a_flight_that_moved_is_named_with_what_moved(flown, tmp_path, capsys):
     assert _row(capsys).endswith("| differs: pos_ned_m, metrics.altitude_loss_m |")
 
 
+def test_a_flight_without_its_metrics_is_told_so_in_its_cell(flown, tmp_path, capsys):
+    cut = tmp_path / "cut" / SCENARIO
+    shutil.copytree(flown / SCENARIO, cut)
+    (cut / "metrics.json").unlink()                 # a flight stopped before its metrics were written
+    assert main(["table", str(flown), str(cut.parent)]) == 1
+    assert _row(capsys).endswith("| differs: metrics.json missing |")
+
+
 def test_a_scenario_missing_from_a_folder_fails_the_table(flown, tmp_path, capsys):
     (tmp_path / "empty").mkdir()
     assert main(["table", str(flown), str(tmp_path / "empty")]) == 1

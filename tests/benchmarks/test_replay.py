@@ -46,3 +46,21 @@ def test_bad_arguments_are_one_line(argv, said, flight, capsys):
     assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert said in err[-1] and len(err) == 2           # argparse: the usage line, then the error
+
+
+def test_a_tlog_cut_short_is_replayed_up_to_its_last_whole_packet(flight, tmp_path, capsys):
+    cut = tmp_path / SCENARIO
+    shutil.copytree(flight, cut)
+    tlog = (cut / "flight.tlog").read_bytes()
+    (cut / "flight.tlog").write_bytes(tlog[:len(tlog) // 2 + 7])     # a killed flight's log: mid-packet
+    assert main([str(cut), "--repeat", "1"]) == 0
+    assert "ms of CPU per control step" in capsys.readouterr().out
+
+
+def test_a_broken_scenario_is_one_line(flight, tmp_path, capsys):
+    broken = tmp_path / SCENARIO
+    shutil.copytree(flight, broken)
+    (broken / "scenario.toml").write_text("duration_s = 'long'\n")
+    with pytest.raises(SystemExit) as e:
+        main([str(broken), "--repeat", "1"])
+    assert e.value.code == 2 and "scenario.toml" in capsys.readouterr().err.strip().splitlines()[-1]
