@@ -25,16 +25,23 @@ def planned_tilt_deg(res) -> float:
 
 
 def tilts_over(nmpc, bound_n, disturbance, seconds) -> list[float]:
-    """The planned tilt of every solve from a hover on its reference, the state held."""
+    """The planned tilt of every solve from a hover on its reference, the state held (the
+    real-time iteration prepares each next solve in between, as the companion does)."""
     x0 = rom.hover_state(AF)
     ref = np.tile(x0, (N + 1, 1))
     nmpc.reset()
-    return [planned_tilt_deg(nmpc.solve(x0, ref, bound_n, disturbance)) for _ in range(round(seconds / PERIOD_S))]
+    tilts = []
+    for _ in range(round(seconds / PERIOD_S)):
+        tilts.append(planned_tilt_deg(nmpc.solve(x0, ref, bound_n, disturbance)))
+        nmpc.prepare(ref, bound_n, disturbance)
+    return tilts
 
 
-@pytest.fixture(scope="module")
-def nmpc():
-    return Nmpc(AF, NmpcConfig(scheme="sqp", control_period_s=PERIOD_S))
+@pytest.fixture(scope="module", params=["sqp", "rti"])
+def nmpc(request):
+    """Both schemes: the RTI's QP is prepared on a kept solver workspace, its Hessian loaded again
+    at every preparation (companion.core.feedback_qp), so a switch of the weights must reach it."""
+    return Nmpc(AF, NmpcConfig(scheme=request.param, control_period_s=PERIOD_S))
 
 
 def test_saturated_by_a_shortfall_the_plan_leans_less_and_gives_the_place_up(nmpc):
