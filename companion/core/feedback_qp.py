@@ -34,6 +34,7 @@ class FeedbackQp:
         self._sense = sense
         self._set_up = False
         self._flag = -1                          # the last load's DAQP exitflag (< 0: failed or none yet)
+        self.iterations = 0                      # the last solve's active-set iterations
 
     def load(self, hess: np.ndarray, rows: np.ndarray, warm: bool) -> None:
         """The Hessian (n, n) and the constraint rows (m, n) of the next solves; warm: start from
@@ -54,4 +55,5 @@ class FeedbackQp:
             return np.full(self._variables, np.nan), self._flag, np.zeros(self._sense.size)
         self._model.update(f=grad, bupper=upper, blower=lower)
         x, _, flag, info = self._model.solve()
+        self.iterations = info["iterations"]
         return x, flag, info["lam"]

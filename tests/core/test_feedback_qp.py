@@ -36,6 +36,21 @@ def test_each_loaded_qp_is_solved_as_daqp_solves_it_warm_from_the_last_active_se
         np.testing.assert_allclose(lam, duals, atol=1e-9)
 
 
+def test_a_warm_load_starts_from_the_last_active_set_and_a_cold_one_from_none():
+    h, a, f, upper, lower = qp(0)
+    fb = FeedbackQp(N_VAR, SENSE, iter_limit=1000)
+    fb.load(h, a, warm=False)
+    fb.solve(f, upper, lower)
+    cold = fb.iterations
+    assert cold > 2                                              # several constraints to find active
+    fb.load(h, a, warm=True)
+    fb.solve(f, upper, lower)
+    assert fb.iterations <= 1                                    # the same QP: its active set is the answer
+    fb.load(h, a, warm=False)
+    fb.solve(f, upper, lower)
+    assert fb.iterations == cold
+
+
 def test_the_gradient_and_bounds_of_a_loaded_qp_change_without_loading_it_again():
     h, a, f, upper, lower = qp(7)
     fb = FeedbackQp(N_VAR, SENSE, iter_limit=1000)
