@@ -397,7 +397,7 @@ class CompanionApp:
         if step.nmpc is not None and feed.wants("nmpc"):
             r = step.nmpc
             feed.nmpc(t, solve_ms=r.solve_ms, iterations=r.iterations, status=r.status, cost=r.cost, ok=r.ok,
-                      fallback=r.fallback, dt_s=self.config.nmpc.dt_s,
+                      fallback=r.fallback, altitude_first=r.altitude_first, dt_s=self.config.nmpc.dt_s,
                       predicted_p_ned_m=r.x_pred[:, rom.P], lead_s=step.lead_s,
                       overruns=self.timing.overruns, rate_hz=self.timing.rate_hz(self.clock()),
                       disturbance_force_ned_n=step.disturbance[:3], disturbance_torque_frd_n_m=step.disturbance[3:])

@@ -7,6 +7,7 @@ link), so that any tlog tool (mavlogdump, MAVExplorer, `m4-companion plot`) read
 
 - NAMED_VALUE_FLOAT at each answered telemetry instant (time_boot_ms: the FC's): `nmpc_ms`
   (solve time), `nmpc_iter`, `nmpc_cost`, `nmpc_ok` (1/0), `nmpc_fb` (fallback 1/0),
+  `alt_first` (1/0: the plan gave the place up before the height, companion.core.altitude_first),
   `step_ms` (from the frame's arrival to the setpoint sent: the companion's latency),
   `com_n`/`com_e`/`com_d` (the centre of mass it planned from, NED m),
   `ref_n`/`ref_e`/`ref_d` (the mission reference there) and `dist_n`/`dist_e`/`dist_d` (the
@@ -151,7 +152,7 @@ class FlightLog:
         if step.nmpc is not None:
             r = step.nmpc
             values += [(b"nmpc_ms", r.solve_ms), (b"nmpc_iter", r.iterations), (b"nmpc_cost", r.cost),
-                       (b"nmpc_ok", r.ok), (b"nmpc_fb", r.fallback)]
+                       (b"nmpc_ok", r.ok), (b"nmpc_fb", r.fallback), (b"alt_first", r.altitude_first)]
         self._queue.append((self._clock_ns() // 1000, Decision(int(time_ms), tuple(values))))
         self._appended += 1
 

@@ -69,6 +69,7 @@ class NmpcResult:
     ok: bool
     cost: float
     fallback: bool
+    altitude_first: bool = False   # solved with the horizontal weights scaled down (companion.core.altitude_first)
 
 
 class Nmpc:
@@ -239,7 +240,7 @@ class Nmpc:
             return self._fallback(x0, lo, hi, "qp_failed", 1, t0)
         self._guess = us.copy()
         self._planned = (x0.copy(), us[0].copy())
-        return NmpcResult(u=us[0].copy(), x_pred=xs, u_pred=us, solve_ms=_ms_since(t0), iterations=1, status=status,
+        return NmpcResult(altitude_first=self.cost is self._costs[1], u=us[0].copy(), x_pred=xs, u_pred=us, solve_ms=_ms_since(t0), iterations=1, status=status,
                           ok=True, cost=self.cost.value(xs, us, ref, u_ref), fallback=False)
 
     def _qp_step(self, hess, grad, rows, x0, xs, us, lo, hi) -> np.ndarray | None:
@@ -337,7 +338,7 @@ class Nmpc:
             return self._fallback(x0, lo, hi, "qp_failed", it, t0)
         self._guess = us.copy()
         cost = self.cost.value(xs, us, ref, u_ref)
-        return NmpcResult(u=us[0].copy(), x_pred=xs, u_pred=us, solve_ms=_ms_since(t0), iterations=it,
+        return NmpcResult(altitude_first=self.cost is self._costs[1], u=us[0].copy(), x_pred=xs, u_pred=us, solve_ms=_ms_since(t0), iterations=it,
                           status=status, ok=True, cost=cost, fallback=False)
 
     def _fallback(self, x0, lo, hi, status, iterations, t0) -> NmpcResult:
@@ -358,7 +359,7 @@ class Nmpc:
         self._guess = None
         self._duals = None
         self._prepared = self._planned = None
-        return NmpcResult(u=us[0].copy(), x_pred=xs, u_pred=us, solve_ms=_ms_since(t0), iterations=iterations,
+        return NmpcResult(altitude_first=self.cost is self._costs[1], u=us[0].copy(), x_pred=xs, u_pred=us, solve_ms=_ms_since(t0), iterations=iterations,
                           status=status, ok=False, cost=float("inf"), fallback=True)
 
 

@@ -98,7 +98,7 @@ def fault_payload(t_s: float | None, wall_time_unix_s: float, *, state: str | in
 
 
 def nmpc_payload(t_s: float | None, wall_time_unix_s: float, *, solve_ms: float, iterations: int,
-                 status: str, cost: float, ok: bool, fallback: bool, dt_s: float,
+                 status: str, cost: float, ok: bool, fallback: bool, dt_s: float, altitude_first: bool = False,
                  predicted_p_ned_m, lead_s: float | None = None, overruns: int = 0,
                  rate_hz: float | None = None, disturbance_force_ned_n=None,
                  disturbance_torque_frd_n_m=None) -> dict[str, Any]:
@@ -106,7 +106,8 @@ def nmpc_payload(t_s: float | None, wall_time_unix_s: float, *, solve_ms: float,
 
     predicted_p_ned_m has one NED position per shooting node (k = 0..N), dt_s apart, from
     lead_ms after t_s (the state was predicted to when the setpoint acts at the FC).
-    `fallback` is true when the setpoint did not come from this solve; status "time_budget":
+    `fallback` is true when the setpoint did not come from this solve; `altitude_first` when it
+    was solved with the horizontal weights scaled down (its rotors saturated); status "time_budget":
     the solve stopped iterating to keep its deadline. overruns: control steps so far that took
     longer than the control period; rate_hz: control steps in the last second.
     disturbance_force_ned_n, disturbance_torque_frd_n_m: the companion's estimate of what its
@@ -123,6 +124,7 @@ def nmpc_payload(t_s: float | None, wall_time_unix_s: float, *, solve_ms: float,
         "cost": _optional_float("cost", cost),
         "ok": _flag("ok", ok),
         "fallback": _flag("fallback", fallback),
+        "altitude_first": _flag("altitude_first", altitude_first),
         "dt_s": _optional_float("dt_s", dt_s),
         "predicted_p_ned_m": [_floats("predicted_p_ned_m", row, 3) for row in predicted],
         "lead_ms": _optional_ms("lead_s", lead_s),

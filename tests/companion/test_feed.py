@@ -41,6 +41,8 @@ def test_nmpc_payload_lists_one_predicted_position_per_node(topic_fields):
     p = payloads.nmpc_payload(5.0, 0.0, **topic_fields["nmpc"])
     assert p["predicted_p_ned_m"] == topic_fields["nmpc"]["predicted_p_ned_m"].tolist()
     assert (p["solve_ms"], p["iterations"], p["ok"], p["fallback"]) == (3.25, 2, True, False)
+    assert p["altitude_first"] is False
+    assert payloads.nmpc_payload(5.0, 0.0, **topic_fields["nmpc"], altitude_first=True)["altitude_first"] is True
     assert p["disturbance_force_ned_n"] == [None] * 3 and p["disturbance_torque_frd_n_m"] == [None] * 3   # not given
     json.dumps(p, allow_nan=False)
 

@@ -55,7 +55,8 @@ def _read(path):
 def _step(nmpc=True):
     reference = np.zeros((6, 20))
     reference[0, :3] = (0.0, 0.0, -2.0)
-    result = SimpleNamespace(solve_ms=1.25, iterations=3, cost=0.5, ok=True, fallback=False) if nmpc else None
+    result = SimpleNamespace(solve_ms=1.25, iterations=3, cost=0.5, ok=True, fallback=False,
+                             altitude_first=False) if nmpc else None
     return SimpleNamespace(state=np.array([0.1, 0.2, -1.9] + [0.0] * 17), reference=reference, nmpc=result,
                            disturbance=np.array([-3.5, 1.25, 0.5, 0.0, 0.0, 0.0]))
 
@@ -108,6 +109,7 @@ def test_packets_and_decisions_land_in_one_tlog_per_flight(tmp_path):
     assert [m.get_type() for m in first[:3]] == ["HEARTBEAT", "M4_SETPOINT", "HEARTBEAT"]
     decided = {m.name: m.value for m in first if m.get_type() == "NAMED_VALUE_FLOAT"}
     assert decided["nmpc_ms"] == 1.25 and decided["nmpc_iter"] == 3 and decided["nmpc_ok"] == 1.0
+    assert decided["alt_first"] == 0.0                   # the plan kept its place
     assert abs(decided["step_ms"] - 2.1) < 1e-4 and abs(decided["com_d"] + 1.9) < 1e-6 and decided["ref_d"] == -2.0
     assert [decided[f"dist_{axis}"] for axis in "ned"] == [-3.5, 1.25, 0.5]      # the force it planned with
     assert {m.time_boot_ms for m in first if m.get_type() == "NAMED_VALUE_FLOAT"} == {20}

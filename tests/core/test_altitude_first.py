@@ -52,6 +52,20 @@ def test_saturated_by_a_shortfall_the_plan_leans_less_and_gives_the_place_up(nmp
     assert ceiling[-1] == pytest.approx(ceiling[0], abs=0.5)
 
 
+def test_a_plan_says_whether_it_gave_the_place_up(nmpc):
+    x0 = rom.hover_state(AF)
+    ref = np.tile(x0, (N + 1, 1))
+    shortfall = np.array([PUSH_N, 0.0, SHORTFALL_N, 0.0, 0.0, 0.0])
+    nmpc.reset()
+    said = []
+    for _ in range(2 * round(ENTER_S / PERIOD_S)):
+        said.append(nmpc.solve(x0, ref, WEAK, shortfall).altitude_first)
+        nmpc.prepare(ref, WEAK, shortfall)
+    assert not said[0] and said[-1]
+    nmpc.reset()
+    assert not nmpc.solve(x0, ref, WEAK, shortfall).altitude_first
+
+
 def saturated(mode: AltitudeFirst, plans: int, down_n: float = SHORTFALL_N, thrust_n=(20.0, 20.0, 12.0, 0.0),
               bound_n=(20.0, 20.0, 20.0, 0.0)) -> bool:
     for _ in range(plans):
