@@ -33,6 +33,7 @@ pre-loaded parents (sitl/flights/forks.py).
 from __future__ import annotations
 
 import contextlib
+import errno
 import math
 import os
 import random
@@ -67,11 +68,17 @@ LOWEST_PICKED_PORT = 10000            # free_port: below the ephemeral range, ab
 EPHEMERAL_RANGE = Path("/proc/sys/net/ipv4/ip_local_port_range")
 DEFAULT_EPHEMERAL_START = 32768
 PORT_PICK_ATTEMPTS = 100
+PORT_ATTEMPTS = 3                     # flights started again on a new port when another pick took it first
+PORT_IN_USE = os.strerror(errno.EADDRINUSE)   # the companion's one line when its port is taken
 _PREFIX = re.compile(r"^m4-[a-z]+: (error: )?")
 
 
 class FlightError(RuntimeError):
     """The flight could not start or its processes failed (one line, for the user)."""
+
+
+class PortTaken(FlightError):
+    """The companion's port was taken between its pick and its bind (another flight's pick)."""
 
 
 @dataclass(frozen=True)
@@ -139,7 +146,8 @@ def free_port(kind: int = socket.SOCK_DGRAM) -> int:
     ephemeral range: every socket bound to port 0 (the SITL's own end of its udpout link, Zenoh's,
     any other program's) gets its port from that range, so between this pick and the bind only
     another explicit pick could take it (a port the kernel had handed out and taken back was
-    once given to the SITL's own socket before the companion bound it)."""
+    once given to the SITL's own socket before the companion bound it); a parallel flight's pick
+    can, and run_flight then starts the flight again on a new one."""
     below = _ephemeral_ports_start()
     pick = random.SystemRandom()
     for _ in range(PORT_PICK_ATTEMPTS):
@@ -243,7 +251,20 @@ def run_flight(scenario: Scenario, scenario_text: str, out_dir: Path, options: F
     files.scenario.write_text(scenario_text)
     files.signing_key.unlink(missing_ok=True)
     write_new_key(files.signing_key)
-    port = options.port or free_port()
+    def attempt() -> FlightFiles:
+        return _fly(scenario, scenario_text, files, options, progress, start, options.port or free_port())
+    for _ in range(PORT_ATTEMPTS - 1):
+        try:
+            return attempt()
+        except PortTaken:
+            if options.port is not None:             # the user's port: theirs to free
+                raise
+    return attempt()
+
+
+def _fly(scenario: Scenario, scenario_text: str, files: FlightFiles, options: FlightOptions,
+         progress: Callable[[float], None] | None, start: Start, port: int) -> FlightFiles:
+    """One attempt of run_flight on the companion's MAVLink `port`."""
     with contextlib.ExitStack() as stack:
         recorder = None
         feed_port = None
@@ -341,4 +362,5 @@ def _await_ready(proc: Process, ready_fd: int, log_path: Path) -> None:
     if not os.read(ready_fd, 4096):
         with contextlib.suppress(subprocess.TimeoutExpired):
             proc.wait(STOP_TIMEOUT_S)            # its last words are in its log once it has exited
-        raise FlightError(f"the companion did not start: {_last_line(log_path)}")
+        said = _last_line(log_path)
+        raise (PortTaken if PORT_IN_USE in said else FlightError)(f"the companion did not start: {said}")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import socket
 import subprocess
 import sys
 import tomllib
@@ -135,3 +136,23 @@ def test_in_lockstep_the_companion_calls_no_wall_clock_silence_a_lost_link_befor
         path = tmp_path / f"companion-{realtime}.toml"
         path.write_text(companion_config_text(FlightOptions(realtime=realtime), 14550, None))
         assert load_config(path).link.telemetry_timeout_s == timeout_s
+
+
+def test_a_port_another_flight_took_between_the_pick_and_the_bind_is_picked_again(tmp_path, monkeypatch):
+    """Parallel campaign workers pick their ports at once: the companion finds its port taken
+    ("Address already in use") and the flight starts again on a new one."""
+    from sitl.flights import flight_run
+    from sitl.flights.fly import fly
+
+    pick, picked = flight_run.free_port, []
+
+    def first_pick_taken(kind=socket.SOCK_DGRAM):
+        port = taken.getsockname()[1] if kind == socket.SOCK_DGRAM and not picked else pick(kind)
+        picked.append(port)
+        return port
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as taken:
+        taken.bind(("127.0.0.1", 0))
+        monkeypatch.setattr(flight_run, "free_port", first_pick_taken)
+        metrics = fly("hover-rotor-loss", tmp_path / "out", figures=False, progress=False)
+        assert metrics["completed"] and picked[0] == taken.getsockname()[1] and len(picked) >= 3   # UDP, TCP, UDP
