@@ -75,7 +75,7 @@ class HipReference:
             pos[i], rate[i] = q, v
             goal += goal_rate * dt
             if not lo <= goal <= hi:
-                goals[i], goal_rates[i] = min(hi, max(lo, goal)), 0.0
+                goals[i], goal_rates[i] = self._clamp(goal), 0.0
             else:
                 goals[i] = goal
         self.settled = not moving
