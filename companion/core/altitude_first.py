@@ -13,7 +13,8 @@ goes to the height.
 
 Saturated: at least two usable rotors planned within SATURATION_MARGIN_N of their bound while
 the disturbance estimate carries at least SHORTFALL_MIN of the weight downwards (thrust the
-rotors do not deliver: the inflow's loss). The mode starts after ENTER_S of such plans in a
+rotors do not deliver: the inflow's loss; a payload heavier than the airframe file says looks
+the same to it, and there too height before place is the better trade). The mode starts after ENTER_S of such plans in a
 row and ends after LEAVE_S without one. ENTER_S is above the longest saturation of every
 built-in still-air flight (0.06 s, the transient at a rotor loss); SHORTFALL_MIN is above
 the estimate of hover-rotor-loss-tight (at most 6.1 N downwards, 0.10 of the weight), whose
