@@ -52,9 +52,9 @@ class AltitudeFirst:
         self._saturated = self._unsaturated = 0
         self.active = False
 
-    def update(self, thrust_n: np.ndarray, thrust_max_n: np.ndarray, disturbance_down_n: float) -> bool:
-        """The mode after a plan whose first thrusts are thrust_n (4,) under the bounds thrust_max_n,
-        made with disturbance_down_n (the estimate's NED down force)."""
+    def update(self, thrust_n: np.ndarray, thrust_max_n: np.ndarray, disturbance_down_n: float) -> None:
+        """After a plan whose first thrusts are thrust_n (4,) under the bounds thrust_max_n, made
+        with disturbance_down_n (the estimate's NED down force): `active` for the next plan."""
         usable = thrust_max_n > SATURATION_MARGIN_N
         at_bound = int(np.count_nonzero(usable & (thrust_n >= thrust_max_n - SATURATION_MARGIN_N)))
         if at_bound >= SATURATED_ROTORS_MIN and disturbance_down_n >= self._shortfall_min_n:
@@ -65,7 +65,6 @@ class AltitudeFirst:
             self.active = True
         elif self._unsaturated >= self._leave:
             self.active = False
-        return self.active
 
 
 def horizontal_scaled(state_w: np.ndarray, position_cols: slice, velocity_cols: slice, scale: float) -> np.ndarray:

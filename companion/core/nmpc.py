@@ -115,7 +115,6 @@ class Nmpc:
                                     input_w=w.input_diag()))
         self.altitude_first = AltitudeFirst(config.dt_s * config.warm_start_shift,
                                             airframe.total_mass_kg * airframe.gravity_m_s2)
-        self.cost = self._costs[0]
         self._hover_u = np.tile(rom.hover_input(airframe), (n, 1))
         self._diagonal = np.diag_indices(n * NU)         # of the condensed QP's Hessian
         self._row_count = row_count
@@ -135,7 +134,6 @@ class Nmpc:
     def reset(self) -> None:
         """Drop the warm start (e.g. after a jump of the reference)."""
         self.altitude_first.reset()
-        self.cost = self._costs[0]
         self._guess = None
         self._duals = None
         self._prepared = None
@@ -153,13 +151,20 @@ class Nmpc:
         under the disturbance (see nmpc_targets)."""
         return hover_targets(self.af, x0, x_ref, disturbance, self.config.dt_s, self.hip_ref_rad)
 
+    @property
+    def cost(self) -> TrackingCost:
+        """The cost the next solve tracks: the horizontal weights scaled down while the plans
+        saturate the rotors (altitude before place)."""
+        return self._costs[self.altitude_first.active]
+
     def solve(self, x0, x_ref, thrust_bound_n, disturbance=None) -> NmpcResult:
         """One receding-horizon step from state x0 (20,) along x_ref (N+1, 20)."""
+        t0 = time.perf_counter()
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):   # every result is checked
-            res = self._solve(x0, x_ref, thrust_bound_n, disturbance)
-        hi = self.input_bounds(thrust_bound_n)[1]
-        down_n = _finite_disturbance(disturbance)[2]
-        self.cost = self._costs[self.altitude_first.update(res.u[rom.THRUST], hi[rom.THRUST], down_n)]
+            lo, hi = self.input_bounds(thrust_bound_n)
+            d = _finite_disturbance(disturbance)
+            res = self._solve(x0, x_ref, lo, hi, d, t0)
+        self.altitude_first.update(res.u[rom.THRUST], hi[rom.THRUST], d[2])
         return res
 
     def prepare(self, x_ref, thrust_bound_n, disturbance=None) -> None:
@@ -194,16 +199,13 @@ class Nmpc:
         self._prepared = self._planned = None
 
     # ----------------------------------------------------------------- internals
-    def _solve(self, x0, x_ref, thrust_bound_n, disturbance) -> NmpcResult:
-        t0 = time.perf_counter()
+    def _solve(self, x0, x_ref, lo, hi, d, t0) -> NmpcResult:
         n = self.config.horizon
-        lo, hi = self.input_bounds(thrust_bound_n)
         x0 = np.asarray(x0, dtype=float).reshape(-1)
         x_ref = np.asarray(x_ref, dtype=float)
         if x0.size != NX or x_ref.shape != (n + 1, NX):
             raise ValueError(f"x0 must have {NX} entries and x_ref shape ({n + 1}, {NX}); "
                              f"got {x0.size} and {x_ref.shape}")
-        d = _finite_disturbance(disturbance)
         if not (np.all(np.isfinite(x0)) and np.all(np.isfinite(x_ref))):
             return self._fallback(x0, lo, hi, "invalid_input", 0, t0)
         if self.config.scheme == "rti":
@@ -240,8 +242,9 @@ class Nmpc:
             return self._fallback(x0, lo, hi, "qp_failed", 1, t0)
         self._guess = us.copy()
         self._planned = (x0.copy(), us[0].copy())
-        return NmpcResult(altitude_first=self.cost is self._costs[1], u=us[0].copy(), x_pred=xs, u_pred=us, solve_ms=_ms_since(t0), iterations=1, status=status,
-                          ok=True, cost=self.cost.value(xs, us, ref, u_ref), fallback=False)
+        return NmpcResult(u=us[0].copy(), x_pred=xs, u_pred=us, solve_ms=_ms_since(t0), iterations=1, status=status,
+                          ok=True, cost=self.cost.value(xs, us, ref, u_ref), fallback=False,
+                          altitude_first=self.altitude_first.active)
 
     def _qp_step(self, hess, grad, rows, x0, xs, us, lo, hi) -> np.ndarray | None:
         """The QP's step dU (N, 8) within the input bounds (lo, hi: one stage's, (8,)) and the
@@ -338,8 +341,8 @@ class Nmpc:
             return self._fallback(x0, lo, hi, "qp_failed", it, t0)
         self._guess = us.copy()
         cost = self.cost.value(xs, us, ref, u_ref)
-        return NmpcResult(altitude_first=self.cost is self._costs[1], u=us[0].copy(), x_pred=xs, u_pred=us, solve_ms=_ms_since(t0), iterations=it,
-                          status=status, ok=True, cost=cost, fallback=False)
+        return NmpcResult(u=us[0].copy(), x_pred=xs, u_pred=us, solve_ms=_ms_since(t0), iterations=it,
+                          status=status, ok=True, cost=cost, fallback=False, altitude_first=self.altitude_first.active)
 
     def _fallback(self, x0, lo, hi, status, iterations, t0) -> NmpcResult:
         """A bounded command when no plan can be trusted: the previous plan (shifted) or hover
@@ -359,8 +362,9 @@ class Nmpc:
         self._guess = None
         self._duals = None
         self._prepared = self._planned = None
-        return NmpcResult(altitude_first=self.cost is self._costs[1], u=us[0].copy(), x_pred=xs, u_pred=us, solve_ms=_ms_since(t0), iterations=iterations,
-                          status=status, ok=False, cost=float("inf"), fallback=True)
+        return NmpcResult(u=us[0].copy(), x_pred=xs, u_pred=us, solve_ms=_ms_since(t0), iterations=iterations,
+                          status=status, ok=False, cost=float("inf"), fallback=True,
+                          altitude_first=self.altitude_first.active)
 
 
 def _finite_disturbance(disturbance) -> np.ndarray:
