@@ -21,16 +21,14 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from m4.toml_fields import ConfigError
 from sitl import scenarios
 from sitl.flights.flight_run import FlightError, FlightOptions
 from sitl.flights.fly import fly
+from sitl.plant.truth import load_truth, truth_differences
 
 # metrics.json keys that measure the machine, not the flight (compared nowhere)
 TIMING_KEYS = frozenset({"realtime_factor", "solve_ms_median", "solve_ms_p99"})
-TRUTH_TIMING = frozenset({"wall_s"})
 _FIGURES = (("altitude_loss_m", "sag (m)", "{:.3f}"), ("max_tilt_deg_after_fault", "tilt (deg)", "{:.1f}"),
             ("position_rmse_m", "position RMSE (m)", "{:.3f}"), ("touchdown_speed_m_s", "touchdown (m/s)", "{:.3f}"))
 
@@ -85,10 +83,7 @@ def without_timing(value):
 
 def differences(reference: Path, flight: Path) -> list[str]:
     """What differs between two flights of a scenario: truth arrays and top-level metrics (empty: bit for bit)."""
-    with np.load(reference / "truth.npz") as a, np.load(flight / "truth.npz") as b:
-        names = (set(a.files) | set(b.files)) - TRUTH_TIMING
-        found = sorted(k for k in names if k not in a.files or k not in b.files
-                       or not np.array_equal(a[k], b[k], equal_nan=True))
+    found = sorted(truth_differences(load_truth(reference / "truth.npz"), load_truth(flight / "truth.npz")))
     ma, mb = without_timing(load_metrics(reference)), without_timing(load_metrics(flight))
     if ma is None or mb is None:
         return [*found, "metrics.json missing"]

@@ -18,14 +18,13 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 from m4.airframe import load_airframe
 from m4.mavlink import COMPANION_COMPONENT_ID, DIALECT, mavlink, mavutil
 from m4.scenario import load_scenario
 from m4.toml_fields import ConfigError
-from sitl.plant.truth import TruthRecorder, load_truth
+from sitl.plant.truth import TruthRecorder, load_truth, truth_differences
 from sitl.vehicle import Vehicle
+
 
 def companion_steps(tlog_path: Path) -> list[tuple[int, list]]:
     """[(frame instant ms, the companion's messages that followed that frame)], in order (a tlog
@@ -68,17 +67,8 @@ def replay(flight: Path, steps: list[tuple[int, list]], seed: int) -> tuple[floa
 
 def truth_difference(recorded: Path, replayed: TruthRecorder) -> str:
     """'identical', or the arrays that differ with the largest difference of each."""
-    before, after = load_truth(recorded), replayed.truth()
-    differ = []
-    for name in before.__dataclass_fields__:
-        a, b = getattr(before, name), getattr(after, name)
-        if name == "wall_s" or (a is None and b is None):
-            continue
-        if a is None or b is None or a.shape != b.shape:
-            differ.append(f"{name} (shape)")
-        elif not np.array_equal(a, b, equal_nan=True):
-            worst = np.nanmax(np.abs(a.astype(float) - b.astype(float)))
-            differ.append(f"{name} (by up to {worst:.1e})")
+    differ = [f"{name} (shape)" if worst is None else f"{name} (by up to {worst:.1e})"
+              for name, worst in truth_differences(load_truth(recorded), replayed.truth()).items()]
     return "identical" if not differ else "DIFFERENT: " + ", ".join(differ)
 
 

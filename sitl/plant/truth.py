@@ -87,3 +87,18 @@ class TruthRecorder:
 def load_truth(path: str | Path) -> Truth:
     with np.load(Path(path)) as data:
         return Truth(**{f.name: data[f.name] for f in fields(Truth) if f.name in data or f.default is MISSING})
+
+
+def truth_differences(before: Truth, after: Truth) -> dict[str, float | None]:
+    """The arrays of two truths that are not the same to the bit (NaN equal to NaN; the wall
+    clock aside), each with its largest difference (None: one lacks it or their shapes differ)."""
+    found: dict[str, float | None] = {}
+    for f in fields(Truth):
+        a, b = getattr(before, f.name), getattr(after, f.name)
+        if f.name == "wall_s" or (a is None and b is None):
+            continue
+        if a is None or b is None or a.shape != b.shape:
+            found[f.name] = None
+        elif not np.array_equal(a, b, equal_nan=True):
+            found[f.name] = float(np.nanmax(np.abs(a.astype(float) - b.astype(float))))
+    return found
