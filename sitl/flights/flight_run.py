@@ -64,9 +64,10 @@ STOP_TIMEOUT_S = 10.0
 LOCKSTEP_TELEMETRY_TIMEOUT_S = 10.0   # lockstep: the companion's [link] telemetry_timeout_s, its largest
 STALL_MARK = "no setpoint for"        # sitl/serve.py logs it when its lockstep wait runs out; read here
 POLL_S = 0.2
-LOWEST_PICKED_PORT = 10000            # free_port: below the ephemeral range, above the well-known services
+LOWEST_PICKED_PORT = 10000            # free_port: outside the ephemeral range, above the well-known services
 EPHEMERAL_RANGE = Path("/proc/sys/net/ipv4/ip_local_port_range")
-DEFAULT_EPHEMERAL_START = 32768
+DEFAULT_EPHEMERAL_RANGE = (32768, 65535)
+HIGHEST_PORT = 65535
 PORT_PICK_ATTEMPTS = 100
 PORT_ATTEMPTS = 3                     # flights started again on a new port when another pick took it first
 PORT_IN_USE = os.strerror(errno.EADDRINUSE)   # the companion's one line when its port is taken
@@ -142,34 +143,45 @@ def start_process(program: str, args: list[str], log_path: Path, pass_fd: tuple[
 
 
 def free_port(kind: int = socket.SOCK_DGRAM) -> int:
-    """A port on 127.0.0.1 free now, for a process started next to bind. Picked below the kernel's
-    ephemeral range: every socket bound to port 0 (the SITL's own end of its udpout link, Zenoh's,
-    any other program's) gets its port from that range, so between this pick and the bind only
-    another explicit pick could take it (a port the kernel had handed out and taken back was
+    """A port on 127.0.0.1 free now, for a process started next to bind. Picked outside the
+    kernel's ephemeral range: every socket bound to port 0 (the SITL's own end of its udpout link,
+    Zenoh's, any other program's) gets its port from that range, so between this pick and the bind
+    only another explicit pick could take it (a port the kernel had handed out and taken back was
     once given to the SITL's own socket before the companion bound it); a parallel flight's pick
     can, and run_flight then starts the flight again on a new one."""
-    below = _ephemeral_ports_start()
+    ports = pickable_ports()
+    if not ports:
+        start, end = ephemeral_port_range()
+        raise FlightError(f"no port on 127.0.0.1 to pick: the kernel's ephemeral range {start}-{end} "
+                          f"covers every port from {LOWEST_PICKED_PORT} up")
     pick = random.SystemRandom()
     for _ in range(PORT_PICK_ATTEMPTS):
-        port = pick.randrange(LOWEST_PICKED_PORT, below)
+        port = ports[pick.randrange(len(ports))]
         with socket.socket(socket.AF_INET, kind) as s:
             try:
                 s.bind(("127.0.0.1", port))
             except OSError:
                 continue
             return port
-    raise FlightError(f"no free port on 127.0.0.1 between {LOWEST_PICKED_PORT} and {below - 1} "
-                      f"after {PORT_PICK_ATTEMPTS} tries")
+    raise FlightError(f"no free port on 127.0.0.1 from {LOWEST_PICKED_PORT} up outside the kernel's ephemeral "
+                      f"range after {PORT_PICK_ATTEMPTS} tries")
 
 
-def _ephemeral_ports_start() -> int:
-    """The first port of the kernel's ephemeral range (Linux: ip_local_port_range; elsewhere
-    IANA's 49152, of which Linux's default 32768 is the safe side)."""
+def pickable_ports() -> list[int]:
+    """The ports free_port picks from: LOWEST_PICKED_PORT and up, outside the kernel's ephemeral range."""
+    start, end = ephemeral_port_range()
+    return [*range(LOWEST_PICKED_PORT, min(start, HIGHEST_PORT + 1)),
+            *range(max(end + 1, LOWEST_PICKED_PORT), HIGHEST_PORT + 1)]
+
+
+def ephemeral_port_range() -> tuple[int, int]:
+    """The kernel's ephemeral range, first and last port (Linux: ip_local_port_range; elsewhere
+    IANA's 49152-65535, of which Linux's default 32768-60999 is the safe side below)."""
     try:
-        start = int(EPHEMERAL_RANGE.read_text().split()[0])
-    except (OSError, ValueError, IndexError):
-        return DEFAULT_EPHEMERAL_START
-    return max(start, LOWEST_PICKED_PORT + 1000)
+        start, end = (int(word) for word in EPHEMERAL_RANGE.read_text().split()[:2])
+    except (OSError, ValueError):
+        return DEFAULT_EPHEMERAL_RANGE
+    return start, end
 
 
 def check_port_free(port: int) -> None:
