@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from sitl import scenarios
-from sitl.ardupilot.flight import ArduFlightOptions, fly_ardupilot
+from sitl.ardupilot.flight import ArduFlightOptions, fly_ardupilot, free_instance
 from sitl.flights.fly import fly
 from sitl.plant.truth import Truth, load_truth
 
@@ -142,7 +142,7 @@ def main() -> None:
     p.add_argument("--out", type=Path, default=Path("out/ardupilot-table"))
     p.add_argument("--scenario", action="append", help=f"default: {', '.join(DEFAULT_SCENARIOS)}")
     p.add_argument("--speedup", type=float, default=10.0, help="arducopter --speedup until the handover")
-    p.add_argument("--instance", type=int, default=6, help="arducopter -I")
+    p.add_argument("--instance", type=int, help="arducopter -I (default: one whose ports are free)")
     p.add_argument("--priority", type=int, default=0, metavar="P",
                    help="SCHED_FIFO priority 1..99 from the handover on (default 0: normal)")
     p.add_argument("--project", type=Path, metavar="DIR",
@@ -156,10 +156,11 @@ def main() -> None:
     names = args.scenario or DEFAULT_SCENARIOS
     if args.project is not None and (missing := [n for n in names if not (args.project / n / "truth.npz").is_file()]):
         p.error(f"--project {args.project}: no flight of {', '.join(missing)} there (NAME/truth.npz)")
+    instance = free_instance() if args.instance is None else args.instance
     rows = []
     for name in names:
         if not args.judge_only:
-            fly_ardupilot_one(name, args.out, args.speedup, args.instance, args.priority, not args.no_cover)
+            fly_ardupilot_one(name, args.out, args.speedup, instance, args.priority, not args.no_cover)
             if args.project is None:
                 fly(name, project_root / name, figures=False, progress=False)
         rows += judge(name, args.out, project_root)

@@ -30,6 +30,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import random
 import shutil
 import socket
 import subprocess
@@ -59,7 +60,30 @@ EKF_READY_TEXT = "EKF3 IMU0 is using GPS"
 APPLET_FLYING_TEXT = "m4: flying companion setpoints"
 CONNECT_TIMEOUT_S = 30.0
 PRIORITY_MAX = 99                # Linux's SCHED_FIFO range is 1..99
+INSTANCES = 100                  # arducopter -I 0..99 keeps every port it uses below 10000
+INSTANCE_PORTS = ((socket.SOCK_STREAM, 5760), (socket.SOCK_STREAM, 5762), (socket.SOCK_STREAM, 5763),
+                  (socket.SOCK_DGRAM, 5501), (socket.SOCK_DGRAM, DEFAULT_PORT))
 AFTER_DISARM_MS = 2000           # the flight ends this long after ArduPilot disarms (a crash)
+
+
+def free_instance() -> int:
+    """An arducopter instance (-I) whose ports on 127.0.0.1 are free now: its MAVLink TCP servers
+    (SERIAL0..2, 5760/5762/5763 + 10 I), its RC input (UDP 5501 + 10 I) and the physics' JSON port
+    (UDP 9002 + 10 I). Tried from a random one, so two flights started at once rarely meet."""
+    first = random.SystemRandom().randrange(1, INSTANCES)
+    for instance in (*range(first, INSTANCES), *range(1, first)):
+        if all(_port_free(kind, port + 10 * instance) for kind, port in INSTANCE_PORTS):
+            return instance
+    raise FlightError(f"no arducopter instance 1..{INSTANCES - 1} has its ports free on 127.0.0.1")
+
+
+def _port_free(kind: int, port: int) -> bool:
+    with socket.socket(socket.AF_INET, kind) as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
 
 
 def sitl_binary() -> Path:

@@ -10,7 +10,7 @@ import os
 import pytest
 
 from sitl import scenarios
-from sitl.ardupilot.flight import ArduFlightOptions, fly_ardupilot, sitl_binary
+from sitl.ardupilot.flight import ArduFlightOptions, fly_ardupilot, free_instance, sitl_binary
 from sitl.plant.truth import load_truth
 from tests.support.mavproxy_console import MavProxy
 
@@ -25,7 +25,7 @@ pytestmark = [pytest.mark.ardupilot, pytest.mark.flight,
 
 def test_arducopter_hovers_the_m4_and_the_rotor_loss_reaches_the_plant(tmp_path):
     scenario = scenarios.resolve("hover-rotor-loss")
-    metrics = fly_ardupilot(ArduFlightOptions(scenario=scenario, out_dir=tmp_path, speedup=50.0, instance=4,
+    metrics = fly_ardupilot(ArduFlightOptions(scenario=scenario, out_dir=tmp_path, speedup=50.0, instance=free_instance(),
                                               timeout_s=240.0), log=lambda _: None)
     hover = metrics["hover"]
     assert hover["altitude_error_max_m"] < 0.3 and hover["tilt_max_deg"] < 5.0
@@ -44,7 +44,7 @@ def test_the_companion_flies_the_hover_rotor_loss_through_arducopter_and_a_groun
     on ArduPilot's SERIAL2, as a ground station beside the flight's own link, reads the applet's
     parameter, selects GUIDED and arms, and prints the companion's fault announcement."""
     scenario = scenarios.resolve("hover-rotor-loss")
-    instance = 5
+    instance = free_instance()
     console: dict[str, MavProxy] = {}
     done: dict[str, bool] = {}
 
