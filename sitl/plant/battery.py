@@ -37,5 +37,13 @@ class Battery:
 
     def draw(self, current_a: float, dt_s: float) -> None:
         """`current_a` drawn for `dt_s`; the voltage is the pack's under that load."""
-        self.consumed_mah += (0.0 if 0.0 > current_a else current_a) * dt_s * _MAH_PER_AS   # max(., 0), no call: every physics step
-        self.voltage_v = self._voltage(current_a)
+        self.draw_each([current_a], dt_s)
+
+    def draw_each(self, currents_a: list[float], dt_s: float) -> None:
+        """draw() of each current in turn, `dt_s` each (at least one; the physics steps between
+        two updates of the rotors, one loop for all of them)."""
+        consumed = self.consumed_mah
+        for current_a in currents_a:
+            consumed += (0.0 if 0.0 > current_a else current_a) * dt_s * _MAH_PER_AS   # max(., 0) without the call
+        self.consumed_mah = consumed
+        self.voltage_v = self._voltage(currents_a[-1])

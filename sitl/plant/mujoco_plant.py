@@ -236,8 +236,7 @@ class Plant:
                     self._update_rotors()        # the rotors head for their targets on the pack's new voltage
             else:
                 mujoco.mj_step(m, d, nstep=k)
-                for current_a in self.thrusters.advance_drawing(dt_s, k):
-                    self.battery.draw(current_a, dt_s)
+                self.battery.draw_each(self.thrusters.advance_drawing(dt_s, k), dt_s)
             self._servo_countdown -= k
             n -= k
             if self.sensors is not None and self._sensor_countdown() == self.sensors.period_ms:

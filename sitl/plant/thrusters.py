@@ -146,22 +146,28 @@ class Thrusters:
         """advance(dt_s) `steps` times (targets and pack voltage held); after each, what the
         ESCs draw from the pack in all (current_a summed, in its order of operations)."""
         decay = math.exp(-dt_s / self._tau_s)
-        settled, speed, k_e, r = self._settled, self._speed, self._k_e, self._r
-        # _pack_currents(speed, share), summed (0 + each rotor's, in order): the same operations,
-        # without two calls a step; a rotor not driven adds 0.0 to the sum, so it is left out,
-        # and `0.0 if x < 0.0 else x` is max(x, 0.0) without the call.
-        drives = [(i, s, u) for i, (s, u, driven) in enumerate(zip(self._pack_share(), self._u_v, self._driven))
-                  if driven]
+        k_e, r = self._k_e, self._r
+        # The four rotors written out (this runs at every physics step): advance() and
+        # _pack_currents(speed, share) summed (0 + each rotor's, in order), the same operations.
+        # A rotor not driven has u = 0 and share 0: it adds 0.0 to a sum that is never -0.0.
+        # `0.0 if x < 0.0 else x` is max(x, 0.0) without the call.
+        s0, s1, s2, s3 = self._settled
+        w0, w1, w2, w3 = self._speed
+        (u0, u1, u2, u3), (p0, p1, p2, p3) = self._driven_drives()
         totals = []
         for _ in range(steps):
-            speed = [w_s + (w - w_s) * decay for w_s, w in zip(settled, speed)]
-            total = 0.0
-            for i, s, u in drives:
-                current = (u - k_e * speed[i]) / r
-                total += s * (0.0 if current < 0.0 else current)
-            totals.append(total)
-        self._speed = speed
+            w0, w1, w2, w3 = s0 + (w0 - s0) * decay, s1 + (w1 - s1) * decay, s2 + (w2 - s2) * decay, s3 + (w3 - s3) * decay
+            i0, i1, i2, i3 = (u0 - k_e * w0) / r, (u1 - k_e * w1) / r, (u2 - k_e * w2) / r, (u3 - k_e * w3) / r
+            totals.append(0.0 + p0 * (0.0 if i0 < 0.0 else i0) + p1 * (0.0 if i1 < 0.0 else i1)
+                          + p2 * (0.0 if i2 < 0.0 else i2) + p3 * (0.0 if i3 < 0.0 else i3))
+        self._speed = [w0, w1, w2, w3]
         return totals
+
+    def _driven_drives(self) -> tuple[list[float], list[float]]:
+        """(ESC output voltage, share of the pack) of every rotor, both 0 for a rotor not driven."""
+        driven = self._driven
+        return ([u if d else 0.0 for u, d in zip(self._u_v, driven)],
+                [s if d else 0.0 for s, d in zip(self._pack_share(), driven)])
 
     def esc_readings(self) -> tuple[list[float], list[float]]:
         """(speed rad/s, draw from the pack A) of every rotor: what its ESC measures."""
