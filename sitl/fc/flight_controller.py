@@ -310,10 +310,14 @@ class FlightController:
                 self.tick(now_ms)
                 return
             self._set_mode(self.selected, by_failsafe=False)
+            fast = sp.rate_feedback is not None or sp.shortfall_cover is not None
             if self.setpoint is not self._applied:
-                self._command_plant(sp.thrust_n, sp.hip_rad, sp.hip_rate_rad_s)
+                if fast:        # the fast loop commands the thrusts at once (finite: it keeps none of the last)
+                    self.plant.command_hips(sp.hip_rad, sp.hip_rate_rad_s)
+                else:
+                    self._command_plant(sp.thrust_n, sp.hip_rad, sp.hip_rate_rad_s)
                 self._applied, self._applied_at_ms = self.setpoint, now_ms
-            if sp.rate_feedback is not None or sp.shortfall_cover is not None:
+            if fast:
                 self._fast_loop(now_ms)
             return
         state = self.measured_state(now_ms)
