@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from sitl.plant.mujoco_plant import Plant
+from sitl.plant.state import PlantState
 
 DEFAULT_PERIOD_MS = 10
 MAX_SAMPLES = 60_000
@@ -53,30 +54,30 @@ class TruthRecorder:
         self.period_ms = period_ms
         self.dropped = 0
         self._next_ms = 0
-        self._rows: dict[str, deque] = {f.name: deque(maxlen=max_samples) for f in fields(Truth)}
-        self._from_state = [(name, self._rows[name]) for name in _FROM_STATE]
+        # (time_s, wall_s, the plant's state) a sample: the states are read-only (Plant.state), so
+        # they are kept whole and taken apart into columns once, by truth(), not in the loop
+        self._samples: deque[tuple[float, float, PlantState]] = deque(maxlen=max_samples)
 
     def observe(self, now_ms: int, plant: Plant) -> None:
         """Called at every simulated instant; samples when the next grid point is reached."""
         if now_ms < self._next_ms:
             return
         self._next_ms = (now_ms // self.period_ms + 1) * self.period_ms
-        s = plant.state()
-        time_s = self._rows["time_s"]
-        self.dropped += len(time_s) == time_s.maxlen
-        time_s.append(now_ms / 1000.0)
-        self._rows["wall_s"].append(time.monotonic())
-        earlier = len(time_s) - 1
-        for name, column in self._from_state:
-            value = getattr(s, name)
-            if value is not None:          # a still-air plant has no wind: that array is left out
-                if len(column) < earlier:  # the air came later (Plant.blow): still air at the samples before
-                    column.extend(np.zeros_like(value) for _ in range(earlier - len(column)))
-                column.append(value)
+        samples = self._samples
+        self.dropped += len(samples) == samples.maxlen
+        samples.append((now_ms / 1000.0, time.monotonic(), plant.state()))
 
     def truth(self) -> Truth:
-        return Truth(**{name: np.array(values) for name, values in self._rows.items()
-                        if values or name not in _OPTIONAL})
+        samples = self._samples
+        rows = {"time_s": [t for t, _, _ in samples], "wall_s": [wall for _, wall, _ in samples]}
+        for name in _FROM_STATE:
+            values = [getattr(s, name) for _, _, s in samples]
+            present = next((v for v in values if v is not None), None)
+            if present is None:            # a still-air plant has no wind: that array is left out
+                rows[name] = []
+            else:                          # the air came later (Plant.blow): still air at the samples before
+                rows[name] = [np.zeros_like(present) if v is None else v for v in values]
+        return Truth(**{name: np.array(values) for name, values in rows.items() if values or name not in _OPTIONAL})
 
     def save(self, path: str | Path) -> None:
         t = self.truth()
