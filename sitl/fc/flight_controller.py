@@ -494,10 +494,12 @@ class FlightController:
         order. In lockstep M4_THRUSTER_STATUS goes out only in frames: it tells the companion to
         answer."""
         ids = self.schedules[link].due(now_ms, FRAME if frame else ())
-        if self.lockstep and not frame:
-            ids = [i for i in ids if i != FRAME[-1]]
         if not ids:
             return []
+        if self.lockstep and not frame:
+            ids = [i for i in ids if i != FRAME[-1]]
+            if not ids:
+                return []
         snap = self.snapshot(now_ms)
         return [self.telemetry_builder.build(i, snap) for i in ids]
 

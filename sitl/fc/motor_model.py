@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from m4.airframe import Airframe
 
 
@@ -26,11 +28,11 @@ class MotorModel:
     def update(self, thrust_cmd_n) -> list[float]:
         """The rotors' expected speeds (rad/s, rotors 1..4) one tick after they were commanded
         thrust_cmd_n (4,); the first call takes them as settled there."""
-        k_n_s2, decay = self._k_n_s2, self._decay
-        target = [float(t) for t in thrust_cmd_n]
-        target = [math.sqrt((0.0 if 0.0 > t else t) / k_n_s2) for t in target]     # max(t, 0) without the call
-        if self.speed_rad_s is not None:
-            target = [w + (e - w) * decay for w, e in zip(target, self.speed_rad_s)]
+        k_n_s2, decay, speed = self._k_n_s2, self._decay, self.speed_rad_s
+        thrust = thrust_cmd_n.tolist() if isinstance(thrust_cmd_n, np.ndarray) else map(float, thrust_cmd_n)
+        target = [math.sqrt((0.0 if 0.0 > t else t) / k_n_s2) for t in thrust]     # max(t, 0) without the call
+        if speed is not None:
+            target = [w + (e - w) * decay for w, e in zip(target, speed)]
         self.speed_rad_s = target
         return target
 

@@ -86,6 +86,8 @@ class StreamSchedule:
     def due(self, now_ms: int, extra=()) -> list[int]:
         """Ids to send at `now_ms` (plus `extra`, e.g. the frame), in emission order; each
         stream sent is rescheduled."""
+        if not extra and (self._next_due_ms is None or self._next_due_ms > now_ms):
+            return []                    # most instants (every FC tick is one): nothing due
         ids = set(extra)
         if self._next_due_ms is not None and self._next_due_ms <= now_ms:
             for msg_id, t in self._next_ms.items():
