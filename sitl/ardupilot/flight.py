@@ -47,7 +47,7 @@ from m4.mavlink import mavlink, mavutil
 from m4.scenario import Scenario
 from sitl.ardupilot.companion_process import start_companion
 from sitl.ardupilot.physics import DEFAULT_PORT, PhysicsOptions, PhysicsServer
-from sitl.flights.flight_run import FlightError, free_port
+from sitl.flights.flight_run import FlightError, free_port, real_time
 from sitl.plant.truth import Truth, load_truth
 
 REPO = Path(__file__).resolve().parents[2]
@@ -216,18 +216,6 @@ def _fly(options: ArduFlightOptions, server: PhysicsServer, sitl: subprocess.Pop
                                                   and physics.now_ms >= state["disarmed_ms"] + AFTER_DISARM_MS))
     finally:
         link.close()
-
-
-def real_time(pid: int, priority: int) -> None:
-    """Every thread of process `pid` in SCHED_FIFO at `priority`, or back to normal with 0."""
-    policy = os.SCHED_FIFO if priority else os.SCHED_OTHER
-    for tid in os.listdir(f"/proc/{pid}/task"):
-        try:
-            os.sched_setscheduler(int(tid), policy, os.sched_param(priority))
-        except ProcessLookupError:
-            continue                        # a thread that has ended since
-        except OSError as e:
-            raise FlightError(f"cannot give process {pid} real-time priority {priority}: {e.strerror}") from None
 
 
 def _connect(port: int, sitl: subprocess.Popen, sitl_log: Path):

@@ -357,11 +357,26 @@ def _say_start(fd: int) -> None:
 
 
 def _real_time(proc: Process, priority: int) -> None:
-    """SCHED_FIFO for a process just started (its threads, started later, inherit it)."""
+    """SCHED_FIFO for the SITL just started, every thread of it: a SITL forked from a
+    pre-loaded parent (sitl/flights/forks.py) may have started its signing-timestamps thread
+    already (sitl/serve.py), and a thread takes its policy from the one that starts it."""
+    real_time(proc.pid, priority, "the SITL")
+
+
+def real_time(pid: int, priority: int, who: str | None = None) -> None:
+    """Every thread of process `pid` in SCHED_FIFO at `priority`, or back to normal with 0;
+    the threads are listed again until none has appeared meanwhile (one started before its
+    starter was changed keeps the old policy). FlightError naming `who` (default: the process)."""
+    done: set[str] = set()
     try:
-        os.sched_setscheduler(proc.pid, os.SCHED_FIFO, os.sched_param(priority))
+        policy = os.SCHED_FIFO if priority else os.SCHED_OTHER
+        while todo := set(os.listdir(f"/proc/{pid}/task")) - done:
+            for tid in sorted(todo):
+                with contextlib.suppress(ProcessLookupError):       # a thread that has ended since
+                    os.sched_setscheduler(int(tid), policy, os.sched_param(priority))
+            done |= todo
     except (AttributeError, OSError) as e:
-        raise FlightError(f"cannot give the SITL real-time priority {priority}: "
+        raise FlightError(f"cannot give {who or f'process {pid}'} real-time priority {priority}: "
                           f"{getattr(e, 'strerror', None) or e}") from None
 
 

@@ -68,6 +68,24 @@ def test_a_sitl_priority_that_cannot_be_had_is_one_line(tmp_path, monkeypatch):
         _real_time(proc, 45)
 
 
+@pytest.mark.skipif(os.geteuid() != 0, reason="SCHED_FIFO needs root or CAP_SYS_NICE")
+def test_a_sitl_that_started_a_thread_already_gets_the_priority_in_every_thread(tmp_path):
+    """A SITL forked from its pre-loaded parent (campaigns) may have started its signing
+    timestamps' thread before the flight gives it the priority: that thread must get it too."""
+    from sitl.flights.flight_run import _real_time
+
+    code = ("import os, sys, threading, time; threading.Thread(target=time.sleep, args=(30,), daemon=True).start(); "
+            "os.write(int(sys.argv[1]), b'up\\n'); time.sleep(30)")
+    stack, proc, up, _ = _companion(tmp_path, code)
+    with stack:
+        assert os.read(up, 16) == b"up\n"
+        tasks = os.listdir(f"/proc/{proc.pid}/task")
+        assert len(tasks) == 2
+        _real_time(proc, 45)
+        assert {(os.sched_getscheduler(int(tid)), os.sched_getparam(int(tid)).sched_priority) for tid in tasks} == {
+            (os.SCHED_FIFO, 45)}
+
+
 def test_both_ends_of_a_flight_sign_with_the_flights_own_key(tmp_path):
     """As on the robot: the companion's config names the key the SITL is given (run_flight writes
     a new one into the flight's folder for every flight)."""
