@@ -106,7 +106,7 @@ class Plant:
 
         d.qpos[self._pos] = frames.flip_vector(start)
         d.qpos[self._quat] = frames.flip_quat_wxyz(quat_wxyz_from_euler((0.0, 0.0, start_yaw_rad)))
-        self._hip_target = np.full(ROTOR_COUNT, airframe.nominal_hip_rad)
+        self._hip_target = [float(airframe.nominal_hip_rad)] * ROTOR_COUNT      # Python floats
         self._hips = HipReference(self._hip_target, rate_max_rad_s=airframe.hip_rate_max_rad_s,
                                   accel_max_rad_s2=airframe.hip_accel_max_rad_s2,
                                   hip_min_rad=airframe.hip_min_rad, hip_max_rad=airframe.hip_max_rad,
@@ -186,11 +186,10 @@ class Plant:
     def command_hips(self, hip_rad, hip_rate_rad_s=None) -> None:
         """Hip targets (rad) with their rates (rad/s, default 0), the thrusts kept; clamped and
         kept as in command()."""
-        hip = _vector("hip_rad", hip_rad, ROTOR_COUNT)
-        rate = np.zeros(ROTOR_COUNT) if hip_rate_rad_s is None else _vector("hip_rate_rad_s", hip_rate_rad_s,
-                                                                             ROTOR_COUNT)
-        self._hip_target = np.where(np.isfinite(hip), hip, self._hip_target)
-        self._hips.set_target(self._hip_target.tolist(), np.where(np.isfinite(rate), rate, 0.0).tolist())
+        hip = _floats("hip_rad", hip_rad, ROTOR_COUNT)
+        rate = [0.0] * ROTOR_COUNT if hip_rate_rad_s is None else _floats("hip_rate_rad_s", hip_rate_rad_s, ROTOR_COUNT)
+        self._hip_target = [q if math.isfinite(q) else kept for q, kept in zip(hip, self._hip_target)]
+        self._hips.set_target(self._hip_target, [r if math.isfinite(r) else 0.0 for r in rate])
         self._servo_countdown = 0           # the servo controller (and drag, gate) react at the next step
 
     def set_rotor_loss(self, rotor: int, loss: float, kind: FaultKind = FaultKind.DEGRADED) -> None:
@@ -379,7 +378,9 @@ def _contiguous(addresses: np.ndarray, what: str) -> slice:
 
 def _floats(name: str, value, length: int) -> list[float]:
     """_vector(name, value, length) as Python floats; a list of them (the FC's fast loop, every
-    tick) without a round trip through numpy."""
+    tick) without a round trip through numpy, an array of them through its tolist()."""
+    if type(value) is np.ndarray and value.shape == (length,) and value.dtype == np.float64:
+        return value.tolist()
     if type(value) is list and len(value) == length:
         try:
             return [float(v) for v in value]
