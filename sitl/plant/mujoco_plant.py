@@ -147,14 +147,13 @@ class Plant:
         k_t w_s^2 + 2 k_t w_s d exp(-t / tau) + k_t d^2 exp(-2 t / tau)."""
         rotors, d = self.thrusters, self.data
         rotors.update(self.battery.voltage_v)
-        ctrl, act, act_sq = [], [], []       # Python floats
-        for k_t, w_s, w in rotors.filter_inputs():
-            gap = w - w_s
-            ctrl.append(k_t * (w_s * w_s))
-            act.append(k_t * w_s * (w_s + 2.0 * gap))
-            act_sq.append(k_t * (gap * gap))
-        d.ctrl[self._thrust] = ctrl
-        d.act[self._thrust_filters] = act + act_sq
+        # the four rotors written out, on Python floats: this runs at every FC tick
+        (k0, k1, k2, k3), (s0, s1, s2, s3), (w0, w1, w2, w3) = rotors.filter_inputs()
+        g0, g1, g2, g3 = w0 - s0, w1 - s1, w2 - s2, w3 - s3
+        d.ctrl[self._thrust] = (k0 * (s0 * s0), k1 * (s1 * s1), k2 * (s2 * s2), k3 * (s3 * s3))
+        d.act[self._thrust_filters] = (k0 * s0 * (s0 + 2.0 * g0), k1 * s1 * (s1 + 2.0 * g1), k2 * s2 * (s2 + 2.0 * g2),
+                                       k3 * s3 * (s3 + 2.0 * g3),
+                                       k0 * (g0 * g0), k1 * (g1 * g1), k2 * (g2 * g2), k3 * (g3 * g3))
 
     def command_thrust(self, thrust_n) -> None:
         """Thrusts alone (N, rotors 1..4), the hips' targets kept: the FC's rate feedback

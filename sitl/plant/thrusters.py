@@ -173,10 +173,10 @@ class Thrusters:
         """(speed rad/s, draw from the pack A) of every rotor: what its ESC measures."""
         return list(self._speed), self._pack_currents(self._speed, self._pack_share())
 
-    def filter_inputs(self) -> zip:
-        """(k_t N/(rad/s)^2, settled speed rad/s, speed rad/s) of every rotor: what the plant's
-        thrust filters are set from (sitl/plant/mujoco_plant.py)."""
-        return zip(self._k_t_now, self._settled, self._speed)
+    def filter_inputs(self) -> tuple[list[float], list[float], list[float]]:
+        """(k_t N/(rad/s)^2, settled speed rad/s, speed rad/s), one entry a rotor (read only): what
+        the plant's thrust filters are set from (sitl/plant/mujoco_plant.py)."""
+        return self._k_t_now, self._settled, self._speed
 
     # -- what the rotors do ---------------------------------------------------------------
     @property
