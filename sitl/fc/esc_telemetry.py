@@ -121,8 +121,8 @@ class EscTelemetry:
         if self._noise:
             rpm = (np.array(rpm) / (1.0 + self._rng.normal(0.0, self._af.esc_rpm_noise_fraction, ROTOR_COUNT))).tolist()
         pole_pairs = self._af.motor_pole_pairs
-        rpm = [int(_dshot_rpm(0.0 if 0.0 > r else r, pole_pairs)) for r in rpm]     # max(r, 0): without the call
-        return [_UINT16 if _UINT16 < r else r for r in rpm]
+        # max(r, 0), then min(decoded, _UINT16): without the builtins' calls
+        return [_UINT16 if _UINT16 < (d := int(_dshot_rpm(0.0 if 0.0 > r else r, pole_pairs))) else d for r in rpm]
 
     def _serial_packet(self, i: int, truth: RotorState) -> tuple[int, int, int, int]:
         af = self._af

@@ -209,8 +209,8 @@ class Thrusters:
         """Each ESC's draw from the pack: its motor's current (u - k_e w) / R, at least 0 and 0 when
         not driven, times its share (_pack_share)."""
         k_e, r = self._k_e, self._r
-        currents = [(u - k_e * w) / r if driven else 0.0 for u, w, driven in zip(self._u_v, speed_rad_s, self._driven)]
-        return [s * (0.0 if 0.0 > i else i) for s, i in zip(share, currents)]
+        return [s * (0.0 if 0.0 > (i := (u - k_e * w) / r if driven else 0.0) else i)      # s max(i, 0)
+                for s, u, w, driven in zip(share, self._u_v, speed_rad_s, self._driven)]
 
     def thrust_ceiling_n(self, thrust_max_n: float) -> np.ndarray:
         """What each rotor settles at when commanded `thrust_max_n` now (truth: the fault and the
