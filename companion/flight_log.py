@@ -123,10 +123,15 @@ class FlightLog:
         return self._appended
 
     def record(self, packet: bytes, unix_time_us: int | None = None) -> None:
-        """One packet sent or received (the link's tlog interface)."""
+        """One packet sent or received (the link's tlog interface, m4/mavlink/tlog.py)."""
+        self.record_all([packet], unix_time_us)
+
+    def record_all(self, packets: list[bytes], unix_time_us: int | None = None) -> None:
+        """A datagram's packets, sent or received, at one time (the link's tlog interface)."""
         if self._thread is not None:
-            self._queue.append((self._clock_ns() // 1000 if unix_time_us is None else unix_time_us, bytes(packet)))
-            self._appended += 1
+            t_us = self._clock_ns() // 1000 if unix_time_us is None else unix_time_us
+            self._queue.extend((t_us, bytes(packet)) for packet in packets)
+            self._appended += len(packets)
 
     def observe(self, msgs, since: int, fc_rebooted: bool = False) -> None:
         """The FC's messages of one poll, which began at entry `since`: its reboot, or its HEARTBEAT

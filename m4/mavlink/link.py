@@ -160,8 +160,7 @@ class UdpLink(MavlinkLink):
         except OSError:
             return           # no listener (yet) or a full buffer: UDP drops, as on a radio
         if self.tlog is not None:
-            for packet in packets:
-                self.tlog.record(packet)
+            self.tlog.record_all(packets)
 
     def send_all(self, msgs) -> None:
         """Send several messages in as few datagrams as fit in `DATAGRAM_PAYLOAD_MAX` bytes (as
@@ -231,9 +230,10 @@ class UdpLink(MavlinkLink):
 def parse_bytes(mav: mavlink.MAVLink, data: bytes, tlog: TlogWriter | None) -> tuple[list, list]:
     """(good messages, BAD_DATA of each rejected or garbled packet) in `data`; everything to the tlog."""
     out, bad = [], []
-    for msg in read_datagram(mav, data):
-        if tlog is not None:
-            tlog.record(msg.get_msgbuf() if msg.get_type() != "BAD_DATA" else bytes(msg.data))
+    msgs = read_datagram(mav, data)
+    if tlog is not None and msgs:        # the datagram's packets at one time, as sent (TlogWriter.record_all)
+        tlog.record_all([msg.get_msgbuf() if msg.get_type() != "BAD_DATA" else bytes(msg.data) for msg in msgs])
+    for msg in msgs:
         (bad if msg.get_type() == "BAD_DATA" else out).append(msg)
     return out, bad
 

@@ -26,11 +26,16 @@ class TlogWriter:
         self.records = 0
 
     def record(self, packet: bytes, unix_time_us: int | None = None) -> None:
+        self.record_all([packet], unix_time_us)
+
+    def record_all(self, packets: list[bytes], unix_time_us: int | None = None) -> None:
+        """record() of each packet, all at one time (a datagram's: one clock read and one write)."""
         if unix_time_us is None:
             unix_time_us = time.time_ns() // 1000
+        stamp = TLOG_TIME.pack(unix_time_us & ~0x3)
         with self._lock:
-            self._file.write(TLOG_TIME.pack(unix_time_us & ~0x3) + bytes(packet))
-            self.records += 1
+            self._file.write(b"".join(stamp + bytes(packet) for packet in packets))
+            self.records += len(packets)
 
     def close(self) -> None:
         with self._lock:

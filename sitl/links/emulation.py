@@ -165,8 +165,7 @@ class EmulatedLink(UdpLink):
             return
         self.counters.lost_down += 1
         if self.tlog is not None:
-            for packet in packets:
-                self.tlog.record(packet)
+            self.tlog.record_all(packets)
 
     # -- up: what arrives --------------------------------------------------------------------------
     def receive_from(self, max_datagrams: int | None = None

@@ -118,6 +118,29 @@ def test_packets_and_decisions_land_in_one_tlog_per_flight(tmp_path):
     assert "nmpc_ms" not in {m.name for m in second if m.get_type() == "NAMED_VALUE_FLOAT"}    # no solve ran
 
 
+def test_a_datagram_sent_through_a_link_is_logged_at_one_time(tmp_path):
+    """The link hands a datagram's packets over together (TlogWriter.record_all's interface)."""
+    import socket
+
+    from m4.mavlink.link import UdpLink
+
+    flight_log = FlightLog(LogSettings(dir=tmp_path)).start()
+    clock = iter(range(10**9, 2 * 10**9, 10**6))          # a clock that moves 1 ms at every read
+    flight_log._clock_ns = lambda: next(clock)
+    armed, armed_packet = _heartbeat(True)
+    _poll(flight_log, [armed_packet], [armed])
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rx:
+        rx.bind(("127.0.0.1", 0))
+        link = UdpLink(f"udpout:127.0.0.1:{rx.getsockname()[1]}", 1, COMPANION_COMPONENT_ID, tlog=flight_log)
+        link.send_all([mavlink.MAVLink_m4_setpoint_message(1, 1, t, 20, [14.7] * 4, [0.78] * 4, [0.0] * 4, 0)
+                       for t in (20, 40)])
+        link.close()
+    flight_log.close()
+    setpoints = [m for m in _read(flight_log.files[0]) if m.get_type() == "M4_SETPOINT"]
+    assert [m.time_boot_ms for m in setpoints] == [20, 40]
+    assert setpoints[0]._timestamp == setpoints[1]._timestamp
+
+
 def test_a_long_flight_goes_on_in_new_files_and_the_folder_stays_under_its_cap(tmp_path):
     old = [tmp_path / f"flight-2020010{i}-000000.tlog" for i in range(1, 4)]
     for i, path in enumerate(old):

@@ -60,6 +60,28 @@ def test_tlog_holds_both_directions_and_pymavlink_reads_it(tmp_path):
     assert abs(msgs[0]._timestamp - time.time()) < 60.0
 
 
+def test_a_datagrams_packets_go_to_the_tlog_at_one_time(tmp_path, monkeypatch):
+    """The packets sent in one datagram are recorded together: one clock read and one write (the
+    SITL sends its frame of seven messages as one datagram every control step)."""
+    import m4.mavlink.tlog as tlog_module
+
+    clock = iter(range(10**9, 2 * 10**9, 10**6))          # a clock that moves 1 ms at every read
+    monkeypatch.setattr(tlog_module.time, "time_ns", lambda: next(clock))
+    path = tmp_path / "sent.tlog"
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rx, TlogWriter(path) as tlog:
+        rx.bind(("127.0.0.1", 0))
+        link = UdpLink(f"udpout:127.0.0.1:{rx.getsockname()[1]}", 1, 1, tlog=tlog)
+        link.send_all([mavlink.MAVLink_attitude_message(t, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6) for t in range(3)])
+        link.close()
+        assert tlog.records == 3
+    log = mavutil.mavlink_connection(str(path))
+    msgs = []
+    while (msg := log.recv_match(blocking=False)) is not None:
+        msgs.append(msg)
+    assert [m.time_boot_ms for m in msgs] == [0, 1, 2]
+    assert len({m._timestamp for m in msgs}) == 1
+
+
 def test_send_all_packs_messages_into_datagrams_below_the_mtu():
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rx:
         rx.bind(("127.0.0.1", 0))
