@@ -196,6 +196,7 @@ class FlightController:
         self._applied: ReceivedSetpoint | None = None
         self._applied_at_ms = 0
         self._fast: tuple[ReceivedSetpoint, FastLoop] | None = None    # the fast loop of the setpoint in force
+        self._plan: tuple[ReceivedSetpoint, tuple] | None = None       # and its plan for the gyro meter (_flown_plan)
         self._outbox: list[mavlink.MAVLink_message] = []
         self._measured: _Measured | None = None
         self._commands = CommandHandler(self)
@@ -352,16 +353,24 @@ class FlightController:
         """The rotors' shortfall on our gyro (sitl/fc/gyro_shortfall.py) against the setpoint we
         flew over the last tick (commanded: what we sent the ESCs); the filter runs whoever flies."""
         companion_flies = self.mode not in (None, FcMode.LANDED) and not self._by_failsafe
-        flown = self._applied.command if self._applied is not None and companion_flies else None
         planned, accel, effectiveness = commanded, (0.0, 0.0), None
-        if flown is not None:
-            planned = flown.thrust_n
-            if flown.rate_feedback is not None and now_ms - self._applied_at_ms < self._applied.period_ms:
-                accel = flown.rate_feedback.rates_ref_change_frd_rad_s2[:2]
-            if flown.shortfall_cover is not None:
-                effectiveness = flown.shortfall_cover.effectiveness_frd_rad_s2_per_n
+        if self._applied is not None and companion_flies:
+            planned, change, effectiveness = self._flown_plan()
+            if change is not None and now_ms - self._applied_at_ms < self._applied.period_ms:
+                accel = change
         self._gyro_shortfall_n = self.gyro_shortfall.update(self._gyro(now_ms), commanded, planned, accel,
                                                             effectiveness)
+
+    def _flown_plan(self) -> tuple[list[float], tuple[float, float] | None, np.ndarray | None]:
+        """The setpoint in force as the gyro meter takes it, taken apart once per setpoint: its
+        thrusts, its planned roll and pitch rate change (None: no rate feedback), its effectiveness."""
+        if self._plan is None or self._plan[0] is not self._applied:
+            sp = self._applied.command
+            change = None if sp.rate_feedback is None else tuple(sp.rate_feedback.rates_ref_change_frd_rad_s2[:2].tolist())
+            cover = sp.shortfall_cover
+            self._plan = (self._applied, (sp.thrust_n.tolist(), change,
+                                          None if cover is None else cover.effectiveness_frd_rad_s2_per_n))
+        return self._plan[1]
 
     def _shortfall_n(self) -> list[float] | None:
         """Each rotor's shortfall, the larger of what the ESCs and the gyro measure (None: neither)."""
