@@ -47,7 +47,8 @@ def _dshot_rpm(rpm: float, pole_pairs: int) -> float:
     if not period_us < (_MANTISSA_MAX + 1) << _EXPONENT_MAX:
         return 0.0
     period = int(period_us)
-    exponent = max(period.bit_length() - _MANTISSA_BITS, 0)    # the least that fits the mantissa
+    exponent = period.bit_length() - _MANTISSA_BITS
+    exponent = 0 if 0 > exponent else exponent         # the least that fits the mantissa (max(., 0), no call: every tick)
     decoded_us = (period >> exponent) << exponent
     return _US_PER_MINUTE / (decoded_us * pole_pairs) if decoded_us > 0 else 0.0
 

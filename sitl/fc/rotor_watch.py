@@ -39,7 +39,7 @@ class RotorWatch:
         command = list(map(float, command_n))         # Python floats: four numbers
         speed = list(map(float, speed_rad_s))
         for i in range(ROTOR_COUNT):
-            expected = math.sqrt(max(command[i], 0.0) / self.k_n_s2)
+            expected = math.sqrt((0.0 if 0.0 > command[i] else command[i]) / self.k_n_s2)     # max(., 0), no call: every tick
             if not (command[i] >= self.min_command_n and speed[i] < self.slow_fraction * expected):
                 self._slow_since_ms[i] = None
             elif self._slow_since_ms[i] is None:
