@@ -32,6 +32,8 @@ class FeedbackQp:
         self._model.settings = {"iter_limit": iter_limit}
         self._variables = variables
         self._sense = sense
+        self._shapes = {"hess": (variables, variables), "rows": (sense.size - variables, variables),
+                        "grad": (variables,), "upper": sense.shape, "lower": sense.shape}
         self._set_up = False
         self._flag = -1                          # the last load's DAQP exitflag (< 0: failed or none yet)
         self.iterations = 0                      # the last solve's active-set iterations
@@ -39,6 +41,7 @@ class FeedbackQp:
     def load(self, hess: np.ndarray, rows: np.ndarray, warm: bool) -> None:
         """The Hessian (n, n) and the constraint rows (m, n) of the next solves; warm: start from
         the last solve's active set (else from none)."""
+        self._check(hess=hess, rows=rows)
         if not self._set_up:
             free = np.full(self._sense.size, NO_BOUND)
             self._flag, _ = self._model.setup(hess, np.zeros(self._variables), rows, free, -free, self._sense)
@@ -51,9 +54,19 @@ class FeedbackQp:
     def solve(self, grad: np.ndarray, upper: np.ndarray, lower: np.ndarray) -> tuple[np.ndarray, int, np.ndarray]:
         """(x, exitflag, duals) of the loaded QP with this gradient and these bounds (simple bounds
         first); DAQP's negative exitflag and NaN when the load failed."""
+        if grad.shape != self._shapes["grad"] or upper.shape != self._shapes["upper"] \
+                or lower.shape != self._shapes["lower"]:
+            self._check(grad=grad, upper=upper, lower=lower)
         if self._flag < 0:
             return np.full(self._variables, np.nan), self._flag, np.zeros(self._sense.size)
         self._model.update(f=grad, bupper=upper, blower=lower)
         x, _, flag, info = self._model.solve()
         self.iterations = info["iterations"]
         return x, flag, info["lam"]
+
+    def _check(self, **arrays: np.ndarray) -> None:
+        """A ValueError naming the first array not of its shape: DAQP would take it silently
+        (a Hessian or gradient too small, bounds too short) and solve another QP."""
+        for name, value in arrays.items():
+            if np.shape(value) != self._shapes[name]:
+                raise ValueError(f"FeedbackQp: {name} must have shape {self._shapes[name]}, got {np.shape(value)}")

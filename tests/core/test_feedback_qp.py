@@ -1,6 +1,7 @@
 """The real-time iteration's kept DAQP workspace solves as daqp.solve does on the same QP."""
 
 import daqp
+import pytest
 import numpy as np
 
 from companion.core.feedback_qp import FeedbackQp
@@ -69,4 +70,21 @@ def test_a_hessian_daqp_cannot_factorise_fails_the_solve_and_the_next_load_recov
     assert flag < 0 and np.isnan(x).all()
     fb.load(h, a, warm=False)
     x, flag, _ = fb.solve(f, upper, lower)
+    np.testing.assert_allclose(x, reference(h, a, f, upper, lower)[0], atol=1e-12)
+
+
+def test_an_array_of_the_wrong_shape_is_refused_by_name_where_daqp_would_take_it_silently():
+    h, a, f, upper, lower = qp(0)
+    fb = FeedbackQp(N_VAR, SENSE, iter_limit=1000)
+    fb.load(h, a, warm=False)
+    wrong_loads = {"hess": (h[:6, :6].copy(), a), "rows": (h, a[:3].copy())}
+    for name, (hess, rows) in wrong_loads.items():
+        with pytest.raises(ValueError, match=rf"^FeedbackQp: {name} must have shape \(\d+, 12\), got \(\d+, \d+\)$"):
+            fb.load(hess, rows, warm=True)
+    wrong_solves = {"grad": (f[:5].copy(), upper, lower), "upper": (f, upper[:10].copy(), lower),
+                    "lower": (f, upper, lower[:10].copy())}
+    for name, args in wrong_solves.items():
+        with pytest.raises(ValueError, match=rf"^FeedbackQp: {name} must have shape \(\d+,\), got \(\d+,\)$"):
+            fb.solve(*args)
+    x, flag, _ = fb.solve(f, upper, lower)                       # the workspace still holds the right QP
     np.testing.assert_allclose(x, reference(h, a, f, upper, lower)[0], atol=1e-12)
