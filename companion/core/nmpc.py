@@ -89,6 +89,7 @@ class Nmpc:
             period_s = config.dt_s * config.warm_start_shift
             self._advance = BufferedFunction(build(rom.rk4_step(self.rom.f, period_s, config.rk4_substeps)))
         self._prepared: PreparedQp | None = None
+        self._bounds: tuple[bytes, tuple[np.ndarray, np.ndarray]] | None = None   # the last input_bounds, by its argument
         self._planned: tuple[np.ndarray, np.ndarray] | None = None   # (x0, u0) of the last plan
         self.prepare_ms = 0.0            # how long the last `prepare` took
 
@@ -140,10 +141,15 @@ class Nmpc:
         self._planned = None
 
     def input_bounds(self, thrust_bound_n) -> tuple[np.ndarray, np.ndarray]:
-        """(lo, hi) of one stage's input; a non-finite thrust bound means the airframe's maximum."""
-        lo = np.concatenate([np.full(ROTOR_COUNT, self.af.thrust_min_n), self._accel_lo])
-        hi = np.concatenate([thrust_bounds(self.af, thrust_bound_n), self._accel_hi])
-        return lo, hi
+        """(lo, hi) of one stage's input (read-only); a non-finite thrust bound means the airframe's
+        maximum. Kept from the last call with the same thrust bounds: they change at a fault."""
+        key = np.asarray(thrust_bound_n, dtype=float).tobytes()
+        if self._bounds is None or self._bounds[0] != key:
+            lo = np.concatenate([np.full(ROTOR_COUNT, self.af.thrust_min_n), self._accel_lo])
+            hi = np.concatenate([thrust_bounds(self.af, thrust_bound_n), self._accel_hi])
+            lo.flags.writeable = hi.flags.writeable = False
+            self._bounds = (key, (lo, hi))
+        return self._bounds[1]
 
     def targets(self, x0, x_ref, disturbance) -> tuple[np.ndarray, np.ndarray]:
         """(state reference (N+1, 20), input reference (N, 8)) the cost tracks: x_ref with the
@@ -206,7 +212,7 @@ class Nmpc:
         if x0.size != NX or x_ref.shape != (n + 1, NX):
             raise ValueError(f"x0 must have {NX} entries and x_ref shape ({n + 1}, {NX}); "
                              f"got {x0.size} and {x_ref.shape}")
-        if not (np.all(np.isfinite(x0)) and np.all(np.isfinite(x_ref))):
+        if not (np.isfinite(x0).all() and np.isfinite(x_ref).all()):
             return self._fallback(x0, lo, hi, "invalid_input", 0, t0)
         if self.config.scheme == "rti":
             return self._rti(x0, x_ref, d, lo, hi, t0)
@@ -236,7 +242,7 @@ class Nmpc:
         step = self._step(*self._feedback_qp.solve(prep.gradient(xs, ref, u_ref), upper, lower))
         if step is None:
             return self._fallback(x0, lo, hi, "qp_failed", 1, t0)
-        us = np.clip(prep.us + step, lo, hi)
+        us = np.minimum(np.maximum(prep.us + step, lo), hi)
         xs[1:] += (prep.gamma @ step.ravel()).reshape(n, NX)
         if not np.isfinite(xs).all():
             return self._fallback(x0, lo, hi, "qp_failed", 1, t0)
@@ -257,9 +263,22 @@ class Nmpc:
 
     def _qp_bounds(self, x0, xs, us, lo, hi) -> tuple[np.ndarray, np.ndarray]:
         """(upper, lower) of the QP on the step dU from us: the input bounds (lo, hi: one stage's, at
-        every stage) first, then the state rows at xs."""
-        row_lo, row_hi = self._row_bounds(x0, xs, us)
-        return np.concatenate([(hi - us).ravel(), row_hi]), np.concatenate([(lo - us).ravel(), row_lo])
+        every stage) first, then the state rows at xs (the first period's rows from x0 and us)."""
+        upper, lower = np.empty(self._sense.size), np.empty(self._sense.size)
+        np.subtract(hi, us, out=upper[:us.size].reshape(us.shape))
+        np.subtract(lo, us, out=lower[:us.size].reshape(us.shape))
+        rows = self.rows
+        at, end = us.size, us.size + rows.count
+        c = rows.values(xs)
+        np.subtract(rows.lo, c, out=lower[at:end])
+        np.subtract(rows.hi, c, out=upper[at:end])
+        if self.first_rows is not None:
+            c0 = self.first_rows.values(x0, us)
+            np.subtract(self.first_rows.lo, c0, out=lower[end:])
+            np.subtract(self.first_rows.hi, c0, out=upper[end:])
+        np.maximum(lower[at:], -NO_BOUND, out=lower[at:])
+        np.minimum(upper[at:], NO_BOUND, out=upper[at:])
+        return upper, lower
 
     def _step(self, step, flag, duals) -> np.ndarray | None:
         """DAQP's solution as the step dU (N, 8), its duals kept to warm-start the next QP; None
@@ -284,16 +303,6 @@ class Nmpc:
         if self.first_rows is not None:
             rows[self.rows.count:] = self.first_rows.jac
         return rows
-
-    def _row_bounds(self, x0, xs, us):
-        """(lower, upper) of the QP's general constraints on the step dU, at the states xs."""
-        c = self.rows.values(xs)
-        lower, upper = self.rows.lo - c, self.rows.hi - c
-        if self.first_rows is not None:
-            c0 = self.first_rows.values(x0, us)
-            lower = np.concatenate([lower, self.first_rows.lo - c0])
-            upper = np.concatenate([upper, self.first_rows.hi - c0])
-        return np.maximum(lower, -NO_BOUND), np.minimum(upper, NO_BOUND)
 
     def _initial_guess(self, u_ref, lo, hi) -> np.ndarray:
         if self._guess is None:

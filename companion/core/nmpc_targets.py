@@ -12,6 +12,8 @@ the horizon, that direction gives roll and pitch at every stage.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from m4.airframe import ROTOR_COUNT, Airframe
@@ -32,15 +34,15 @@ def hover_targets(af: Airframe, x0: np.ndarray, x_ref: np.ndarray, d: np.ndarray
     horizon = x_ref.shape[0] - 1
     ref = np.array(x_ref, dtype=float)
     ref[:, rom.HIP] = hip_rad
-    need = np.array([0.0, 0.0, af.total_mass_kg * af.gravity_m_s2]) + d[:3]   # what the thrust must cancel
-    total = float(np.linalg.norm(need))
-    body_z = need / total if total > 1e-9 else np.array([0.0, 0.0, 1.0])
+    need = d[:3] + (0.0, 0.0, af.total_mass_kg * af.gravity_m_s2)   # what the thrust must cancel
+    total = math.sqrt(need.dot(need))                                 # np.linalg.norm's own sum
+    z_n, z_e, z_d = (need / total).tolist() if total > 1e-9 else (0.0, 0.0, 1.0)    # body z
     yaw = x0[YAW] + x0[YAW_RATE] * dt_s * np.arange(horizon + 1)
     c, s = np.cos(yaw), np.sin(yaw)
-    along = c * body_z[0] + s * body_z[1]            # body z in the yawed frame: (s_p c_r, -s_r, c_p c_r)
-    across = -s * body_z[0] + c * body_z[1]
-    ref[:, ROLL] = -np.arcsin(np.clip(across, -1.0, 1.0))
-    ref[:, PITCH] = np.arctan2(along, body_z[2])
+    along = c * z_n + s * z_e                        # body z in the yawed frame: (s_p c_r, -s_r, c_p c_r)
+    across = -s * z_n + c * z_e
+    ref[:, ROLL] = -np.arcsin(np.minimum(np.maximum(across, -1.0), 1.0))
+    ref[:, PITCH] = np.arctan2(along, z_d)
     u_ref = np.zeros((horizon, rom.NU))
     u_ref[:, rom.THRUST] = total / ROTOR_COUNT
     return ref, u_ref

@@ -51,9 +51,13 @@ class PreparedQp:
         linearisation would carry into every predicted state."""
         xs = self.xs.copy()
         xs[0] = x0
-        dx0 = x0 - self.x0
-        dx0[_YAW] -= 2 * np.pi * np.round(dx0[_YAW] / (2 * np.pi))     # exactly 0 taken off when no wrap
-        xs[1:] += (self.sens @ np.concatenate([dx0, d - self.d])).reshape(-1, NX)
+        moved = np.empty(self.sens.shape[1])                # (dx0, dd)
+        dx0 = np.subtract(x0, self.x0, out=moved[:NX])
+        np.subtract(d, self.d, out=moved[NX:])
+        yaw_change = float(dx0[_YAW])
+        if abs(yaw_change) > np.pi:                           # within +-pi it rounds to no turn
+            dx0[_YAW] = yaw_change - 2 * np.pi * round(yaw_change / (2 * np.pi))
+        xs[1:] += (self.sens @ moved).reshape(-1, NX)
         return xs
 
     def gradient(self, xs: np.ndarray, ref: np.ndarray, u_ref: np.ndarray) -> np.ndarray:
