@@ -335,11 +335,12 @@ class Controller:
         x_plan = self.predictor.predict(x, time_s, lead_s, self.sent, d, fault.thrust_bound_n)
         x_ref = self._reference(time_s, lead_s, c.horizon, c.dt_s)
         res = self.nmpc.solve(x_plan, x_ref, fault.thrust_bound_n, d)
-        sp = self._setpoint(x_plan, res, fault.thrust_bound_n)
+        checked = self._setpoint(x_plan, res, fault.thrust_bound_n)
         x_next = res.x_pred[1] if res.ok else x_plan          # a failed solve plans no change of the rates
-        sp = replace(sp, thrust_n=self.ramp.limit(sp.thrust_n, fault.thrust_bound_n),
-                     rate_feedback=self.rate_feedback.feedback(x_plan, x_next, c.dt_s, fault.thrust_bound_n),
-                     shortfall_cover=self.rate_feedback.cover(x_plan[rom.HIP], fault.state is FaultState.CONFIRMED))
+        sp = Setpoint(thrust_n=self.ramp.limit(checked.thrust_n, fault.thrust_bound_n), hip_rad=checked.hip_rad,
+                      hip_rate_rad_s=checked.hip_rate_rad_s,
+                      rate_feedback=self.rate_feedback.feedback(x_plan, x_next, c.dt_s, fault.thrust_bound_n),
+                      shortfall_cover=self.rate_feedback.cover(x_plan[rom.HIP], fault.state is FaultState.CONFIRMED))
         self.sent.add(SentCommand(time_s, x, np.concatenate([sp.thrust_n, res.u[rom.HIP_ACCEL]]), sp.rate_feedback,
                                   sp.shortfall_cover))
         self._solved = (time_s, lead_s, fault.thrust_bound_n, d, fault.state is FaultState.CONFIRMED)
@@ -415,8 +416,11 @@ class Controller:
         beyond twice the airframe's maximum) as NaN: unknown."""
         if thrust_n is None:
             return None
-        t = np.asarray(thrust_n, dtype=float).reshape(ROTOR_COUNT)
-        return np.where(np.isfinite(t) & (t >= 0.0) & (t <= 2.0 * self.af.thrust_max_n), t, np.nan)
+        t = np.array(thrust_n, dtype=float).reshape(ROTOR_COUNT)
+        most = 2.0 * self.af.thrust_max_n
+        if all(0.0 <= v <= most for v in t.tolist()):       # four floats at every step: cheaper than numpy's
+            return t
+        return np.where((t >= 0.0) & (t <= most), t, np.nan)     # false for NaN and inf
 
     def _consecutive(self, time_s: float) -> bool:
         newest = self.sent.newest
@@ -522,8 +526,9 @@ class Controller:
         accel = res.u[rom.HIP_ACCEL]
         planned = x[rom.HIP] + x[rom.HIP_RATE] * tau + 0.5 * accel * tau**2
         sp = safe_setpoint(af, res.u[rom.THRUST], x[rom.HIP], (planned - x[rom.HIP]) / tau, thrust_bound_n, x[rom.HIP])
-        next_rate = (x[rom.HIP_RATE] + accel * tau).clip(-af.hip_rate_max_rad_s, af.hip_rate_max_rad_s)
-        self._hip_goal = HipGoal((sp.hip_rad + sp.hip_rate_rad_s * tau).clip(af.hip_min_rad, af.hip_max_rad),
+        next_rate = np.minimum(np.maximum(x[rom.HIP_RATE] + accel * tau, -af.hip_rate_max_rad_s), af.hip_rate_max_rad_s)
+        self._hip_goal = HipGoal(np.minimum(np.maximum(sp.hip_rad + sp.hip_rate_rad_s * tau, af.hip_min_rad),
+                                            af.hip_max_rad),
                                  np.where(np.isfinite(next_rate), next_rate, 0.0))
         return sp
 
