@@ -40,7 +40,10 @@ class BufferedFunction:
         """Each output's structural nonzeros in column-major order: the buffers themselves,
         overwritten by the next call."""
         for buffer, value in zip(self._args, args, strict=True):
-            buffer[:] = np.ravel(value, order="F")
+            if isinstance(value, np.ndarray) and value.ndim < 2:
+                buffer[:] = value                          # already in order: no column-major copy first
+            else:
+                buffer[:] = np.ravel(value, order="F")
         self._evaluate()
         if self._buffer.ret() != 0:
             for arr in self._results:

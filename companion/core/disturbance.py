@@ -79,5 +79,5 @@ class DisturbanceEstimator:
         correction = self._correction.evaluate(x_prev, u_applied, self.estimate, x_new[_MEASURED])[0]
         if np.isfinite(correction).all():             # else a state too wild for the model to step
             step = self.gain * min(max(float(gain_scale), 0.0), 1.0)
-            self.estimate = (self.estimate + step * correction).clip(self.lower, self.upper)
+            self.estimate = np.minimum(np.maximum(self.estimate + step * correction, self.lower), self.upper)
         return self.estimate.copy()

@@ -63,18 +63,24 @@ class UpsetDetector:
             return self.crash
         x = np.asarray(x, dtype=float)
         c = self._c
-        height_m = self._ground_z - float(x[rom_layout.P][2])   # above the standing height
+        height_m = self._ground_z - float(x[rom_layout.P.start + 2])   # above the standing height
         self._airborne |= height_m > c.airborne_margin_m
-        speed = float(np.linalg.norm(x[rom_layout.V]))
-        held = {"upside down": (tilt_rad(x[rom_layout.EULER]) > c.tilt_max_rad, c.upside_down_s),
-                "on the ground": (self._airborne and not landing and height_m < c.ground_margin_m
-                                  and speed < c.still_speed_m_s, c.ground_s)}
-        for reason, (now_true, needed_s) in held.items():
-            if not now_true:
-                self._since_s.pop(reason, None)
-                continue
-            since = self._since_s.setdefault(reason, time_s)
-            if time_s - since >= needed_s - 1e-9:
-                self.crash, self.crash_s = reason, time_s
-                return reason
+        if self._held("upside down", tilt_rad(x[rom_layout.EULER]) > c.tilt_max_rad, c.upside_down_s, time_s):
+            return self.crash
+        v = x[rom_layout.V]
+        on_ground = (self._airborne and not landing and height_m < c.ground_margin_m
+                     and math.sqrt(v.dot(v)) < c.still_speed_m_s)
+        if self._held("on the ground", on_ground, c.ground_s, time_s):
+            return self.crash
         return None
+
+    def _held(self, reason: str, now_true: bool, needed_s: float, time_s: float) -> bool:
+        """Whether the condition `reason`, true now or not, has held needed_s on (the crash then latches)."""
+        if not now_true:
+            self._since_s.pop(reason, None)
+            return False
+        since = self._since_s.setdefault(reason, time_s)
+        if time_s - since >= needed_s - 1e-9:
+            self.crash, self.crash_s = reason, time_s
+            return True
+        return False

@@ -1,8 +1,8 @@
 """The real-time iteration's kept DAQP workspace solves as daqp.solve does on the same QP."""
 
 import daqp
-import pytest
 import numpy as np
+import pytest
 
 from companion.core.feedback_qp import FeedbackQp
 
@@ -86,5 +86,5 @@ def test_an_array_of_the_wrong_shape_is_refused_by_name_where_daqp_would_take_it
     for name, args in wrong_solves.items():
         with pytest.raises(ValueError, match=rf"^FeedbackQp: {name} must have shape \(\d+,\), got \(\d+,\)$"):
             fb.solve(*args)
-    x, flag, _ = fb.solve(f, upper, lower)                       # the workspace still holds the right QP
+    x, _, _ = fb.solve(f, upper, lower)                          # the workspace still holds the right QP
     np.testing.assert_allclose(x, reference(h, a, f, upper, lower)[0], atol=1e-12)
