@@ -90,6 +90,7 @@ class Nmpc:
             self._advance = BufferedFunction(build(rom.rk4_step(self.rom.f, period_s, config.rk4_substeps)))
         self._prepared: PreparedQp | None = None
         self._bounds: tuple[bytes, tuple[np.ndarray, np.ndarray]] | None = None   # the last input_bounds, by its argument
+        self._fixed: tuple[np.ndarray, ...] | None = None     # _fixed_bounds: (lo, hi, upper, lower)
         self._planned: tuple[np.ndarray, np.ndarray] | None = None   # (x0, u0) of the last plan
         self.prepare_ms = 0.0            # how long the last `prepare` took
 
@@ -264,21 +265,23 @@ class Nmpc:
     def _qp_bounds(self, x0, xs, us, lo, hi) -> tuple[np.ndarray, np.ndarray]:
         """(upper, lower) of the QP on the step dU from us: the input bounds (lo, hi: one stage's, at
         every stage) first, then the state rows at xs (the first period's rows from x0 and us)."""
-        upper, lower = np.empty(self._sense.size), np.empty(self._sense.size)
-        np.subtract(hi, us, out=upper[:us.size].reshape(us.shape))
-        np.subtract(lo, us, out=lower[:us.size].reshape(us.shape))
-        rows = self.rows
-        at, end = us.size, us.size + rows.count
-        c = rows.values(xs)
-        np.subtract(rows.lo, c, out=lower[at:end])
-        np.subtract(rows.hi, c, out=upper[at:end])
+        upper, lower = self._fixed_bounds(lo, hi)
+        parts = [us.ravel(), self.rows.values(xs)]
         if self.first_rows is not None:
-            c0 = self.first_rows.values(x0, us)
-            np.subtract(self.first_rows.lo, c0, out=lower[end:])
-            np.subtract(self.first_rows.hi, c0, out=upper[end:])
-        np.maximum(lower[at:], -NO_BOUND, out=lower[at:])
-        np.minimum(upper[at:], NO_BOUND, out=upper[at:])
-        return upper, lower
+            parts.append(self.first_rows.values(x0, us))
+        moved = np.concatenate(parts)              # what each bound is taken from: inputs, then rows
+        return np.minimum(upper - moved, NO_BOUND), np.maximum(lower - moved, -NO_BOUND)   # no-ops on the inputs'
+
+    def _fixed_bounds(self, lo, hi) -> tuple[np.ndarray, np.ndarray]:
+        """(upper, lower) of the QP's inputs at every stage, then of its rows, before the inputs and
+        rows are taken off them; kept while input_bounds hands out the same lo and hi."""
+        kept = self._fixed
+        if kept is None or kept[0] is not lo or kept[1] is not hi:
+            n, first = self.config.horizon, self.first_rows
+            upper = np.concatenate([np.tile(hi, n), self.rows.hi, *(() if first is None else (first.hi,))])
+            lower = np.concatenate([np.tile(lo, n), self.rows.lo, *(() if first is None else (first.lo,))])
+            self._fixed = kept = (lo, hi, upper, lower)
+        return kept[2], kept[3]
 
     def _step(self, step, flag, duals) -> np.ndarray | None:
         """DAQP's solution as the step dU (N, 8), its duals kept to warm-start the next QP; None

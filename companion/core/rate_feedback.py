@@ -37,6 +37,8 @@ Pure logic: no clock, no I/O.
 
 from __future__ import annotations
 
+import math
+
 import casadi as ca
 import numpy as np
 
@@ -147,8 +149,9 @@ class RateFeedbackDesign:
         if gain is None:
             return None
         start, after = np.asarray(x_start)[rom.RATES], np.asarray(x_next)[rom.RATES]
-        change = (after - start) / dt_s
-        if not (np.isfinite(start).all() and np.isfinite(change).all()):
+        planned = np.empty((2, start.size), dtype=np.float32)            # as MAVLink carries them
+        planned[0], planned[1] = start, (after - start) / dt_s
+        if not all(map(math.isfinite, planned.ravel().tolist())):         # six floats: cheaper than numpy's all
             return None
-        f32 = lambda v: np.asarray(v, dtype=np.float32).astype(float)     # as MAVLink carries them
-        return RateFeedback(f32(start), f32(change), f32(gain))
+        start_f32, change_f32 = planned.astype(float)
+        return RateFeedback(start_f32, change_f32, gain.astype(np.float32).astype(float))
