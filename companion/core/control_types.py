@@ -13,6 +13,8 @@ feed and the tests share with the controller without loading a solver.
 
 from __future__ import annotations
 
+import math
+from array import array
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -90,51 +92,53 @@ def safe_setpoint(af: Airframe, thrust_n, hip_rad, hip_rate_rad_s, thrust_bound_
                   thrust_cut: bool = False) -> Setpoint:
     """A setpoint that is finite and within every bound, whatever goes in (NaN, inf, out of range).
 
-    The thrusts, hips and rates are checked together as one array of twelve (the step answers
-    with it: one pass of each check instead of three)."""
+    Its twelve values are checked as Python floats (the step answers with them: a dozen float
+    comparisons cost less than numpy's calls on arrays of four); min and max keep the first of
+    two equal values, as numpy's minimum and maximum do."""
     r = ROTOR_COUNT
-    values = np.concatenate([np.reshape(thrust_n, r), np.reshape(hip_rad, r), np.reshape(hip_rate_rad_s, r)],
-                            dtype=float)
-    if not np.isfinite(values).all():
-        values = np.where(np.isfinite(values), values, _fallback_values(af, measured_hip_rad))
-    lo, hi = np.empty(3 * r), np.empty(3 * r)
-    lo[:r], lo[r:2 * r], lo[2 * r:] = af.thrust_min_n, af.hip_min_rad, -af.hip_rate_max_rad_s
-    hi[:r], hi[r:2 * r], hi[2 * r:] = thrust_bounds(af, thrust_bound_n), af.hip_max_rad, af.hip_rate_max_rad_s
-    values = np.minimum(np.maximum(values, lo), hi)
-    if thrust_cut:
-        values[:r] = lo[:r] = 0.0
+    thrust, hip, rate = (np.asarray(v, dtype=float).reshape(r).tolist() for v in (thrust_n, hip_rad, hip_rate_rad_s))
+    if not all(map(math.isfinite, thrust + hip + rate)):
+        thrust, hip, rate = _finite(af, thrust, hip, rate, measured_hip_rad)
+    t_min, hip_min, hip_max, rate_max = af.thrust_min_n, af.hip_min_rad, af.hip_max_rad, af.hip_rate_max_rad_s
+    bound = thrust_bounds(af, thrust_bound_n).tolist()
+    thrust = [0.0] * r if thrust_cut else [min(max(t, t_min), b) for t, b in zip(thrust, bound, strict=True)]
+    hip = [min(max(h, hip_min), hip_max) for h in hip]
+    rate = [min(max(v, -rate_max), rate_max) for v in rate]
     for pair in af.same_side_pairs:
-        excess = sum(float(values[r + i]) for i in pair) - af.same_side_sum_max_rad
+        excess = sum(hip[i] for i in pair) - af.same_side_sum_max_rad
         if excess > 0:
             for i in pair:
-                values[r + i] = max(float(values[r + i]) - excess / 2, af.hip_min_rad)
+                hip[i] = max(hip[i] - excess / 2, hip_min)
     # As float32: thrusts within [thrust_min (0 when cut), bound], the hips at most themselves,
     # the rates within +-hip_rate_max.
-    hi[r:2 * r] = values[r:2 * r]
-    sent = _float32_within(values, lo, hi)
+    values = thrust + hip + rate
+    lo = [0.0 if thrust_cut else t_min] * r + [hip_min] * r + [-rate_max] * r
+    hi = bound + hip + [rate_max] * r
+    sent = np.array(_float32_within(values, lo, hi))
     return Setpoint(thrust_n=sent[:r], hip_rad=sent[r:2 * r], hip_rate_rad_s=sent[2 * r:], thrust_cut=thrust_cut)
 
 
-def _fallback_values(af: Airframe, measured_hip_rad) -> np.ndarray:
-    """(12,) what stands in for a value that is not finite: hover thrust, the measured hip (else
-    the nominal one), no rate."""
-    r = ROTOR_COUNT
-    out = np.zeros(3 * r)
-    out[:r], out[r:2 * r] = af.hover_thrust_per_rotor_n, af.nominal_hip_rad
+def _finite(af: Airframe, thrust: list[float], hip: list[float], rate: list[float],
+            measured_hip_rad) -> tuple[list[float], list[float], list[float]]:
+    """What stands in for a value that is not finite: hover thrust, the measured hip (else the
+    nominal one), no rate."""
+    nominal = [af.nominal_hip_rad] * ROTOR_COUNT
     if measured_hip_rad is not None:
-        measured = np.reshape(np.asarray(measured_hip_rad, dtype=float), r)
-        out[r:2 * r] = np.where(np.isfinite(measured), measured, af.nominal_hip_rad)
-    return out
+        measured = np.asarray(measured_hip_rad, dtype=float).reshape(ROTOR_COUNT).tolist()
+        nominal = [m if math.isfinite(m) else n for m, n in zip(measured, nominal, strict=True)]
+    return ([t if math.isfinite(t) else af.hover_thrust_per_rotor_n for t in thrust],
+            [h if math.isfinite(h) else n for h, n in zip(hip, nominal, strict=True)],
+            [v if math.isfinite(v) else 0.0 for v in rate])
 
 
-def _float32_within(values: np.ndarray, lo, hi) -> np.ndarray:
+def _float32_within(values: list[float], lo: list[float], hi: list[float]) -> list[float]:
     """Values that stay within [lo, hi] as the float32 MAVLink carries (rounding to the nearest
     float32 may step past a bound such as pi/2); the hips pass hi = themselves, so they never
     round up and a pair's sum stays within its bound."""
-    v32 = values.astype(np.float32)
-    sent = v32.astype(float)
-    if (sent <= hi).all() and (sent >= lo).all():
-        return sent
-    v32 = np.where(sent > hi, np.nextafter(v32, _FLOAT32_DOWN), v32)
-    v32 = np.where(v32.astype(float) < lo, np.nextafter(v32, _FLOAT32_UP), v32)
-    return v32.astype(float)
+    sent = array("f", values).tolist()               # each the nearest float32, as numpy's astype rounds
+    for i, (v, low, high) in enumerate(zip(sent, lo, hi, strict=True)):
+        if v > high:
+            sent[i] = v = float(np.nextafter(np.float32(v), _FLOAT32_DOWN))
+        if v < low:
+            sent[i] = float(np.nextafter(np.float32(v), _FLOAT32_UP))
+    return sent
