@@ -38,10 +38,20 @@ class MissionReference(MissionPlan):
         config.validate()
         super().__init__(mission, start_ned_m, af, config.accel_max_m_s2, t0_s)
         self._af = af
+        self._kept: tuple[tuple, np.ndarray] | None = None      # the last rows made, by their arguments and plan
 
     def reference(self, t_s: float, horizon: int, dt_s: float) -> np.ndarray:
-        """(horizon + 1, rom.NX) ROM states at t_s, t_s + dt_s, ..., t_s + horizon dt_s."""
-        return reference_rows(self.state, self._af, t_s, horizon, dt_s)
+        """(horizon + 1, rom.NX) ROM states at t_s, t_s + dt_s, ..., t_s + horizon dt_s (read-only).
+
+        The last rows made are kept for the same arguments and plan (a fault's hold or a landing
+        makes a new plan): the controller's preparation makes the next step's rows, and that step
+        asks for them again whenever the FC's clock has moved one period on to the last bit."""
+        key = (t_s, horizon, dt_s, self._plan)
+        if self._kept is None or self._kept[0] != key:
+            rows = reference_rows(self.state, self._af, t_s, horizon, dt_s)
+            rows.flags.writeable = False
+            self._kept = (key, rows)
+        return self._kept[1]
 
 
 def reference_rows(state: Callable[[float], tuple[np.ndarray, np.ndarray]], af: Airframe, t_s: float,
