@@ -101,6 +101,18 @@ def test_hold_on_fault_brakes_from_the_measured_position_then_holds():
     assert v_mid[0] == pytest.approx(3.0 - A_MAX * 0.5)
 
 
+def test_the_rows_asked_for_again_are_the_ones_kept_until_the_plan_changes():
+    ref = MissionReference(mission(((12.0, 0.0, -2.0), 3.0, 0.0)), START, AF)
+    rows = ref.reference(2.0, 5, 0.1)
+    assert ref.reference(2.0, 5, 0.1) is rows and not rows.flags.writeable      # made once, shared read-only
+    assert ref.reference(2.0, 4, 0.1).shape == (5, rom.NX)                        # other arguments: made anew
+    before = ref.reference(2.0, 5, 0.1)
+    ref.fault_detected(2.0, np.array([4.0, 0.3, -1.8]))                           # a new plan: the hold's rows
+    held = ref.reference(2.0, 5, 0.1)
+    assert held is not before and np.allclose(held[0, rom.P], [4.0, 0.3, -1.8])
+    assert not np.allclose(held[:, rom.P], before[:, rom.P])
+
+
 def test_continue_on_fault_keeps_the_mission():
     ref = MissionReference(mission(((12.0, 0.0, -2.0), 3.0, 0.0), on_fault="continue"), START, AF)
     before = ref.reference(2.0, 40, 0.1)
