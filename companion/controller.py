@@ -66,6 +66,7 @@ the robot.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
@@ -146,6 +147,12 @@ class ControlStep:
     crash_now: bool = False       # the step at which the crash was recognised (announce it)
     took_over: bool = False       # the step that took control from the FC's own controller
     followed: FcMode | None = None  # the FC's mode this step began to follow (None: no change)
+
+
+def _drifted(goal_rad: list[float], hip_rad: list[float]) -> bool:
+    """Whether the hip goal is not finite or has drifted from the measured joints by more than
+    HIP_RESYNC_RAD (the goal then restarts from the joints)."""
+    return not all(map(math.isfinite, goal_rad)) or max(abs(g - h) for g, h in zip(goal_rad, hip_rad)) > HIP_RESYNC_RAD
 
 
 @dataclass(frozen=True)
@@ -511,7 +518,7 @@ class Controller:
         """The NMPC's state: measured, but the hip goal in place of the measured joints."""
         hip = x_measured[rom.HIP]
         goal = self._hip_goal
-        if goal is None or not np.isfinite(goal.angle_rad).all() or np.abs(goal.angle_rad - hip).max() > HIP_RESYNC_RAD:
+        if goal is None or _drifted(goal.angle_rad.tolist(), hip.tolist()):
             fixed = self.nmpc.config.fixed_hip_rad        # the fixed-posture variant: the legs go there
             start = hip.clip(self.af.hip_min_rad, self.af.hip_max_rad) if fixed is None else np.full(ROTOR_COUNT, fixed)
             goal = self._hip_goal = HipGoal(start, np.zeros(ROTOR_COUNT))
@@ -522,14 +529,15 @@ class Controller:
     def _setpoint(self, x: np.ndarray, res: NmpcResult, thrust_bound_n) -> Setpoint:
         """Thrusts now; the hips from the goal now to the planned goal one period later (the FC's
         servo moves its goal from the angle at the rate, so the rate is the chord's)."""
-        af, tau = self.af, self.period_s
-        accel = res.u[rom.HIP_ACCEL]
-        planned = x[rom.HIP] + x[rom.HIP_RATE] * tau + 0.5 * accel * tau**2
-        sp = safe_setpoint(af, res.u[rom.THRUST], x[rom.HIP], (planned - x[rom.HIP]) / tau, thrust_bound_n, x[rom.HIP])
-        next_rate = np.minimum(np.maximum(x[rom.HIP_RATE] + accel * tau, -af.hip_rate_max_rad_s), af.hip_rate_max_rad_s)
-        self._hip_goal = HipGoal(np.minimum(np.maximum(sp.hip_rad + sp.hip_rate_rad_s * tau, af.hip_min_rad),
-                                            af.hip_max_rad),
-                                 np.where(np.isfinite(next_rate), next_rate, 0.0))
+        af, tau = self.af, self.period_s                  # four hips: Python floats, cheaper than numpy's calls
+        hip, rate, accel = x[rom.HIP].tolist(), x[rom.HIP_RATE].tolist(), res.u[rom.HIP_ACCEL].tolist()
+        chord = [(h + r * tau + 0.5 * a * tau**2 - h) / tau for h, r, a in zip(hip, rate, accel, strict=True)]
+        sp = safe_setpoint(af, res.u[rom.THRUST], hip, chord, thrust_bound_n, hip)
+        rate_max = af.hip_rate_max_rad_s
+        next_rate = [min(max(r + a * tau, -rate_max), rate_max) for r, a in zip(rate, accel, strict=True)]
+        goal = [min(max(h + r * tau, af.hip_min_rad), af.hip_max_rad)
+                for h, r in zip(sp.hip_rad.tolist(), sp.hip_rate_rad_s.tolist(), strict=True)]
+        self._hip_goal = HipGoal(np.array(goal), np.array([r if math.isfinite(r) else 0.0 for r in next_rate]))
         return sp
 
     def _cut(self, time_s, x, fault, confirmed_now, d, crash: str | None = None, crash_now: bool = False) -> ControlStep:
