@@ -73,16 +73,20 @@ def sensitivities(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return gamma
 
 
-def parameter_sensitivities(a: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """(N*20, 26): row block k is d x_{k+1} / d(x0, d), from A_k = a[k] and D_k = c[k]."""
+def sensitivities_and_parameters(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`sensitivities`' Gamma (N*20, N*8) and (N*20, 26): row block k is d x_{k+1} / d(x0, d),
+    from A_k = a[k], B_k = b[k] and D_k = c[k], in one pass: row block k of [Gamma | P] is A_k
+    times block k-1, with B_k and D_k added in their columns (block 0: [B_0 0 | A_0 D_0])."""
     horizon = a.shape[0]
-    sens = np.zeros((horizon * NX, NX + ND))
-    prev = np.hstack([np.eye(NX), np.zeros((NX, ND))])
-    for k in range(horizon):
-        block = a[k] @ prev
-        block[:, NX:] += c[k]
-        sens[k * NX:(k + 1) * NX] = prev = block
-    return sens
+    inputs = horizon * NU
+    both = np.zeros((horizon * NX, inputs + NX + ND))
+    both[:NX, :NU], both[:NX, inputs:inputs + NX], both[:NX, inputs + NX:] = b[0], a[0], c[0]
+    for k in range(1, horizon):
+        rows = slice(k * NX, (k + 1) * NX)
+        np.matmul(a[k], both[rows.start - NX:rows.start], out=both[rows])
+        both[rows, k * NU:(k + 1) * NU] = b[k]          # block k-1 has no part of input k: exact
+        both[rows, inputs + NX:] += c[k]
+    return both[:, :inputs], both[:, inputs:]
 
 
 class TrackingCost:

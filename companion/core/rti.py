@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.core.condensing import Linearisation, TrackingCost, parameter_sensitivities, sensitivities
+from companion.core.condensing import Linearisation, TrackingCost, sensitivities_and_parameters
 from companion.core.rom import EULER, NX
 
 _YAW = EULER.stop - 1
@@ -75,10 +75,10 @@ def prepare_qp(rollout: Linearisation, cost: TrackingCost, x0: np.ndarray, us: n
     xs, a, b, c = rollout(x0, us, d)
     if not (np.isfinite(xs).all() and np.isfinite(a).all() and np.isfinite(b).all() and np.isfinite(c).all()):
         return None
-    gamma = sensitivities(a, b)
+    gamma, sens = sensitivities_and_parameters(a, b, c)
     hess, grad, grad_state = cost.gauss_newton_parts(gamma, xs, us, ref, u_ref)
     diagonal = np.diag_indices(hess.shape[0])
     hess[diagonal] += damping_rel * hess[diagonal].max()
     return PreparedQp(x0=x0.copy(), d=d.copy(), ref=ref, u_ref=u_ref, us=us, xs=xs, gamma=gamma,
-                      sens=parameter_sensitivities(a, c), hess=hess, grad=grad, grad_state=grad_state,
+                      sens=sens, hess=hess, grad=grad, grad_state=grad_state,
                       grad_input=cost.input_gradient_scale, rows=row_jacobian(gamma))
