@@ -108,7 +108,7 @@ def current_speed_rpm(sample: EscSample, before: EscSample | None, before_speed_
     """Each rotor's speed when the current `sample` reports was measured: the speed of the frame
     that current first came in. A current the frame `before` reported already keeps the speed it
     came with (`before_speed_rpm`, this function's answer for `before`); a new one, this frame's."""
-    rpm = _reported(sample.rpm, _RPM_MAX)
+    rpm = np.array(_reported(sample.rpm, _RPM_MAX))
     if before is None or before_speed_rpm is None:
         return rpm
     held = np.asarray(sample.current_a, dtype=float) == np.asarray(before.current_a, dtype=float)
@@ -119,40 +119,36 @@ def read_escs(sample: EscSample, expected_n: np.ndarray, model: PropellerModel,
               th: EscThresholds = EscThresholds(), current_rpm: np.ndarray | None = None) -> EscReading:
     """The thrusts and conditions of one ESC frame, against the thrust the rotors should give now
     (the command through the motor lag, within the battery's ceiling). current_rpm: each rotor's
-    speed when its current was measured (`current_speed_rpm`; None: this frame's)."""
+    speed when its current was measured (`current_speed_rpm`; None: this frame's). Four rotors:
+    Python floats, numpy only for the propeller model's and the load's powers."""
     rpm = _reported(sample.rpm, _RPM_MAX)
-    load_rpm = rpm if current_rpm is None else np.where(np.isfinite(current_rpm), current_rpm, rpm)
-    current = _reported(sample.current_a, _CURRENT_MAX_A)
+    current = [v if v > 0.0 else math.nan for v in _reported(sample.current_a, _CURRENT_MAX_A)]  # 0: not polled yet
     voltage = _reported(sample.voltage_v, _VOLTAGE_MAX_V)
-    volts = [v for v in voltage.tolist() if math.isfinite(v) and v > 0]
+    volts = [v for v in voltage if math.isfinite(v) and v > 0]
     volts_v = _median(volts) if volts else math.nan
     ceiling = model.ceiling_n(volts_v) if volts else math.inf
-    expected_rpm = model.rpm(np.minimum(expected_n, ceiling))
-    turning = np.isfinite(rpm) & (rpm >= th.speed_min_rpm)
-    current = np.where(current > 0.0, current, np.nan)     # a turning motor draws current: 0 is "not polled yet"
-    with np.errstate(divide="ignore", invalid="ignore"):
-        load = np.where(turning & np.isfinite(current), current * np.where(np.isfinite(voltage), voltage, 1.0)
-                        / np.maximum(load_rpm, th.speed_min_rpm) ** 3, np.nan)
-        speed_share = np.where(expected_rpm >= th.speed_min_rpm, rpm / expected_rpm, np.nan)
-    thrust = model.thrust_n(rpm)
+    expected_rpm = model.rpm(np.minimum(expected_n, ceiling)).tolist()
+    load_rpm = rpm if current_rpm is None else [c if math.isfinite(c) else r for c, r in zip(current_rpm.tolist(), rpm)]
+    cubes = (np.maximum(load_rpm, th.speed_min_rpm) ** 3).tolist()
+    loads = [c * (v if math.isfinite(v) else 1.0) / cube if math.isfinite(r) and r >= th.speed_min_rpm
+             and math.isfinite(c) else math.nan for r, c, v, cube in zip(rpm, current, voltage, cubes)]
+    shares = [r / e if e >= th.speed_min_rpm else math.nan for r, e in zip(rpm, expected_rpm)]
     conditions = []
-    loads, shares = load.tolist(), speed_share.tolist()      # four rotors: Python floats, not numpy calls
-    for i, (load_i, share_i, rpm_i) in enumerate(zip(loads, shares, rpm.tolist())):
+    for i, (load_i, share_i, rpm_i) in enumerate(zip(loads, shares, rpm)):
         others = [v for j, v in enumerate(loads) if j != i and math.isfinite(v)]
         unloaded = share_i > th.overspeed_share
         if math.isfinite(load_i) and others and share_i > th.loaded_share:
             unloaded |= load_i < th.unloaded_load_share * _median(others)
         conditions.append(_condition(share_i, unloaded, th) if math.isfinite(rpm_i) else RotorCondition.NORMAL)
-    thrust = np.where([c is RotorCondition.UNLOADED for c in conditions], 0.0, thrust)
-    return EscReading(rpm=rpm, thrust_n=thrust, condition=tuple(conditions), battery_ceiling_n=ceiling,
-                      voltage_v=volts_v)
+    thrust = [0.0 if c is RotorCondition.UNLOADED else t for c, t in zip(conditions, model.thrust_n(rpm).tolist())]
+    return EscReading(rpm=np.array(rpm), thrust_n=np.array(thrust), condition=tuple(conditions),
+                      battery_ceiling_n=ceiling, voltage_v=volts_v)
 
 
-def _reported(values, most: float) -> np.ndarray:
+def _reported(values, most: float) -> list[float]:
     """The four values as reported; NaN (not reported) where one is not a reading: not finite,
     negative or beyond `most`."""
-    v = np.asarray(values, dtype=float).reshape(ROTOR_COUNT)
-    return np.where((v >= 0.0) & (v <= most), v, np.nan)
+    return [v if 0.0 <= v <= most else math.nan for v in np.asarray(values, dtype=float).reshape(ROTOR_COUNT).tolist()]
 
 
 def _median(values: list[float]) -> float:

@@ -42,22 +42,49 @@ class ResidualNoise:
     torque_share: float          # share of the commanded thrust torque the model gets wrong (inertia, arms)
 
 
+# IntervalFit.sums: a (4), b (4), a_size (4), b_size (4), a_size x expected thrust (4), chi2 (1).
+_A, _B, _A_SIZE, _B_SIZE, _WEIGHTED_EXPECTED = (slice(4 * k, 4 * k + 4) for k in range(5))
+_CHI2 = 20
+
+
 @dataclass(frozen=True)
 class IntervalFit:
-    """The residual of one interval fitted by each single-rotor deficit hypothesis.
+    """The residual of one interval (or several: `combine`) fitted by each single-rotor deficit
+    hypothesis.
 
     Sufficient statistics, so several intervals add up: with a = B_i^T W B_i and
     b = -B_i^T W r, the deficit is b / a and it explains b^2 / a of chi2 = r^T W r. The
     test weights W count every model error; the sizing weights (a_size, b_size) count only
     sensor noise and the fixed model errors, so a manoeuvre's torque does not blur the size.
+    All of them sit in one row, `sums`, so the fit of several intervals is one sum of rows.
     """
 
-    a: np.ndarray                # (4,)
-    b: np.ndarray                # (4,)
-    chi2: float
-    a_size: np.ndarray           # (4,)
-    b_size: np.ndarray           # (4,)
-    expected_thrust_n: np.ndarray   # (4,) interval-average thrust the model assumed
+    sums: np.ndarray             # (21,) a, b, a_size, b_size, a_size x expected thrust (4 each), chi2
+
+    @property
+    def a(self) -> np.ndarray:
+        return self.sums[_A]
+
+    @property
+    def b(self) -> np.ndarray:
+        return self.sums[_B]
+
+    @property
+    def chi2(self) -> float:
+        return float(self.sums[_CHI2])
+
+    @property
+    def a_size(self) -> np.ndarray:
+        return self.sums[_A_SIZE]
+
+    @property
+    def b_size(self) -> np.ndarray:
+        return self.sums[_B_SIZE]
+
+    @property
+    def expected_thrust_n(self) -> np.ndarray:
+        """(4,) the interval-average thrust the model assumed (over several: weighted by a_size)."""
+        return self.sums[_WEIGHTED_EXPECTED] / self.a_size
 
     @property
     def deficit_n(self) -> np.ndarray:
@@ -88,7 +115,8 @@ class ThrustResidualModel:
         w_size = 1.0 / _residual_variance(af, noise, dt, ca.diag(inertia), ca.DM.zeros(3))
         a, a_size = ((sens * sens).T @ weights for weights in (w, w_size))
         b, b_size = (-(sens.T @ (weights * r)) for weights in (w, w_size))
-        fit = ca.Function("m4_fault_fit", [x, u, dt, measured, bias_per_s], [a, b, ca.dot(r, w * r), a_size, b_size, raw])
+        sums = ca.vertcat(a, b, a_size, b_size, a_size * u[rom.THRUST], ca.dot(r, w * r))    # IntervalFit.sums
+        fit = ca.Function("m4_fault_fit", [x, u, dt, measured, bias_per_s], [sums, raw])
         self._fit = BufferedFunction(compiled(fit) if codegen else fit)
 
     def motor_decay(self, dt_s: float) -> float:
@@ -123,10 +151,8 @@ class ThrustResidualModel:
         u = np.zeros(rom.NU)
         u[rom.THRUST] = expected_thrust_n
         u[rom.HIP_ACCEL] = (x_now[rom.HIP_RATE] - x_prev[rom.HIP_RATE]) / dt_s
-        a, b, chi2, a_size, b_size, raw = (v.copy() for v in self._fit.evaluate(x_prev, u, dt_s, x_now[CHANNELS],
-                                                                                 bias_per_s))
-        return IntervalFit(a=a, b=b, chi2=float(chi2[0]), a_size=a_size, b_size=b_size,
-                           expected_thrust_n=expected_thrust_n), raw
+        sums, raw = self._fit.evaluate(x_prev, u, dt_s, x_now[CHANNELS], bias_per_s)
+        return IntervalFit(sums.copy()), raw.copy()
 
 
 def _residual_variance(af: Airframe, n: ResidualNoise, dt_s, inertia_diag_kg_m2, torque_n_m):
@@ -138,11 +164,9 @@ def _residual_variance(af: Airframe, n: ResidualNoise, dt_s, inertia_diag_kg_m2,
 
 
 def combine(fits: list[IntervalFit]) -> IntervalFit:
-    """The fit of several intervals under one constant deficit per hypothesis."""
-    a_size = sum(f.a_size for f in fits)
-    expected = sum(f.a_size * f.expected_thrust_n for f in fits) / a_size
-    return IntervalFit(a=sum(f.a for f in fits), b=sum(f.b for f in fits), chi2=sum(f.chi2 for f in fits),
-                       a_size=a_size, b_size=sum(f.b_size for f in fits), expected_thrust_n=expected)
+    """The fit of several intervals under one constant deficit per hypothesis: their rows
+    summed in order (numpy sums along the first axis row after row, as Python's sum would)."""
+    return IntervalFit(np.add.reduce(np.stack([f.sums for f in fits])))
 
 
 def best_hypothesis(fit: IntervalFit) -> tuple[int, float, float]:
