@@ -39,13 +39,14 @@ predicts then, along the reference from then, with this step's bounds and distur
 
 The detector after the send: a frame that cannot confirm a fault (FaultDetector.cannot_confirm:
 a fault confirmed already, or the detector healthy and the frame too soon after the last for
-one vote to confirm) is read by the detector in `prepare`, after the setpoint left, instead of
-before the solve; any other frame (a suspicion that may confirm, new limits) is read before
+one vote to confirm) is left by `step` for `read_deferred`, called once the setpoint has left
+(before `prepare`), instead of read before the solve; any other frame (a suspicion that may confirm, new limits) is read before
 it, so a fault confirmed at a frame bounds that frame's setpoint. Once a fault is confirmed,
 a frame's refinement of its rotor's ceiling (or its recovery) bounds the next setpoint, one
 period later. A frame's fault status goes out once the detector has read it: with the
-setpoint when read before the solve, else alone right after it (`prepare` returns it; the
-app sends it stamped with the frame), so a status is never later than the frame it reads.
+setpoint when read before the solve, else alone right after it (`read_deferred` returns it;
+the app sends it stamped with the frame), so a status is never later than the frame it reads.
+A frame nobody read after the send is read by the next `step` first.
 
 Takeover: at the flight's first step and after a gap in which our setpoints went stale at the
 FC (its failsafe flew; FC_STALE_PERIODS, FC_STALE_MIN_S: the FC contract), the thrusts ramp
@@ -222,8 +223,8 @@ class Controller:
 
     @property
     def frame_unread(self) -> bool:
-        """The last step's frame is left for the detector after the send: prepare() reads it and
-        returns the status after it."""
+        """The last step's frame is left for the detector after the send: read_deferred() reads it
+        and returns the status after it."""
         return self._deferred is not None
 
     def start(self, time_s: float, x_measured, kept: MissionProgress | None = None) -> bool:
@@ -310,7 +311,7 @@ class Controller:
         yet (None, or not finite) is planned as 0, and the disturbance estimate waits for it
         (_estimate_disturbance)."""
         af = self.af
-        self.read_deferred()               # the last frame first, had no prepare() read it
+        self.read_deferred()               # the last frame first, had nobody read it after the send
         self._note_gap(time_s)
         lead_known = lead_s is not None and bool(np.isfinite(lead_s))
         lead_s = max(float(lead_s), 0.0) if lead_known else 0.0
@@ -355,26 +356,22 @@ class Controller:
                            disturbance=d, lead_s=lead_s, reference=x_ref, nmpc=res, took_over=took_over,
                            followed=followed)
 
-    def prepare(self) -> FaultStatus | None:
-        """After the last step's setpoint was sent: the detector reads that step's frame if it
-        was left for now (its status after the frame is returned; None: it was read before the
-        solve), the NMPC prepares the next step's solve (the real-time iteration's preparation;
-        nothing with the SQP, or when the last step solved nothing: what was prepared before is
-        dropped), and the FC's rate feedback and cover are designed for the hip goal the next
-        step starts from. The next step is expected one period on, at the same lead, with the
-        same bounds."""
-        status = self.read_deferred()
+    def prepare(self) -> None:
+        """After the last step's setpoint was sent (and its frame read, `read_deferred`): the NMPC
+        prepares the next step's solve (the real-time iteration's preparation; nothing with the
+        SQP, or when the last step solved nothing: what was prepared before is dropped), and the
+        FC's rate feedback and cover are designed for the hip goal the next step starts from.
+        The next step is expected one period on, at the same lead, with the same bounds."""
         solved, self._solved = self._solved, None
         if solved is None or self.flight is None:
             self.nmpc.unprepare()
-            return status
+            return
         time_s, lead_s, thrust_bound_n, d, confirmed = solved
         if self._hip_goal is not None:
             self.rate_feedback.prepare(self._hip_goal.angle_rad, thrust_bound_n, confirmed)
         c = self.nmpc.config
         x_ref = self._reference(time_s + self.period_s, lead_s, c.horizon, c.dt_s)
         self.nmpc.prepare(x_ref, thrust_bound_n, d)
-        return status
 
     # ------------------------------------------------------------------------------------------
     def _note_gap(self, time_s: float) -> None:
@@ -466,8 +463,8 @@ class Controller:
         return self._detected(self.detector.update(*frame))
 
     def read_deferred(self) -> FaultStatus | None:
-        """The frame left for after the send, read now (None: none was left); prepare() reads it
-        too, if the caller has not."""
+        """The frame the last step left for after the send, read now: the detector's status after
+        it (None: none was left)."""
         frame, self._deferred = self._deferred, None
         if frame is None:
             return None

@@ -3,8 +3,9 @@ headroom, so a user reads at a glance what rate the computer can hold.
 
 The whole control step is timed (companion.controller.Controller.step: plausibility, fault
 detector, disturbance estimate, mission reference, NMPC, setpoint check, rate feedback; then
-Controller.prepare, the NMPC's preparation of the next step, which the companion runs after
-the send: both take their share of every period),
+what the companion runs after the send: the detector on a frame left for then
+(Controller.read_deferred) and Controller.prepare, the NMPC's preparation of the next step:
+all take their share of every period),
 along given measured states (the bench's closed-loop-like sequence: kicks, a rotor lost
 halfway), with the companion's default configuration. Headroom at a rate is its period over
 the p99 step: how many steps of that length fit in one period. The link, the feed and the
@@ -36,6 +37,7 @@ def control_step_ms(config: CompanionConfig, states: np.ndarray, thrust_limit_n:
     for k in range(1, len(states)):
         t0 = time.perf_counter()
         controller.step(k * period_s, states[k], thrust_limit_n=thrust_limit_n[k])
+        controller.read_deferred()                 # after the send, as the app does
         controller.prepare()
         took_ms[k - 1] = 1e3 * (time.perf_counter() - t0)
     return took_ms

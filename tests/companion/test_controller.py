@@ -402,15 +402,28 @@ def test_after_prepare_the_next_step_finds_the_fcs_rate_feedback_and_cover_desig
     assert np.array_equal(sp.shortfall_cover.gain, expected.shortfall_cover.gain)
 
 
+def test_the_frame_left_for_after_the_send_is_read_once_by_read_deferred_not_by_prepare():
+    c = controller()
+    x = rom.hover_state(AF)
+    step(c, 0.0, x, None, [AF.thrust_max_n] * 4)
+    step(c, PERIOD, x, None, [AF.thrust_max_n] * 4)
+    assert c.frame_unread                                          # a healthy frame at 50 Hz: left for later
+    c.prepare()
+    assert c.frame_unread                                          # the preparation does not read it
+    status = c.read_deferred()
+    assert status is not None and status.state is FaultState.HEALTHY and not c.frame_unread
+    assert c.read_deferred() is None
+
+
 class _EveryFrameBeforeTheSolve(FaultDetector):
     def cannot_confirm(self, *_args) -> bool:
         return False
 
 
 def _rotor_4_lost(c: Controller, steps: int = 25):
-    """The ROM flown by the controller's setpoints, step then prepare as the app calls them;
-    rotor 4 delivers nothing from 0.1 s. Each step's (setpoint, confirmed now, status prepare()
-    returned)."""
+    """The ROM flown by the controller's setpoints, step, read_deferred and prepare as the app
+    calls them; rotor 4 delivers nothing from 0.1 s. Each step's (setpoint, confirmed now, status
+    read_deferred() returned)."""
     plant = rom.build_rom(AF, PERIOD, substeps=4).step
     x, out, answers = rom.hover_state(AF), None, []
     for k in range(steps):
@@ -420,13 +433,14 @@ def _rotor_4_lost(c: Controller, steps: int = 25):
             x = np.array(plant(x, np.r_[u, np.zeros(4)], np.zeros(rom.ND))).ravel()
             x[rom.HIP], x[rom.HIP_RATE] = sp.hip_rad + sp.hip_rate_rad_s * PERIOD, sp.hip_rate_rad_s
         out = step(c, k * PERIOD, x, None, [AF.thrust_max_n] * 4)
-        answers.append((out.setpoint, out.fault_confirmed_now, c.prepare()))
+        answers.append((out.setpoint, out.fault_confirmed_now, c.read_deferred()))
+        c.prepare()
     return answers
 
 
 def test_a_frame_that_cannot_confirm_is_read_after_the_send_and_the_confirmation_stays_the_same():
-    """The detector reads a frame that cannot confirm a fault after the send (prepare() returns
-    its status then): the healthy frames and every frame after the confirmation. The step at
+    """The detector reads a frame that cannot confirm a fault after the send (read_deferred()
+    returns its status then): the healthy frames and every frame after the confirmation. The step at
     which the fault is confirmed and bounds the NMPC, and the setpoints up to it, are those of
     a controller that reads every frame before the solve."""
     late = _rotor_4_lost(controller())
