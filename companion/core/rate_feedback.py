@@ -49,7 +49,6 @@ from m4.setpoint import (EFFECTIVENESS_MAX_RAD_S2_PER_N, RATE_GAIN_MAX_N_PER_RAD
                          ShortfallCover)
 
 LIVE_SHARE = 0.5
-_OTHERS = np.array([[i for i in range(ROTOR_COUNT) if i != short] for short in range(ROTOR_COUNT)])   # (4, 3)
 
 
 class _Kept:
@@ -71,11 +70,8 @@ class RateFeedbackDesign:
         self.af = af
         self.bandwidth_rad_s = float(bandwidth_rad_s)
         self.shortfall_cover = shortfall_cover
-        hip = ca.SX.sym("hip", ROTOR_COUNT)
-        com, inertia = rom.mass_properties(af, hip)
-        arms = rom.thruster_positions(af, hip) - ca.repmat(com, 1, ROTOR_COUNT)
-        self._geometry = BufferedFunction(ca.Function("m4_rate_feedback_geometry", [hip], [arms, inertia]))
-        self._geometry_kept = _Kept()     # by posture
+        self._design_gain_fn, self._design_cover_fn = (BufferedFunction(f) for f in _design_functions(
+            af, self.bandwidth_rad_s))
         self._gain = _Kept()              # by posture and live rotors
         self._cover = _Kept()             # by posture and fault
 
@@ -96,18 +92,9 @@ class RateFeedbackDesign:
     def _design_gain(self, hip: np.ndarray, live: np.ndarray) -> np.ndarray | None:
         if self.bandwidth_rad_s <= 0 or live.sum() < 3 or not np.isfinite(hip).all():
             return None
-        allocation, inertia = self._allocation(hip)
-        torque_per_error = self.bandwidth_rad_s * inertia[:2, :2]
-        rows = allocation[:, live]              # full row rank: the least-norm inverse is rows^T (rows rows^T)^-1
-        try:
-            least_norm = np.linalg.solve(rows @ rows.T, rows).T     # a third of np.linalg.pinv's time (its SVD)
-        except np.linalg.LinAlgError:
-            return None
-        gain = np.zeros((ROTOR_COUNT, 3))
-        gain[live, :2] = least_norm[:, :2] @ torque_per_error
-        if not np.isfinite(gain).all() or np.abs(gain).max() > RATE_GAIN_MAX_N_PER_RAD_S:
-            return None
-        return gain
+        gain, = self._design_gain_fn(hip, live)
+        gain[~live] = 0.0                 # +0.0 (the zeroed columns leave -0.0 where an arm is negative)
+        return gain if np.abs(gain).max() <= RATE_GAIN_MAX_N_PER_RAD_S else None   # NaN: a singular allocation
 
     def cover(self, hip_rad, fault_confirmed: bool) -> ShortfallCover | None:
         """The other rotors' cover for each rotor's shortfall at posture hip_rad; None when
@@ -119,29 +106,11 @@ class RateFeedbackDesign:
     def _design_cover(self, hip: np.ndarray, fault_confirmed: bool) -> ShortfallCover | None:
         if not self.shortfall_cover or fault_confirmed or not np.isfinite(hip).all():
             return None
-        allocation, inertia = self._allocation(hip)
-        try:                                    # the four 3 x 3 systems in one stacked solve
-            covered = np.linalg.solve(allocation[:, _OTHERS].transpose(1, 0, 2), allocation.T[:, :, None])[:, :, 0]
-        except np.linalg.LinAlgError:
+        gain, effectiveness = self._design_cover_fn(hip)      # NaN: a singular allocation or inertia
+        if not (np.abs(gain).max() <= SHORTFALL_GAIN_MAX and np.abs(effectiveness).max() <= EFFECTIVENESS_MAX_RAD_S2_PER_N):
             return None
-        gain = np.zeros((ROTOR_COUNT, ROTOR_COUNT))
-        gain[_OTHERS, np.arange(ROTOR_COUNT)[:, None]] = covered
-        if not np.isfinite(gain).all() or np.abs(gain).max() > SHORTFALL_GAIN_MAX:
-            return None
-        torque = np.vstack([allocation[:2], self.af.moment_coefficient_m * np.asarray(self.af.spin_sign, dtype=float)])
-        effectiveness = np.linalg.solve(inertia, torque)[:2]
-        if not np.isfinite(effectiveness).all() or np.abs(effectiveness).max() > EFFECTIVENESS_MAX_RAD_S2_PER_N:
-            return None
-        f32 = lambda v: np.asarray(v, dtype=np.float32).astype(float)     # as MAVLink carries them
+        f32 = lambda v: v.astype(np.float32).astype(float)     # as MAVLink carries them
         return ShortfallCover(f32(gain), f32(effectiveness))
-
-    def _allocation(self, hip: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(3, 4) each rotor's roll and pitch torque and sum per newton, and the (3, 3) inertia;
-        evaluated once for the posture a step's gain and cover share."""
-        def make():
-            arms, inertia = self._geometry(hip)
-            return np.vstack([-arms[1], arms[0], np.ones(ROTOR_COUNT)]), np.asarray(inertia)
-        return self._geometry_kept.get(hip.tobytes(), make)
 
     def feedback(self, x_start, x_next, dt_s: float, thrust_bound_n) -> RateFeedback | None:
         """The feedback for a plan from ROM state x_start whose next node, dt_s later, is x_next."""
@@ -155,3 +124,27 @@ class RateFeedbackDesign:
             return None
         start_f32, change_f32 = planned.astype(float)
         return RateFeedback(start_f32, change_f32, gain.astype(np.float32).astype(float))
+
+
+def _design_functions(af: Airframe, bandwidth_rad_s: float) -> tuple[ca.Function, ca.Function]:
+    """The gain's and the cover's design as CasADi functions of the posture (one call each
+    instead of a dozen small numpy solves): (hip (4), live (4): 1 a rotor that takes part, else
+    0) -> gain (4, 3); (hip (4)) -> cover gain (4, 4), effectiveness (2, 4). Singular systems
+    give non-finite values (the caller then designs none)."""
+    hip, live = ca.SX.sym("hip", ROTOR_COUNT), ca.SX.sym("live", ROTOR_COUNT)
+    com, inertia = rom.mass_properties(af, hip)
+    arms = rom.thruster_positions(af, hip) - ca.repmat(com, 1, ROTOR_COUNT)
+    allocation = ca.vertcat(-arms[1, :], arms[0, :], ca.DM.ones(1, ROTOR_COUNT))   # roll, pitch torque, sum per N
+    rows = allocation * ca.repmat(live.T, 3, 1)          # a rotor out is a zero column: it takes no part
+    least_norm = ca.solve(rows @ rows.T, rows).T         # rows^T (rows rows^T)^-1: full row rank with three live
+    gain = ca.horzcat(least_norm[:, :2] @ (bandwidth_rad_s * inertia[:2, :2]), ca.SX.zeros(ROTOR_COUNT, 1))
+    cover = ca.SX.zeros(ROTOR_COUNT, ROTOR_COUNT)
+    for short in range(ROTOR_COUNT):
+        others = [i for i in range(ROTOR_COUNT) if i != short]
+        covered = ca.solve(allocation[:, others], allocation[:, short])
+        for j, other in enumerate(others):
+            cover[other, short] = covered[j]
+    torque = ca.vertcat(allocation[:2, :], af.moment_coefficient_m * ca.DM(af.spin_sign).T)
+    effectiveness = ca.solve(inertia, torque)[:2, :]
+    return (ca.Function("m4_rate_feedback_gain", [hip, live], [gain]),
+            ca.Function("m4_rate_feedback_cover", [hip], [cover, effectiveness]))
