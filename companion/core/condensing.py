@@ -86,7 +86,7 @@ def sensitivities_and_parameters(a: np.ndarray, b: np.ndarray, c: np.ndarray) ->
         np.matmul(a[k], both[rows.start - NX:rows.start], out=both[rows])
         both[rows, k * NU:(k + 1) * NU] = b[k]          # block k-1 has no part of input k: exact
         both[rows, inputs + NX:] += c[k]
-    return both[:, :inputs], both[:, inputs:]
+    return np.ascontiguousarray(both[:, :inputs]), both[:, inputs:]     # Gamma contiguous: its products are faster
 
 
 class TrackingCost:
