@@ -290,10 +290,11 @@ class FaultDetector:
             self._lag_n, self._cmd_lag_n, self._cmd_lag_low_n, self._cmd_lag_high_n = target, asked, asked, asked
             self._run = None
             return self.status
-        average_n, self._lag_n = self._model.motor_response(self._lag_n, target, dt)
-        self._cmd_lag_n = self._model.motor_response(self._cmd_lag_n, asked, dt)[1]
+        averages, (self._lag_n, self._cmd_lag_n, self._cmd_lag_high_n) = self._model.motor_response(   # one call, 3 rows
+            np.array([self._lag_n, self._cmd_lag_n, self._cmd_lag_high_n]),
+            np.array([target, asked, np.maximum(asked_before, asked)]), dt)
+        average_n = averages[0]
         self._cmd_lag_low_n = self._model.spin_response_n(self._cmd_lag_low_n, np.minimum(asked_before, asked), dt)
-        self._cmd_lag_high_n = self._model.motor_response(self._cmd_lag_high_n, np.maximum(asked_before, asked), dt)[1]
         reading = self._esc_reading(time_s, esc)
         evidence = self._residual_evidence(time_s, prev.state, x, average_n, cmd, dt, reading)
         if reading is not None:

@@ -125,7 +125,8 @@ class ThrustResidualModel:
         return math.exp(-dt_s / tau) if tau > 0 else 0.0
 
     def motor_response(self, start_n: np.ndarray, target_n: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
-        """(interval-average thrust, thrust at the end) of the first-order motor lag."""
+        """(interval-average thrust, thrust at the end) of the first-order motor lag, entry by entry
+        (one rotor's, or stacked: several lags at once)."""
         decay = self.motor_decay(dt_s)
         if decay == 0:
             return target_n.copy(), target_n.copy()
