@@ -187,7 +187,7 @@ class Nmpc:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):   # every result is checked
             x_ref = np.asarray(x_ref, dtype=float)
             d = _finite_disturbance(disturbance)
-            x0 = self._advance(*planned, d)[0].ravel()
+            x0 = self._advance.evaluate(*planned, d)[0].copy()
             if x_ref.shape == (self.config.horizon + 1, NX) and np.isfinite(x_ref).all() and np.isfinite(x0).all():
                 lo, hi = self.input_bounds(thrust_bound_n)
                 self._prepared = self._prepare_at(x0, x_ref, d, lo, hi)

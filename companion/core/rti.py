@@ -73,9 +73,9 @@ def prepare_qp(rollout: Linearisation, cost: TrackingCost, x0: np.ndarray, us: n
     to its diagonal; row_jacobian gives the constraint rows' derivatives from gamma. None when the
     rollout or its derivatives are not finite."""
     xs, a, b, c = rollout(x0, us, d)
-    if not (np.isfinite(xs).all() and np.isfinite(a).all() and np.isfinite(b).all() and np.isfinite(c).all()):
+    gamma, sens = sensitivities_and_parameters(a, b, c)      # every entry of a, b and c reaches them
+    if not (np.isfinite(xs).all() and np.isfinite(gamma).all() and np.isfinite(sens).all()):
         return None
-    gamma, sens = sensitivities_and_parameters(a, b, c)
     hess, grad, grad_state = cost.gauss_newton_parts(gamma, xs, us, ref, u_ref)
     diagonal = np.diag_indices(hess.shape[0])
     hess[diagonal] += damping_rel * hess[diagonal].max()
