@@ -296,12 +296,16 @@ class FaultDetector:
         average_n = averages[0]
         self._cmd_lag_low_n = self._model.spin_response_n(self._cmd_lag_low_n, np.minimum(asked_before, asked), dt)
         reading = self._esc_reading(time_s, esc)
-        evidence = self._residual_evidence(time_s, prev.state, x, average_n, cmd, dt, reading)
-        if reading is not None:
-            direct = self._esc_evidence(reading)
-            confirmed = self._state is FaultState.CONFIRMED
-            if direct.index is not None and not confirmed or confirmed and self._kind is not FaultKind.DAMAGE:
-                evidence = direct              # the ESC measures its rotor; only a damaged propeller hides from it
+        if reading is not None and self._state is FaultState.CONFIRMED and self._kind is not FaultKind.DAMAGE:
+            # The ESC measures the confirmed rotor (only a damaged propeller hides from it): the
+            # residual's evidence would not be weighed; its window goes on for a frame without one.
+            self._window_fit(time_s, prev.state, x, average_n, dt)
+            evidence = self._esc_evidence(reading)
+        else:
+            evidence = self._residual_evidence(time_s, prev.state, x, average_n, cmd, dt, reading)
+            if reading is not None and (direct := self._esc_evidence(reading)).index is not None and \
+                    self._state is not FaultState.CONFIRMED:
+                evidence = direct
         self._count_run(evidence, dt)
         escs_speak = time_s - self._esc_time_s <= self._c.esc_max_age_s
         if (reading is None and escs_speak and self._state is FaultState.CONFIRMED
@@ -375,10 +379,7 @@ class FaultDetector:
     def _residual_evidence(self, time_s: float, x_prev: np.ndarray, x: np.ndarray, average_n: np.ndarray,
                            cmd: np.ndarray, dt: float, reading: EscReading | None) -> _Evidence:
         c = self._c
-        fit, raw = self._model.fit(x_prev, x, average_n, dt, self._bias_per_s)
-        self._window.append((time_s, fit))
-        while self._window[0][0] <= time_s - c.window_s + 1e-9:
-            self._window.popleft()
+        raw = self._window_fit(time_s, x_prev, x, average_n, dt)
         pooled = combine([f for _, f in self._window])
         i, explained, left = best_hypothesis(pooled)
         noise_chi2 = _NOISE_CHI2_MARGIN * len(CHANNELS) * len(self._window)   # what noise alone leaves
@@ -403,6 +404,15 @@ class FaultDetector:
         return _Evidence(index=i if votes else None, path=_Path.SATURATED if saturated else _Path.RESIDUAL,
                          kind=kind, delivered_n=delivered, expected_n=expected, short=short,
                          significant=pooled.b**2 / pooled.a >= c.chi2_min)
+
+    def _window_fit(self, time_s: float, x_prev: np.ndarray, x: np.ndarray, average_n: np.ndarray,
+                    dt: float) -> np.ndarray:
+        """The interval's fit into the evidence window (the last window_s); its raw residual (6,)."""
+        fit, raw = self._model.fit(x_prev, x, average_n, dt, self._bias_per_s)
+        self._window.append((time_s, fit))
+        while self._window[0][0] <= time_s - self._c.window_s + 1e-9:
+            self._window.popleft()
+        return raw
 
     def _since_suspicion(self, time_s: float, dt: float, lagged: bool) -> tuple[np.ndarray, np.ndarray]:
         """(expected, delivered) of each rotor over the intervals since the suspicion began (after
