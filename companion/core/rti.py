@@ -77,8 +77,8 @@ def prepare_qp(rollout: Linearisation, cost: TrackingCost, x0: np.ndarray, us: n
     if not (np.isfinite(xs).all() and np.isfinite(gamma).all() and np.isfinite(sens).all()):
         return None
     hess, grad, grad_state = cost.gauss_newton_parts(gamma, xs, us, ref, u_ref)
-    diagonal = np.diag_indices(hess.shape[0])
-    hess[diagonal] += damping_rel * hess[diagonal].max()
+    diagonal = np.einsum("ii->i", hess)          # a writeable view (np.diag_indices' fancy indexing: 7x slower)
+    diagonal += damping_rel * diagonal.max()
     return PreparedQp(x0=x0.copy(), d=d.copy(), ref=ref, u_ref=u_ref, us=us, xs=xs, gamma=gamma,
                       sens=sens, hess=hess, grad=grad, grad_state=grad_state,
                       grad_input=cost.input_gradient_scale, rows=row_jacobian(gamma))
