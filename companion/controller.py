@@ -40,13 +40,14 @@ predicts then, along the reference from then, with this step's bounds and distur
 The detector after the send: a frame that cannot confirm a fault (FaultDetector.cannot_confirm:
 a fault confirmed already, or the detector healthy and the frame too soon after the last for
 one vote to confirm) is left by `step` for `read_deferred`, called once the setpoint has left
-(before `prepare`), instead of read before the solve; any other frame (a suspicion that may confirm, new limits) is read before
-it, so a fault confirmed at a frame bounds that frame's setpoint. Once a fault is confirmed,
-a frame's refinement of its rotor's ceiling (or its recovery) bounds the next setpoint, one
-period later. A frame's fault status goes out once the detector has read it: with the
-setpoint when read before the solve, else alone right after it (`read_deferred` returns it;
-the app sends it stamped with the frame), so a status is never later than the frame it reads.
-A frame nobody read after the send is read by the next `step` first.
+(before `prepare`), instead of read before the solve; any other frame (a suspicion that may
+confirm, new limits) is read before it, so a fault confirmed at a frame bounds that frame's
+setpoint. Once a fault is confirmed, a frame's refinement of its rotor's ceiling (or its
+recovery) bounds the next setpoint, one period later. A frame's fault status goes out once the
+detector has read it: with the setpoint when read before the solve, else alone right after it
+(`read_deferred` returns it; the app sends it stamped with the frame), so a status is never
+later than the frame it reads. A frame nobody read after the send is read by the next `step`
+first.
 
 Takeover: at the flight's first step and after a gap in which our setpoints went stale at the
 FC (its failsafe flew; FC_STALE_PERIODS, FC_STALE_MIN_S: the FC contract), the thrusts ramp

@@ -290,8 +290,8 @@ class FaultDetector:
             self._lag_n, self._cmd_lag_n, self._cmd_lag_low_n, self._cmd_lag_high_n = target, asked, asked, asked
             self._run = None
             return self.status
-        averages, (self._lag_n, self._cmd_lag_n, self._cmd_lag_high_n) = self._model.motor_response(   # one call, 3 rows
-            np.array([self._lag_n, self._cmd_lag_n, self._cmd_lag_high_n]),
+        averages, (self._lag_n, self._cmd_lag_n, self._cmd_lag_high_n) = self._model.motor_response(
+            np.array([self._lag_n, self._cmd_lag_n, self._cmd_lag_high_n]),      # three lags in one call
             np.array([target, asked, np.maximum(asked_before, asked)]), dt)
         average_n = averages[0]
         self._cmd_lag_low_n = self._model.spin_response_n(self._cmd_lag_low_n, np.minimum(asked_before, asked), dt)

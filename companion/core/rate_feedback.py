@@ -107,7 +107,8 @@ class RateFeedbackDesign:
         if not self.shortfall_cover or fault_confirmed or not np.isfinite(hip).all():
             return None
         gain, effectiveness = self._design_cover_fn(hip)      # NaN: a singular allocation or inertia
-        if not (np.abs(gain).max() <= SHORTFALL_GAIN_MAX and np.abs(effectiveness).max() <= EFFECTIVENESS_MAX_RAD_S2_PER_N):
+        if not (np.abs(gain).max() <= SHORTFALL_GAIN_MAX
+                and np.abs(effectiveness).max() <= EFFECTIVENESS_MAX_RAD_S2_PER_N):
             return None
         f32 = lambda v: v.astype(np.float32).astype(float)     # as MAVLink carries them
         return ShortfallCover(f32(gain), f32(effectiveness))
