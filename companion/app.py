@@ -63,6 +63,7 @@ from companion.autopilot_profile import PROJECT_FC, profile_of
 from companion.config import CompanionConfig
 from companion.controller import ControllerSettings, ControlStep, Controller
 from companion.core import rom
+from companion.core.com_offset import ComOffset
 from companion.core.control_types import FaultState
 from companion.core.esc_evidence import PropellerModel
 from companion.fc_link import FcLink, LinkEvent, mission_progress
@@ -124,6 +125,7 @@ class CompanionApp:
         self.clock = clock
         self.period_ms = max(1, round(1000.0 * config.control_period_s))
         self.telemetry = TelemetryAssembler()
+        self._com_offset = ComOffset(config.airframe)
         self._propeller = PropellerModel.from_airframe(config.airframe)
         self.counters = LoopCounters()
         self._last_answered_ms: int | None = None
@@ -276,7 +278,7 @@ class CompanionApp:
         if blocking(self.streams.stale):
             self.counters.skipped_stale += 1
             return
-        t_s, x = t_ms / 1000.0, rom_state(snap, self.config.airframe)
+        t_s, x = t_ms / 1000.0, rom_state(snap, self._com_offset)
         esc = None if ESC_TELEMETRY in self.streams.stale else snap.esc
         try:
             if self._new_mission is not None:

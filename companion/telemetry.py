@@ -28,7 +28,7 @@ controllers send none: the snapshot's `esc` is then None.
 
 Frames: everything stays NED/FRD as on the wire. LOCAL_POSITION_NED is the hull centre (the
 IMU); the ROM's p and v are the whole robot's centre of mass, offset by
-`Airframe.com_offset_frd_m(hip)` rotated into NED, its velocity including omega x r and the
+`Airframe.com_offset_frd_m(hip)` (in closed form: companion.core.com_offset) rotated into NED, its velocity including omega x r and the
 offset's own motion with the legs.
 """
 
@@ -39,9 +39,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from m4.airframe import ROTOR_COUNT, Airframe
-from m4.attitude import euler_from_quat_wxyz, rotation_ned_from_frd
-from companion.core import rom_layout
+from m4.airframe import ROTOR_COUNT
+from m4.attitude import euler_from_quat_wxyz, rotation_rows
+from companion.core.com_offset import ComOffset
 from companion.core.esc_evidence import EscSample
 from m4.mavlink import mavlink
 
@@ -60,33 +60,27 @@ LABELS = {ATTITUDE: "attitude", LOCAL_POSITION: "position", JOINT_STATE: "joints
 _QUAT_NORM_TOLERANCE = 0.05
 
 
-def _vec(*values) -> np.ndarray:
-    return np.array(values, dtype=float).reshape(-1)
+def _decode(msg, msg_id: int) -> dict[str, tuple[float, ...]]:
+    """The fields of one telemetry message as floats, named with units and frames."""
+    if msg_id == ATTITUDE:
+        return {"euler_rad": (msg.roll, msg.pitch, msg.yaw), "rates_frd_rad_s": (msg.rollspeed, msg.pitchspeed, msg.yawspeed)}
+    if msg_id == ATTITUDE_QUATERNION:
+        return {"quat_wxyz": (msg.q1, msg.q2, msg.q3, msg.q4),
+                "rates_frd_rad_s": (msg.rollspeed, msg.pitchspeed, msg.yawspeed)}
+    if msg_id == LOCAL_POSITION:
+        return {"pos_ned_m": (msg.x, msg.y, msg.z), "vel_ned_m_s": (msg.vx, msg.vy, msg.vz)}
+    if msg_id == JOINT_STATE:
+        return {"hip_rad": tuple(msg.hip_angle_rad), "hip_rate_rad_s": tuple(msg.hip_rate_rad_s)}
+    return {"thrust_cmd_n": tuple(msg.thrust_cmd_n), "thrust_limit_n": tuple(msg.thrust_limit_n)}
 
 
-def _decode(msg) -> dict[str, np.ndarray]:
-    """The fields of one telemetry message as float arrays, named with units and frames."""
-    i = msg.get_msgId()
-    if i == ATTITUDE:
-        return {"euler_rad": _vec(msg.roll, msg.pitch, msg.yaw),
-                "rates_frd_rad_s": _vec(msg.rollspeed, msg.pitchspeed, msg.yawspeed)}
-    if i == ATTITUDE_QUATERNION:
-        return {"quat_wxyz": _vec(msg.q1, msg.q2, msg.q3, msg.q4),
-                "rates_frd_rad_s": _vec(msg.rollspeed, msg.pitchspeed, msg.yawspeed)}
-    if i == LOCAL_POSITION:
-        return {"pos_ned_m": _vec(msg.x, msg.y, msg.z), "vel_ned_m_s": _vec(msg.vx, msg.vy, msg.vz)}
-    if i == JOINT_STATE:
-        return {"hip_rad": _vec(msg.hip_angle_rad), "hip_rate_rad_s": _vec(msg.hip_rate_rad_s)}
-    return {"thrust_cmd_n": _vec(msg.thrust_cmd_n), "thrust_limit_n": _vec(msg.thrust_limit_n)}
-
-
-def _valid(msg_id: int, values: dict[str, np.ndarray]) -> bool:
+def _valid(msg_id: int, values: dict[str, tuple[float, ...]]) -> bool:
     if msg_id == THRUSTER_STATUS:
-        return all(v.size == ROTOR_COUNT for v in values.values())
-    if not all(math.isfinite(x) for v in values.values() for x in v.tolist()):     # Python floats: cheaper
+        return all(len(v) == ROTOR_COUNT for v in values.values())
+    if not all(math.isfinite(x) for v in values.values() for x in v):
         return False
     if msg_id == ATTITUDE_QUATERNION:
-        return abs(float(np.linalg.norm(values["quat_wxyz"])) - 1.0) <= _QUAT_NORM_TOLERANCE
+        return abs(math.hypot(*values["quat_wxyz"]) - 1.0) <= _QUAT_NORM_TOLERANCE
     return True
 
 
@@ -94,7 +88,7 @@ def _valid(msg_id: int, values: dict[str, np.ndarray]) -> bool:
 class Sample:
     time_ms: int              # the FC's clock
     received_s: float         # the companion's monotonic clock
-    values: dict[str, np.ndarray]
+    values: dict[str, tuple[float, ...]]
 
 
 @dataclass
@@ -128,6 +122,7 @@ class TelemetryAssembler:
         self._esc: EscSample | None = None
         self._esc_received_s: float | None = None
         self._first: tuple[float, float] | None = None     # the first sample's (FC instant, arrival), s
+        self._newest_ms: int | None = None                 # the newest instant among the streams' samples
 
     def add(self, msg, now_s: float) -> bool:
         """Take one message; True when it is a telemetry sample and was accepted."""
@@ -136,7 +131,7 @@ class TelemetryAssembler:
             return self._add_esc(msg, now_s)
         if msg_id not in STREAMS:
             return False
-        values = _decode(msg)
+        values = _decode(msg, msg_id)
         if not _valid(msg_id, values):
             self.counters.nonfinite += 1
             return False
@@ -146,13 +141,14 @@ class TelemetryAssembler:
             self.counters.stale += 1
             return False
         self._samples[msg_id] = Sample(t_ms, now_s, values)
+        self._newest_ms = t_ms if self._newest_ms is None else max(self._newest_ms, t_ms)
         if self._first is None:
             self._first = (t_ms / 1000.0, now_s)
         self.counters.accepted += 1
         return True
 
     def _add_esc(self, msg, now_s: float) -> bool:
-        fc_ms = max((sample.time_ms for sample in self._samples.values()), default=None)
+        fc_ms = self._newest_ms
         if fc_ms is None or self._esc is not None and fc_ms <= round(self._esc.time_s * 1000.0):
             self.counters.stale += 1          # no FC instant to stamp it with, or none newer than the last
             return False
@@ -167,7 +163,7 @@ class TelemetryAssembler:
     def clear(self) -> None:
         """Forget every stream (the FC rebooted: its clock started over)."""
         self._samples.clear()
-        self._esc = self._esc_received_s = self._first = None
+        self._esc = self._esc_received_s = self._first = self._newest_ms = None
 
     def stale(self, limit_s: float) -> tuple[int, ...]:
         """The needed streams (named by the first message of NEEDED, and ESC_TELEMETRY) that are
@@ -176,7 +172,7 @@ class TelemetryAssembler:
         if self._first is None:
             return ()
         samples = self._samples.values()
-        newest_fc_s, newest_s = max(x.time_ms for x in samples) / 1000.0, max(x.received_s for x in samples)
+        newest_fc_s, newest_s = self._newest_ms / 1000.0, max(x.received_s for x in samples)
         out = []
         for ids in NEEDED:
             got = [self._samples[i] for i in ids if i in self._samples]
@@ -198,35 +194,31 @@ class TelemetryAssembler:
         if att is None and quat is None or any(i not in s for i in (LOCAL_POSITION, JOINT_STATE, THRUSTER_STATUS)):
             return None
         if att is not None and (quat is None or att.time_ms >= quat.time_ms):
-            euler, rates = att.values["euler_rad"], att.values["rates_frd_rad_s"]
+            euler, rates = _array(att.values["euler_rad"]), att.values["rates_frd_rad_s"]
         else:
             euler, rates = euler_from_quat_wxyz(quat.values["quat_wxyz"]), quat.values["rates_frd_rad_s"]
         pos, joints, thr = s[LOCAL_POSITION].values, s[JOINT_STATE].values, s[THRUSTER_STATUS].values
-        times = {i: sample.time_ms for i, sample in s.items()}
         return VehicleSnapshot(
-            time_ms=max(times.values()), times_ms=times, euler_rad=euler, rates_frd_rad_s=rates,
-            pos_ned_m=pos["pos_ned_m"], vel_ned_m_s=pos["vel_ned_m_s"],
-            hip_rad=joints["hip_rad"], hip_rate_rad_s=joints["hip_rate_rad_s"],
-            thrust_cmd_n=thr["thrust_cmd_n"], thrust_limit_n=thr["thrust_limit_n"],
+            time_ms=self._newest_ms, times_ms={i: sample.time_ms for i, sample in s.items()}, euler_rad=euler,
+            rates_frd_rad_s=_array(rates), pos_ned_m=_array(pos["pos_ned_m"]), vel_ned_m_s=_array(pos["vel_ned_m_s"]),
+            hip_rad=_array(joints["hip_rad"]), hip_rate_rad_s=_array(joints["hip_rate_rad_s"]),
+            thrust_cmd_n=_array(thr["thrust_cmd_n"]), thrust_limit_n=_array(thr["thrust_limit_n"]),
             esc=self._esc)
 
 
-def rom_state(snap: VehicleSnapshot, af: Airframe) -> np.ndarray:
-    """The NMPC's state (20) from a snapshot: centre of mass position and velocity (NED)."""
-    rot = rotation_ned_from_frd(snap.euler_rad)
-    r_frd = af.com_offset_frd_m(snap.hip_rad)
-    r_dot_frd = af.com_offset_rate_frd_m_s(snap.hip_rad, snap.hip_rate_rad_s)
-    x = np.zeros(rom_layout.NX)
-    x[rom_layout.P] = snap.pos_ned_m + rot @ r_frd
-    x[rom_layout.EULER] = snap.euler_rad
-    x[rom_layout.HIP] = snap.hip_rad
-    x[rom_layout.V] = snap.vel_ned_m_s + rot @ (_cross(snap.rates_frd_rad_s, r_frd) + r_dot_frd)
-    x[rom_layout.RATES] = snap.rates_frd_rad_s
-    x[rom_layout.HIP_RATE] = snap.hip_rate_rad_s
-    return x
+def _array(values: tuple[float, ...]) -> np.ndarray:
+    return np.array(values, dtype=float)
 
 
-def _cross(a, b) -> np.ndarray:
-    """np.cross of two 3-vectors, the same operations on Python floats (np.cross costs ~30 us)."""
-    (a0, a1, a2), (b0, b1, b2) = np.asarray(a, dtype=float).tolist(), np.asarray(b, dtype=float).tolist()
-    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+def rom_state(snap: VehicleSnapshot, com: ComOffset) -> np.ndarray:
+    """The NMPC's state (20) from a snapshot: centre of mass position and velocity (NED), on
+    floats but for the two rotations (numpy's matrix product rounds as the floats would not)."""
+    euler, rates = snap.euler_rad.tolist(), snap.rates_frd_rad_s.tolist()
+    hip, hip_rate = snap.hip_rad.tolist(), snap.hip_rate_rad_s.tolist()
+    rot = np.array(rotation_rows(*(f(a) for a in euler for f in (math.cos, math.sin))))
+    r_frd, r_dot_frd = com.offset_and_rate(hip, hip_rate)
+    (w0, w1, w2), (r0, r1, r2) = rates, r_frd
+    moving_frd = [w1 * r2 - w2 * r1 + r_dot_frd[0], w2 * r0 - w0 * r2 + r_dot_frd[1], w0 * r1 - w1 * r0 + r_dot_frd[2]]
+    p_ned = [a + b for a, b in zip(snap.pos_ned_m.tolist(), (rot @ np.array(r_frd)).tolist())]
+    v_ned = [a + b for a, b in zip(snap.vel_ned_m_s.tolist(), (rot @ np.array(moving_frd)).tolist())]
+    return np.array(p_ned + euler + hip + v_ned + rates + hip_rate)         # rom_layout's order

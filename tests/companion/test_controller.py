@@ -21,11 +21,13 @@ from companion.core.control_types import FaultState, safe_setpoint, thrust_bound
 from companion.core.fault_detector import FaultDetector
 from companion.core.nmpc import Nmpc
 from companion.core.reference import MissionReference
+from companion.core.com_offset import ComOffset
 from companion.telemetry import VehicleSnapshot, rom_state
 from m4.mission import Landing, Mission, Waypoint
 from m4.setpoint import Setpoint
 
 AF = load_airframe()
+COM = ComOffset(AF)
 CONFIG = parse_config({"control": {"rate_hz": 50.0}}, "test")
 SETTINGS = ControllerSettings.of(CONFIG)
 PERIOD = CONFIG.control_period_s
@@ -123,7 +125,7 @@ def test_every_snapshot_through_the_frame_conversion_gives_a_safe_setpoint(steps
     c = controller()
     for k, (changes, limits) in enumerate(steps):
         snap = _snapshot(changes)
-        out = step(c, k * PERIOD, rom_state(snap, AF), None, limits)
+        out = step(c, k * PERIOD, rom_state(snap, COM), None, limits)
         assert_safe(out.setpoint, out.fault.thrust_bound_n)
 
 

@@ -10,10 +10,12 @@ import pytest
 from m4.airframe import load_airframe
 from m4.attitude import euler_from_quat_wxyz
 from companion.core import rom
+from companion.core.com_offset import ComOffset
 from m4.mavlink import mavlink
 from companion.telemetry import ATTITUDE, ESC_TELEMETRY, JOINT_STATE, LOCAL_POSITION, TelemetryAssembler, rom_state
 
 AF = load_airframe()
+COM = ComOffset(AF)
 NAN4 = [math.nan] * 4
 
 
@@ -77,7 +79,7 @@ def test_non_finite_fields_are_rejected_and_counted(bad):
     assert not asm.add(attitude(20, pitch=bad), 0.0)
     assert not asm.add(joints(20, rate=(0.0, bad, 0.0, 0.0)), 0.0)
     assert asm.counters.nonfinite == 3
-    assert np.all(np.isfinite(rom_state(asm.snapshot(), AF)))
+    assert np.all(np.isfinite(rom_state(asm.snapshot(), COM)))
 
 
 def test_a_quaternion_that_is_not_a_unit_one_is_rejected():
@@ -126,7 +128,7 @@ def test_rom_position_is_the_centre_of_mass_rotated_into_ned():
     euler = np.array([0.2, -0.1, 1.0])
     asm = TelemetryAssembler()
     feed(asm, [attitude(0, *euler), position(0, ned=(1.0, 2.0, -3.0)), joints(0, hip=list(hip)), thrusters(0)])
-    x = rom_state(asm.snapshot(), AF)
+    x = rom_state(asm.snapshot(), COM)
     r_ned = rom.rotation_ned_from_frd(euler) @ AF.com_offset_frd_m(hip)
     assert np.linalg.norm(r_ned) > 0.005                       # the offset is not negligible here
     assert np.allclose(x[rom.P], np.array([1.0, 2.0, -3.0]) + r_ned)
@@ -140,7 +142,7 @@ def test_rom_velocity_adds_omega_cross_r_and_the_legs_motion():
     asm = TelemetryAssembler()
     feed(asm, [attitude(0, rates=tuple(rates)), position(0), joints(0, hip=list(hip), rate=tuple(hip_rate)),
                thrusters(0)])
-    x = rom_state(asm.snapshot(), AF)
+    x = rom_state(asm.snapshot(), COM)
     r = AF.com_offset_frd_m(hip)
     dt = 1e-6
     r_dot = (AF.com_offset_frd_m(hip + hip_rate * dt) - AF.com_offset_frd_m(hip - hip_rate * dt)) / (2 * dt)
@@ -254,3 +256,20 @@ def test_a_sample_stamped_far_ahead_makes_no_other_stream_stale():
     feed(asm, [position(4_000_000)], 0.19)
     fly_frames(asm, 200, 10, without=mavlink.MAVLink_local_position_ned_message)
     assert asm.stale(LIMIT_S) == ()
+
+
+def test_rom_state_is_the_airframes_arrays_to_the_bit():
+    rng = np.random.default_rng(21)
+    for _ in range(300):
+        euler, rates, hip, hip_rate = rng.uniform(-1.5, 1.5, 3), rng.normal(0, 2, 3), rng.uniform(0, 1.6, 4), \
+            rng.normal(0, 2, 4)
+        pos, vel = rng.normal(0, 5, 3), rng.normal(0, 2, 3)
+        asm = TelemetryAssembler()
+        feed(asm, [attitude(0, *euler, rates=tuple(rates)), position(0, ned=tuple(pos), vel=tuple(vel)),
+                   joints(0, hip=list(hip), rate=tuple(hip_rate)), thrusters(0)])
+        snap = asm.snapshot()
+        rot, r = rom.rotation_ned_from_frd(snap.euler_rad), AF.com_offset_frd_m(snap.hip_rad)
+        moving = np.cross(snap.rates_frd_rad_s, r) + AF.com_offset_rate_frd_m_s(snap.hip_rad, snap.hip_rate_rad_s)
+        expected = np.concatenate([snap.pos_ned_m + rot @ r, snap.euler_rad, snap.hip_rad,
+                                   snap.vel_ned_m_s + rot @ moving, snap.rates_frd_rad_s, snap.hip_rate_rad_s])
+        assert rom_state(snap, COM).tolist() == expected.tolist()

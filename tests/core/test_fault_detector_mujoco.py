@@ -20,12 +20,14 @@ from companion.core.fault_detector import FaultDetector, FaultState
 from companion.core.nmpc import Nmpc
 from companion.core.nmpc_config import NmpcConfig
 from companion.core.reference import MissionReference
+from companion.core.com_offset import ComOffset
 from m4.mission import Mission, Waypoint
 from m4.scenario import PlantOptions
 from companion.telemetry import VehicleSnapshot, rom_state
 from sitl.plant.mujoco_plant import Plant
 
 AF = load_airframe()
+COM = ComOffset(AF)
 HOVER_N = AF.hover_thrust_per_rotor_n
 PERIOD_S = 0.1
 
@@ -43,7 +45,7 @@ def measured_rom_state(plant: Plant) -> np.ndarray:
     return rom_state(VehicleSnapshot(
         time_ms=round(s.time_s * 1000), times_ms={}, euler_rad=s.euler_rad, rates_frd_rad_s=s.rates_frd_rad_s,
         pos_ned_m=s.pos_ned_m, vel_ned_m_s=s.vel_ned_m_s, hip_rad=s.hip_rad, hip_rate_rad_s=s.hip_rate_rad_s,
-        thrust_cmd_n=s.thrust_cmd_n, thrust_limit_n=s.thrust_limit_n), AF)
+        thrust_cmd_n=s.thrust_cmd_n, thrust_limit_n=s.thrust_limit_n), COM)
 
 
 def fly(nmpc, reference, duration_s, fault=None, seed=0):
