@@ -34,28 +34,62 @@ _SIGNATURE_REFUSED = "Invalid signature"      # pymavlink's BAD_DATA reason
 
 
 class _Plan:
-    """How pymavlink's decode turns one message type's unpacked payload into its arguments."""
+    """How pymavlink's decode turns one message type's payload into its message object: the
+    arguments from the unpacked payload, and the attributes its constructor sets that no frame
+    changes, read off one object it built (so they stay pymavlink's)."""
 
     def __init__(self, message_class):
         self.message_class = message_class
         self.crc_extra = bytes([message_class.crc_extra])
         self.unpacker = message_class.unpacker
+        self.fieldnames = message_class.fieldnames
         lengths = message_class.lengths
         # (start in the unpacked tuple, count) of each argument, in the order of the arguments
         self.fields = [(sum(lengths[:order]), lengths[order]) for order in message_class.orders]
         self.has_arrays = sum(lengths) != len(lengths)
+        self.has_text = "char" in message_class.fieldtypes
+        # the arguments are the unpacked tuple itself: no arrays or text, wire order the arguments' order
+        self.as_unpacked = not self.has_arrays and not self.has_text and \
+            list(message_class.orders) == list(range(len(lengths)))
+        self.constants = _constants(message_class)
 
-    def arguments(self, payload: bytearray) -> list:
+    def arguments(self, payload: bytearray) -> tuple | list:
         size = self.unpacker.size
         if len(payload) < size:
-            payload.extend([0] * (size - len(payload)))       # MAVLink 2 cut the trailing zeros
-        t = self.unpacker.unpack(payload[:size])
+            payload.extend(bytes(size - len(payload)))       # MAVLink 2 cut the trailing zeros
+        t = self.unpacker.unpack_from(payload)
+        if self.as_unpacked:
+            return t
         if self.has_arrays:
             args = [t[start] if count == 1 or isinstance(t[start], bytes) else list(t[start:start + count])
                     for start, count in self.fields]
         else:
             args = [t[start] for start, _ in self.fields]
-        return [a.rstrip(b"\x00") if isinstance(a, bytes) else a for a in args]
+        return [a.rstrip(b"\x00") if isinstance(a, bytes) else a for a in args] if self.has_text else args
+
+    def message(self, payload: bytearray):
+        """The message object pymavlink's constructor builds from the payload's arguments."""
+        if self.constants is None:
+            return self.message_class(*self.arguments(payload))
+        attributes = self.constants.copy()
+        attributes.update(zip(self.fieldnames, self.arguments(payload)))
+        msg = object.__new__(self.message_class)
+        msg.__dict__ = attributes
+        return msg
+
+
+def _constants(message_class) -> dict | None:
+    """The attributes pymavlink's constructor of `message_class` sets whatever the arguments; None
+    when it does more than keep its arguments (STATUSTEXT decodes its text)."""
+    marks = [object() for _ in message_class.fieldnames]
+    try:
+        built = message_class(*marks)
+    except (AttributeError, TypeError):
+        return None
+    kept = [vars(built).get(name) for name in message_class.fieldnames]
+    if any(a is not b for a, b in zip(kept, marks)):
+        return None
+    return {k: v for k, v in vars(built).items() if k not in message_class.fieldnames}
 
 
 _PLANS: dict[int, _Plan] = {}
@@ -108,8 +142,7 @@ def _decode(frame: bytearray, plan: _Plan, signature_len: int = 0):
     _, length, incompat_flags, compat_flags, seq, system, component, id_low, id_high = _HEADER.unpack_from(frame)
     message_id = id_low | id_high << 16
     crc_at = len(frame) - _CRC_LEN - signature_len
-    msg = plan.message_class(*plan.arguments(frame[_HEADER_LEN:crc_at]))
-    msg._signed = False
+    msg = plan.message(frame[_HEADER_LEN:crc_at])
     msg._msgbuf = frame
     msg._payload = frame[6:crc_at]              # sic: pymavlink's slice
     msg._crc = _CRC.unpack_from(frame, crc_at)[0]
