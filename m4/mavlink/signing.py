@@ -116,7 +116,9 @@ class _WallClockSigning(mavlink.MAVLinkSigning):
 
 
 def _signature(key: bytes, signed_part) -> bytes:
-    return hashlib.sha256(key + bytes(signed_part)).digest()[:SIGNATURE_BYTES]
+    digest = hashlib.sha256(key)
+    digest.update(signed_part)                  # a memoryview of the packet: no copy
+    return digest.digest()[:SIGNATURE_BYTES]
 
 
 def _allow_unsigned(_mav, msg_id: int) -> bool:
@@ -129,11 +131,11 @@ def check_signature(mav: mavlink.MAVLink, msgbuf: bytearray, src_system: int, sr
     is newer than the last of its stream (link id, system, component), or, for a new stream,
     at most NEW_STREAM_BEHIND_S behind our own timestamp."""
     s = mav.signing
-    if not hmac.compare_digest(_signature(s.secret_key, msgbuf[:-SIGNATURE_BYTES]), bytes(msgbuf[-SIGNATURE_BYTES:])):
+    if not hmac.compare_digest(_signature(s.secret_key, memoryview(msgbuf)[:-SIGNATURE_BYTES]),
+                               bytes(msgbuf[-SIGNATURE_BYTES:])):
         log.info("signature mismatch: packet dropped")
         return False
-    low, high = mav.mav_sign_unpacker.unpack(msgbuf[-12:-6])
-    timestamp = low + (high << 32)
+    timestamp = int.from_bytes(msgbuf[-12:-6], "little")         # 48 bits
     stream = (msgbuf[-13], src_system, src_component)
     last = s.stream_timestamps.get(stream)
     fresh = timestamp > last if last is not None else timestamp >= s.timestamp - NEW_STREAM_BEHIND_S * _TICKS_PER_S
