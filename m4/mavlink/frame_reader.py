@@ -110,12 +110,13 @@ def read_datagram(mav: mavlink.MAVLink, data: bytes) -> list:
         return mav.parse_buffer(data) or []
     mav.total_bytes_received += len(data)
     mav.total_packets_received += len(frames)
-    return [_decode(frame, plan) if not signed else _decode_signed(mav, frame, plan) for frame, plan, signed in frames]
+    if mav.signing.secret_key is None:
+        return [_decode(frame, plan, _CRC_LEN) for frame, plan in frames]
+    return [_decode_signed(mav, frame, plan) for frame, plan in frames]
 
 
-def _plain_frames(mav: mavlink.MAVLink, data: bytes) -> list[tuple[bytearray, _Plan, bool]] | None:
-    """Each frame of `data` with its plan and whether it is signed; None when any of it is not
-    the plain case."""
+def _plain_frames(mav: mavlink.MAVLink, data: bytes) -> list[tuple[bytearray, _Plan]] | None:
+    """Each frame of `data` with its plan; None when any of it is not the plain case."""
     if mav.buf_len() != 0 or mav.callback is not None:
         return None
     flags = 0 if mav.signing.secret_key is None else _SIGNED       # the one flag every frame must carry
@@ -124,29 +125,33 @@ def _plain_frames(mav: mavlink.MAVLink, data: bytes) -> list[tuple[bytearray, _P
     while start < end:
         if end - start < _HEADER_LEN + tail or data[start] != _MAGIC or data[start + 2] != flags:
             return None                        # cut short, not MAVLink 2, unknown flags, signed or not as it may not be
-        stop = start + _HEADER_LEN + data[start + 1] + tail
-        plan = _plan(data[start + 7] | data[start + 8] << 8 | data[start + 9] << 16)
-        if stop > end or plan is None:
+        crc_at = start + _HEADER_LEN + data[start + 1]
+        message_id = data[start + 7] | data[start + 8] << 8 | data[start + 9] << 16
+        plan = _PLANS.get(message_id) or _plan(message_id)
+        if crc_at + tail > end or plan is None or \
+                _CRC.unpack_from(data, crc_at)[0] != _crc(data[start + 1:crc_at], plan):
             return None
-        frame = bytearray(data[start:stop])
-        crc_at = len(frame) - tail
-        if _CRC.unpack_from(frame, crc_at)[0] != mavlink.mcrf4xx(bytes(frame[1:crc_at]) + plan.crc_extra, 0xFFFF):
-            return None
-        frames.append((frame, plan, bool(flags)))
-        start = stop
+        frames.append((bytearray(data[start:crc_at + tail]), plan))
+        start = crc_at + tail
     return frames
 
 
-def _decode(frame: bytearray, plan: _Plan, signature_len: int = 0):
-    """What pymavlink's `MAVLink.decode` returns for this frame, its signature (if any) accepted."""
+def _crc(covered: bytes, plan: _Plan) -> int:
+    """The frame's checksum: of the bytes after the magic up to the CRC, then the message's CRC_EXTRA."""
+    return mavlink.mcrf4xx(plan.crc_extra, mavlink.mcrf4xx(covered, 0xFFFF))
+
+
+def _decode(frame: bytearray, plan: _Plan, tail: int):
+    """What pymavlink's `MAVLink.decode` returns for this frame (`tail`: its CRC and signature's
+    length), its signature (if any) accepted."""
     _, length, incompat_flags, compat_flags, seq, system, component, id_low, id_high = _HEADER.unpack_from(frame)
-    message_id = id_low | id_high << 16
-    crc_at = len(frame) - _CRC_LEN - signature_len
+    crc_at = len(frame) - tail
     msg = plan.message(frame[_HEADER_LEN:crc_at])
     msg._msgbuf = frame
     msg._payload = frame[6:crc_at]              # sic: pymavlink's slice
     msg._crc = _CRC.unpack_from(frame, crc_at)[0]
-    msg._header = mavlink.MAVLink_header(message_id, incompat_flags, compat_flags, length, seq, system, component)
+    msg._header = mavlink.MAVLink_header(id_low | id_high << 16, incompat_flags, compat_flags, length, seq, system,
+                                         component)
     return msg
 
 
@@ -155,8 +160,7 @@ def _decode_signed(mav: mavlink.MAVLink, frame: bytearray, plan: _Plan):
     unsigned allow-list for a frame it refuses, the counters moved; BAD_DATA if refused."""
     signing = mav.signing
     signing.sig_count += 1
-    system, component = frame[5], frame[6]
-    good = mav.check_signature(frame, system, component)
+    good = mav.check_signature(frame, frame[5], frame[6])
     if good:
         signing.goodsig_count += 1
     else:
@@ -169,7 +173,7 @@ def _decode_signed(mav: mavlink.MAVLink, frame: bytearray, plan: _Plan):
         if not allowed:
             mav.total_receive_errors += 1
             return mavlink.MAVLink_bad_data(frame, _SIGNATURE_REFUSED)
-    msg = _decode(frame, plan, _SIGNATURE_LEN)
+    msg = _decode(frame, plan, _CRC_LEN + _SIGNATURE_LEN)
     if good:
         msg._signed = True
         msg._link_id = frame[-_SIGNATURE_LEN]
