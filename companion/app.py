@@ -147,7 +147,7 @@ class CompanionApp:
         self.profile = PROJECT_FC                # until the FC's HEARTBEAT names its autopilot
         # No mission file: the FC's mission, when it has one (companion.fc_mission).
         self.fc_mission = None if config.mission_path is not None else \
-            FcMission(fc, (FC_SYSTEM_ID, COMPANION_COMPONENT_ID), config.fc_mission_on_fault)
+            FcMission(fc, fc.own_ids, config.fc_mission_on_fault)
         if config.mission_path is not None:
             log.info("flying the mission file %s (it takes precedence over the flight controller's)",
                      config.mission_path)

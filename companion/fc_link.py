@@ -54,7 +54,7 @@ from companion.core.control_types import FaultStatus
 from companion.fc_commands import Command, CommandQueue
 from companion.link_delay import LinkDelay
 from companion.telemetry import REQUESTED, STREAMS
-from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
+from m4.mavlink import FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink
 from m4.mavlink.param_service import PARAM_IDS
 from m4.mavlink.second_sender import OTHER_ADDRESS, SecondSender, address_text
 from m4.mavlink.signing import SigningCounters, refusal
@@ -77,6 +77,9 @@ class FcTransport(Protocol):
 
     @property
     def signing_key(self) -> bytes | None: ...          # None: nothing signed or checked
+
+    @property
+    def source_ids(self) -> tuple[int, int]: ...        # (system, component) it sends as: ours
 
     @property
     def bad_packets(self) -> int: ...                   # garbled or rejected by signing
@@ -164,8 +167,7 @@ def mission_progress(msg: mavlink.MAVLink_m4_fault_status_message) -> MissionPro
 
 class FcLink:
     def __init__(self, link: FcTransport, fc_system_id: int = FC_SYSTEM_ID, fc_component_id: int = FC_COMPONENT_ID,
-                 heartbeat_before_lock: bool = False, telemetry_timeout_s: float = DEFAULT_TELEMETRY_TIMEOUT_S,
-                 own_ids: tuple[int, int] = (FC_SYSTEM_ID, COMPANION_COMPONENT_ID)):
+                 heartbeat_before_lock: bool = False, telemetry_timeout_s: float = DEFAULT_TELEMETRY_TIMEOUT_S):
         self.link = link
         self.heartbeat_before_lock = heartbeat_before_lock
         self.telemetry_timeout_s = telemetry_timeout_s
@@ -177,7 +179,8 @@ class FcLink:
         self.last_telemetry_s: float | None = None          # when it arrived (our clock)
         self._foreign = 0
         self._next_heartbeat_s = 0.0
-        self.commands = CommandQueue(self.fc_ids, own_ids)
+        self.own_ids = link.source_ids                      # what the FC addresses its answers to
+        self.commands = CommandQueue(self.fc_ids, self.own_ids)
         self.delay = LinkDelay()
         self._signing = link.signing_key is not None
         self.second_sender = SecondSender("the flight controller", self.fc_ids, "companion",

@@ -105,6 +105,11 @@ class MavlinkLink:
         return [msg for _, msgs in self.receive_from() for msg in msgs]
 
     @property
+    def source_ids(self) -> tuple[int, int]:
+        """(system, component) every packet sent goes out as."""
+        return self.mav.srcSystem, self.mav.srcComponent
+
+    @property
     def signing_key(self) -> bytes | None:
         """The signing key (None: the link neither signs nor checks signatures)."""
         return self.mav.signing.secret_key

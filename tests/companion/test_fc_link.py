@@ -234,6 +234,29 @@ def test_an_ack_the_fc_sends_a_ground_station_does_not_answer_our_command(links)
     assert companion.health().commands_acked == 1
 
 
+def test_acks_answer_the_ids_the_link_sends_as():
+    """A companion on another component (a second onboard computer, 192) takes the FC's acks
+    addressed to that component as answers to its commands: its own ids are its link's."""
+    second = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER2
+    companion = FcLink(UdpLink("udpin:127.0.0.1:0", FC_SYSTEM_ID, second))
+    fc = UdpLink(f"udpout:127.0.0.1:{companion.link.local_port}", FC_SYSTEM_ID, FC_COMPONENT_ID)
+    try:
+        fc.send(heartbeat())
+        drain(received(companion))
+        companion.request_intervals(0.02)
+        companion.tick(0.0)
+        asked = [m for m in drain(fc.receive, timeout_s=0.5) if m.get_type() == "COMMAND_LONG"]
+        assert asked and (asked[0].get_srcComponent(), asked[0].target_component) == (second, FC_COMPONENT_ID)
+        fc.send(mavlink.MAVLink_command_ack_message(asked[0].command, mavlink.MAV_RESULT_ACCEPTED, 0, 0,
+                                                    FC_SYSTEM_ID, second))
+        drain(received(companion))
+        assert companion.health().commands_acked == 1
+        assert companion.own_ids == (FC_SYSTEM_ID, second)
+    finally:
+        companion.link.close()
+        fc.close()
+
+
 def test_the_fault_status_carries_the_missions_progress_and_it_reads_back():
     plan = PlanProgress(PlanState.FAULT_HOLD, 0.02, (0.0, 0.0, -2.0), 1.06, (0.5, 0.0, -1.9))
     progress = MissionProgress(2.98, plan)
