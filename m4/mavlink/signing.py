@@ -104,7 +104,11 @@ def _wall_timestamp() -> int:
 
 
 class _WallClockSigning(mavlink.MAVLinkSigning):
-    """pymavlink's signing state whose own timestamp never falls behind the wall clock."""
+    """pymavlink's signing state whose own timestamp never falls behind the wall clock; with
+    the key's SHA-256 state kept (`keyed`: a copy of it starts each signature, without
+    OpenSSL looking the digest up again)."""
+
+    keyed = None
 
     @property
     def timestamp(self) -> int:
@@ -115,9 +119,11 @@ class _WallClockSigning(mavlink.MAVLinkSigning):
         self._timestamp = value
 
 
-def _signature(key: bytes, signed_part) -> bytes:
-    digest = hashlib.sha256(key)
-    digest.update(signed_part)                  # a memoryview of the packet: no copy
+def _signature(keyed, signed_part) -> bytes:
+    """The signature of `signed_part` (a memoryview of the packet: no copy) from `keyed`, the
+    SHA-256 state after the key."""
+    digest = keyed.copy()
+    digest.update(signed_part)
     return digest.digest()[:SIGNATURE_BYTES]
 
 
@@ -131,7 +137,7 @@ def check_signature(mav: mavlink.MAVLink, msgbuf: bytearray, src_system: int, sr
     is newer than the last of its stream (link id, system, component), or, for a new stream,
     at most NEW_STREAM_BEHIND_S behind our own timestamp."""
     s = mav.signing
-    if not hmac.compare_digest(_signature(s.secret_key, memoryview(msgbuf)[:-SIGNATURE_BYTES]),
+    if not hmac.compare_digest(_signature(s.keyed, memoryview(msgbuf)[:-SIGNATURE_BYTES]),
                                bytes(msgbuf[-SIGNATURE_BYTES:])):
         log.info("signature mismatch: packet dropped")
         return False
@@ -152,7 +158,8 @@ def refusal(key: bytes, packet: bytes) -> str:
     "replayed" (its signature is good: its timestamp was not newer than its stream's)."""
     if len(packet) < 3 or packet[0] != mavlink.PROTOCOL_MARKER_V2 or not packet[2] & mavlink.MAVLINK_IFLAG_SIGNED:
         return "unsigned"
-    good = hmac.compare_digest(_signature(key, packet[:-SIGNATURE_BYTES]), bytes(packet[-SIGNATURE_BYTES:]))
+    good = hmac.compare_digest(_signature(hashlib.sha256(key), packet[:-SIGNATURE_BYTES]),
+                               bytes(packet[-SIGNATURE_BYTES:]))
     return "replayed" if good else "bad signature"
 
 
@@ -163,6 +170,7 @@ def setup_signing(mav: mavlink.MAVLink, key: bytes, link_id: int = 0) -> None:
         raise ValueError(f"signing key must be {KEY_BYTES} bytes, got {len(key)}")
     s = mav.signing = _WallClockSigning()
     s.secret_key = key
+    s.keyed = hashlib.sha256(key)
     s.sign_outgoing = True
     s.allow_unsigned_callback = _allow_unsigned
     s.link_id = link_id
