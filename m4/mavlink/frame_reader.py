@@ -112,7 +112,7 @@ def read_datagram(mav: mavlink.MAVLink, data: bytes) -> list:
     mav.total_packets_received += len(frames)
     if mav.signing.secret_key is None:
         return [_decode(frame, plan, _CRC_LEN) for frame, plan in frames]
-    return [_decode_signed(mav, frame, plan) for frame, plan in frames]
+    return _decode_signed(mav, frames)
 
 
 def _plain_frames(mav: mavlink.MAVLink, data: bytes) -> list[tuple[bytearray, _Plan]] | None:
@@ -155,26 +155,34 @@ def _decode(frame: bytearray, plan: _Plan, tail: int):
     return msg
 
 
-def _decode_signed(mav: mavlink.MAVLink, frame: bytearray, plan: _Plan):
-    """pymavlink's decode of a signed frame on a link with a key: the signature checked, then the
-    unsigned allow-list for a frame it refuses, the counters moved; BAD_DATA if refused."""
+def _decode_signed(mav: mavlink.MAVLink, frames: list[tuple[bytearray, _Plan]]) -> list:
+    """pymavlink's decode of signed frames on a link with a key: each signature checked, then the
+    unsigned allow-list for a frame it refuses, the counters moved; BAD_DATA for a refused one."""
+    check, out, good = mav.check_signature, [], 0
+    for frame, plan in frames:
+        if check(frame, frame[5], frame[6]):
+            msg = _decode(frame, plan, _CRC_LEN + _SIGNATURE_LEN)
+            msg._signed = True
+            msg._link_id = frame[-_SIGNATURE_LEN]
+            good += 1
+        else:
+            msg = _refused(mav, frame, plan)
+        out.append(msg)
+    mav.signing.sig_count += len(frames)
+    mav.signing.goodsig_count += good
+    return out
+
+
+def _refused(mav: mavlink.MAVLink, frame: bytearray, plan: _Plan):
+    """A frame whose signature was refused: the message, unsigned, when the allow-list lets it
+    pass; else BAD_DATA."""
     signing = mav.signing
-    signing.sig_count += 1
-    good = mav.check_signature(frame, frame[5], frame[6])
-    if good:
-        signing.goodsig_count += 1
-    else:
-        signing.badsig_count += 1
-        allowed = signing.allow_unsigned_callback is not None and signing.allow_unsigned_callback(mav, plan.message_class.id)
-        if allowed:
-            signing.unsigned_count += 1
-        elif signing.allow_unsigned_callback is not None:
-            signing.reject_count += 1
-        if not allowed:
-            mav.total_receive_errors += 1
-            return mavlink.MAVLink_bad_data(frame, _SIGNATURE_REFUSED)
-    msg = _decode(frame, plan, _CRC_LEN + _SIGNATURE_LEN)
-    if good:
-        msg._signed = True
-        msg._link_id = frame[-_SIGNATURE_LEN]
-    return msg
+    signing.badsig_count += 1
+    allowed = signing.allow_unsigned_callback is not None and signing.allow_unsigned_callback(mav, plan.message_class.id)
+    if allowed:
+        signing.unsigned_count += 1
+        return _decode(frame, plan, _CRC_LEN + _SIGNATURE_LEN)
+    if signing.allow_unsigned_callback is not None:
+        signing.reject_count += 1
+    mav.total_receive_errors += 1
+    return mavlink.MAVLink_bad_data(frame, _SIGNATURE_REFUSED)
