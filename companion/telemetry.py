@@ -152,10 +152,10 @@ class TelemetryAssembler:
         if fc_ms is None or self._esc is not None and fc_ms <= round(self._esc.time_s * 1000.0):
             self.counters.stale += 1          # no FC instant to stamp it with, or none newer than the last
             return False
-        voltage_v = np.array(msg.voltage, dtype=float) / 100.0
-        self._esc = EscSample(time_s=fc_ms / 1000.0, rpm=np.array(msg.rpm, dtype=float),
-                              current_a=np.array(msg.current, dtype=float) / 100.0,
-                              voltage_v=np.where(voltage_v > 0.0, voltage_v, np.nan))
+        voltage_v = [v / 100.0 for v in msg.voltage]
+        self._esc = EscSample(time_s=fc_ms / 1000.0, rpm=_array(msg.rpm),
+                              current_a=_array([a / 100.0 for a in msg.current]),
+                              voltage_v=_array([v if v > 0.0 else math.nan for v in voltage_v]))
         self._esc_received_s = now_s
         self.counters.accepted += 1
         return True
