@@ -199,7 +199,8 @@ class FcLink:
         out, param_requests = [], []
         for sender, msgs in self.link.receive_from():
             for msg in msgs:
-                if msg.get_msgId() in PARAM_IDS and sender == self.fc_address:
+                msg_id = msg.get_msgId()
+                if msg_id in PARAM_IDS and sender == self.fc_address:
                     param_requests.append(msg)      # a ground station's (or the FC's), routed to us
                     continue
                 if (msg.get_srcSystem(), msg.get_srcComponent()) != self.fc_ids:
@@ -215,11 +216,11 @@ class FcLink:
                         continue
                     self._lock(sender)
                     events.add(LinkEvent.LOCKED)
-                if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_COMMAND_ACK:
+                if msg_id == mavlink.MAVLINK_MSG_ID_COMMAND_ACK:
                     self.commands.on_ack(msg)
-                elif msg.get_msgId() == mavlink.MAVLINK_MSG_ID_TIMESYNC:
+                elif msg_id == mavlink.MAVLINK_MSG_ID_TIMESYNC:
                     self._on_timesync(msg, now_s)
-                elif msg.get_msgId() in STREAMS:
+                elif msg_id in STREAMS:
                     events |= self._on_telemetry(int(msg.time_boot_ms), now_s)
                 out.append(msg)
         if self.connected and now_s >= self.loss_deadline_s():
