@@ -28,8 +28,8 @@ controllers send none: the snapshot's `esc` is then None.
 
 Frames: everything stays NED/FRD as on the wire. LOCAL_POSITION_NED is the hull centre (the
 IMU); the ROM's p and v are the whole robot's centre of mass, offset by
-`Airframe.com_offset_frd_m(hip)` (in closed form: companion.core.com_offset) rotated into NED, its velocity including omega x r and the
-offset's own motion with the legs.
+`Airframe.com_offset_frd_m(hip)` (in closed form: companion.core.com_offset) rotated into NED,
+its velocity including omega x r and the offset's own motion with the legs.
 """
 
 from __future__ import annotations
@@ -63,7 +63,8 @@ _QUAT_NORM_TOLERANCE = 0.05
 def _decode(msg, msg_id: int) -> dict[str, tuple[float, ...]]:
     """The fields of one telemetry message as floats, named with units and frames."""
     if msg_id == ATTITUDE:
-        return {"euler_rad": (msg.roll, msg.pitch, msg.yaw), "rates_frd_rad_s": (msg.rollspeed, msg.pitchspeed, msg.yawspeed)}
+        return {"euler_rad": (msg.roll, msg.pitch, msg.yaw),
+                "rates_frd_rad_s": (msg.rollspeed, msg.pitchspeed, msg.yawspeed)}
     if msg_id == ATTITUDE_QUATERNION:
         return {"quat_wxyz": (msg.q1, msg.q2, msg.q3, msg.q4),
                 "rates_frd_rad_s": (msg.rollspeed, msg.pitchspeed, msg.yawspeed)}
@@ -171,8 +172,8 @@ class TelemetryAssembler:
         received counts from the first sample of any."""
         if self._first is None:
             return ()
-        samples = self._samples.values()
-        newest_fc_s, newest_s = self._newest_ms / 1000.0, max(x.received_s for x in samples)
+        newest_fc_s = self._newest_ms / 1000.0
+        newest_s = max(x.received_s for x in self._samples.values())
         out = []
         for ids in NEEDED:
             got = [self._samples[i] for i in ids if i in self._samples]

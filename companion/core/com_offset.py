@@ -22,7 +22,8 @@ class ComOffset:
         # per leg: hip x, hip y, L sx, L sy, -L sx (the factors as the airframe multiplies them)
         self._legs = tuple((hx, hy, length * sx, length * sy, -length * sx)
                            for (hx, hy, _), (sx, sy) in zip(af.hip_positions_frd_m.tolist(), signs))
-        self._at_hips = tuple(af._legs_at_hips_kg_m.tolist())
+        # the legs' masses at their hips: the first moment the airframe's offset starts from
+        self._at_hips = tuple((af.leg_mass_kg * af.hip_positions_frd_m.sum(axis=0)).tolist())
         self._swing_kg = af.leg_swing_mass_kg
         self._total_kg = af.total_mass_kg
 
@@ -32,12 +33,14 @@ class ComOffset:
         reach_x, reach_y, rate_x, rate_y = [], [], [], []
         for (hx, hy, lsx, lsy, minus_lsx), q, qd in zip(self._legs, hip_rad, hip_rate_rad_s):
             cos_q, sin_q = (math.cos(q), math.sin(q)) if math.isfinite(q) else (math.nan, math.nan)
+            # hip -> hub as the airframe takes it: the hub's position less the hip's (rounded so)
             reach_x.append((hx + lsx * cos_q) - hx)
             reach_y.append((hy + lsy * sin_q) - hy)
             rate_x.append(minus_lsx * sin_q * qd)
             rate_y.append(lsy * cos_q * qd)
         swing, total, (mx, my, mz) = self._swing_kg, self._total_kg, self._at_hips
-        offset = [(mx + swing * _sum(reach_x)) / total, (my + swing * _sum(reach_y)) / total, (mz + swing * 0.0) / total]
+        offset = [(mx + swing * _sum(reach_x)) / total, (my + swing * _sum(reach_y)) / total,
+                  (mz + swing * 0.0) / total]
         rate = [swing * _sum(rate_x) / total, swing * _sum(rate_y) / total, swing * 0.0 / total]
         return offset, rate
 
