@@ -213,10 +213,12 @@ def _array(values: tuple[float, ...]) -> np.ndarray:
 
 def rom_state(snap: VehicleSnapshot, com: ComOffset) -> np.ndarray:
     """The NMPC's state (20) from a snapshot: centre of mass position and velocity (NED), on
-    floats but for the two rotations (numpy's matrix product rounds as the floats would not)."""
+    floats but for the two rotations (numpy's matrix product rounds as the floats would not); an
+    angle that is not finite gives NaN, as numpy's cosine does."""
     euler, rates = snap.euler_rad.tolist(), snap.rates_frd_rad_s.tolist()
     hip, hip_rate = snap.hip_rad.tolist(), snap.hip_rate_rad_s.tolist()
-    rot = np.array(rotation_rows(*(f(a) for a in euler for f in (math.cos, math.sin))))
+    rot = np.array(rotation_rows(*(f(a) if math.isfinite(a) else math.nan
+                                   for a in euler for f in (math.cos, math.sin))))
     r_frd, r_dot_frd = com.offset_and_rate(hip, hip_rate)
     (w0, w1, w2), (r0, r1, r2) = rates, r_frd
     moving_frd = [w1 * r2 - w2 * r1 + r_dot_frd[0], w2 * r0 - w0 * r2 + r_dot_frd[1], w0 * r1 - w1 * r0 + r_dot_frd[2]]

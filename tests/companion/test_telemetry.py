@@ -273,3 +273,14 @@ def test_rom_state_is_the_airframes_arrays_to_the_bit():
         expected = np.concatenate([snap.pos_ned_m + rot @ r, snap.euler_rad, snap.hip_rad,
                                    snap.vel_ned_m_s + rot @ moving, snap.rates_frd_rad_s, snap.hip_rate_rad_s])
         assert rom_state(snap, COM).tolist() == expected.tolist()
+
+
+def test_an_angle_that_is_not_finite_gives_a_state_of_nan_not_an_error():
+    """A snapshot built by hand (the controller's tests do) may hold one; the controller makes
+    a safe setpoint of the NaN."""
+    asm = TelemetryAssembler()
+    feed(asm, frame(0))
+    snap = asm.snapshot()
+    snap.euler_rad[0] = math.inf
+    x = rom_state(snap, COM)
+    assert np.isnan(x[rom.P]).all() and np.isnan(x[rom.V]).all() and x[rom.EULER][0] == math.inf
