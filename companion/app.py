@@ -141,7 +141,7 @@ class CompanionApp:
         self._fc_landing = False                 # the FC's mode in force, as it last said: it lands
         self._fc_mode = FcMode.COMPANION         # the mode selected at the FC: what we fly
         self.streams = StreamWatch(config.control_period_s)
-        self.params = ParamService(CompanionParams(config, self._retune).table, FC_SYSTEM_ID, COMPANION_COMPONENT_ID,
+        self.params = ParamService(CompanionParams(config, self._retune).table, *fc.own_ids,
                                    "companion", None if config.params_path is None else ParamFile(config.params_path),
                                    log.info)
         self.profile = PROJECT_FC                # until the FC's HEARTBEAT names its autopilot

@@ -3,11 +3,20 @@ configuration that keeps what a ground station set, checked at start as the TOML
 
 from __future__ import annotations
 
-import pytest
+import time
 
+import pytest
+from support.loopback_fc import LoopbackFc
+
+from companion.app import CompanionApp
 from companion.cli import main
-from companion.config import load_config
+from companion.config import load_config, parse_config
+from companion.controller import Controller, ControllerSettings
+from companion.fc_link import FcLink
 from companion.params import CompanionParams, with_params_file
+from m4.airframe import load_airframe
+from m4.mavlink import FC_SYSTEM_ID, mavlink
+from m4.mavlink.link import UdpLink
 from m4.params import NAME_MAX
 from m4.toml_fields import ConfigError
 
@@ -69,3 +78,24 @@ def test_a_set_retunes_the_running_detector_and_keeps_the_configuration_in_step(
     assert params.table.set("NMPC_DT", 0.05).reason == "read-only"
     assert [c.fault_detector.confirm_s for c in changes] == [0.2]
     assert params.config.fault_detector.confirm_s == 0.2 and params.config.nmpc.dt_s == 0.1
+
+
+def test_the_companions_parameters_answer_the_ids_its_link_sends_as():
+    """A companion on another component (192) answers a parameter read addressed to that
+    component, as the component it sends as."""
+    second = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER2
+    link = UdpLink("udpin:127.0.0.1:0", FC_SYSTEM_ID, second)
+    config = parse_config({"control": {"rate_hz": 50.0}, "link": {"fc_url": "udpin:127.0.0.1:0"}}, "test")
+    app = CompanionApp(config, FcLink(link), Controller(ControllerSettings.of(config)))
+    fc = LoopbackFc(link.local_port, load_airframe())
+    try:
+        fc.join(app)
+        fc.link.send(mavlink.MAVLink_param_request_read_message(FC_SYSTEM_ID, second, b"", 0))
+        time.sleep(0.05)
+        app.poll()
+        time.sleep(0.05)
+        values = [m for m in fc.received() if m.get_type() == "PARAM_VALUE"]
+    finally:
+        fc.close()
+        link.close()
+    assert values and values[0].get_srcComponent() == second
