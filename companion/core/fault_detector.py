@@ -186,6 +186,7 @@ class FaultDetector:
         self._window: deque[tuple[float, IntervalFit]] = deque()
         self._bias_per_s = np.zeros(len(CHANNELS))
         self._deficit_n = np.zeros(ROTOR_COUNT)
+        self._status: FaultStatus | None = None        # built when asked for, until the next change
         self._clear()
         self._detected_at_s: float | None = None
 
@@ -202,14 +203,14 @@ class FaultDetector:
         """Decide by `config`'s thresholds from the next frame on (a parameter set in flight); the
         residual's noise model stays the one built (its fields are read-only parameters)."""
         config.validate()
-        self._c = config
+        self._c, self._status = config, None
 
     def hold(self) -> None:
         """The robot touches the ground: forces the model does not have (the ground's support,
         its friction against the air's push) move it, so this frame is no evidence. A suspicion
         is dropped and the evidence restarts at the next frame in free flight; a confirmed fault
         stays as it is."""
-        self._prev, self._run = None, None
+        self._prev, self._run, self._status = None, None, None
         if self._state is FaultState.SUSPECT:
             self._clear()
         self._window.clear()
@@ -218,6 +219,7 @@ class FaultDetector:
         """Start from a fault confirmed before this detector existed (a restarted companion:
         the FC kept its M4_FAULT_STATUS): rotor 1..4, its ceiling, when it was confirmed."""
         self._clear()
+        self._status = None
         self._state, self._index, self._detected_at_s = FaultState.CONFIRMED, rotor - 1, detected_at_s
         self._estimate_n = float(thrust_max_estimate_n)
 
@@ -230,6 +232,13 @@ class FaultDetector:
 
     @property
     def status(self) -> FaultStatus:
+        """The detector's status, built once after each change (update, hold, restore, retune):
+        asked again, the same object, its arrays read-only."""
+        if self._status is None:
+            self._status = self._build_status()
+        return self._status
+
+    def _build_status(self) -> FaultStatus:
         estimate, bound = self._limit_n.copy(), self._thrust_bound_n()
         confirmed = self._state is FaultState.CONFIRMED
         if confirmed:
@@ -239,9 +248,12 @@ class FaultDetector:
         if confirmed:
             known = "" if self._kind is FaultKind.UNKNOWN else f" ({self._kind.name.lower()})"
             message = f"thrust loss rotor {rotor}{known}"
+        deficit = self._deficit_n.copy()
+        for array in (estimate, bound, deficit):
+            array.flags.writeable = False
         return FaultStatus(state=self._state, rotor=rotor, kind=self._kind, thrust_max_estimate_n=estimate,
                            thrust_bound_n=bound, detected_at_s=self._detected_at_s if confirmed else None,
-                           message=message, deficit_n=self._deficit_n.copy())
+                           message=message, deficit_n=deficit)
 
     def cannot_confirm(self, time_s: float, thrust_limit_n) -> bool:
         """True when update() at time_s with these limits (4,) can neither confirm a fault nor
@@ -272,6 +284,7 @@ class FaultDetector:
         detector (default and NaN entries: the airframe's thrust_max_n); esc: the newest ESC
         telemetry (None: the FC has none). A frame with a non-finite state or command is
         skipped and restarts the evidence."""
+        self._status = None
         x = np.asarray(state_measured, dtype=float).reshape(rom.NX)
         cmd = np.asarray(thrust_cmd_n, dtype=float).reshape(ROTOR_COUNT)
         if not (np.isfinite(x).all() and np.isfinite(cmd).all()):

@@ -48,6 +48,28 @@ def test_without_esc_telemetry_the_model_residual_finds_the_rotor():
     assert status.thrust_max_estimate_n[3] < 0.1 * HOVER_N
 
 
+def test_the_status_is_built_once_a_change_and_cannot_be_written_into():
+    det = FaultDetector(AF, propeller=PROP)
+    x = rom.hover_state(AF)
+    u = rom.hover_input(AF)
+    lost = u.copy()
+    lost[3] = 0.0
+    for k in range(6):
+        status = det.update(k * DT, x, u[rom.THRUST])
+        assert det.status is status                       # asked again before the next frame: the same
+        for array in (status.thrust_max_estimate_n, status.thrust_bound_n, status.deficit_n):
+            with pytest.raises(ValueError, match="read-only"):
+                array[0] = 0.0
+        x = np.array(STEP(x, lost if k >= 2 else u, np.zeros(rom.ND))).ravel()
+    confirmed = det.status
+    det.retune(FaultDetectorConfig(probe_n=1.0))          # a new probe moves the bound: a new status
+    assert det.status is not confirmed and det.status.thrust_bound_n[3] == confirmed.thrust_bound_n[3] - 1.0
+    det.hold()
+    assert det.status is not confirmed and det.status.state is FaultState.CONFIRMED
+    det.restore(2, 5.0, 1.0)
+    assert det.status.rotor == 2 and det.status.thrust_max_estimate_n[1] == 5.0
+
+
 def test_a_gap_in_telemetry_restarts_the_evidence_instead_of_reading_it_as_a_fault():
     det = FaultDetector(AF, propeller=PROP)
     x0 = rom.hover_state(AF)
