@@ -104,19 +104,20 @@ class EscReading:
     voltage_v: float                       # the ESCs' median voltage (NaN: unknown)
 
 
-def current_speed_rpm(sample: EscSample, before: EscSample | None, before_speed_rpm: np.ndarray | None) -> np.ndarray:
+def current_speed_rpm(sample: EscSample, before: EscSample | None,
+                      before_speed_rpm: list[float] | None) -> list[float]:
     """Each rotor's speed when the current `sample` reports was measured: the speed of the frame
     that current first came in. A current the frame `before` reported already keeps the speed it
     came with (`before_speed_rpm`, this function's answer for `before`); a new one, this frame's."""
-    rpm = np.array(_reported(sample.rpm, _RPM_MAX))
+    rpm = _reported(sample.rpm, _RPM_MAX)
     if before is None or before_speed_rpm is None:
         return rpm
-    held = np.asarray(sample.current_a, dtype=float) == np.asarray(before.current_a, dtype=float)
-    return np.where(held & np.isfinite(before_speed_rpm), before_speed_rpm, rpm)
+    return [held if now_a == then_a and math.isfinite(held) else r for r, held, now_a, then_a
+            in zip(rpm, before_speed_rpm, _floats(sample.current_a), _floats(before.current_a))]
 
 
 def read_escs(sample: EscSample, expected_n: np.ndarray, model: PropellerModel,
-              th: EscThresholds = EscThresholds(), current_rpm: np.ndarray | None = None) -> EscReading:
+              th: EscThresholds = EscThresholds(), current_rpm: list[float] | None = None) -> EscReading:
     """The thrusts and conditions of one ESC frame, against the thrust the rotors should give now
     (the command through the motor lag, within the battery's ceiling). current_rpm: each rotor's
     speed when its current was measured (`current_speed_rpm`; None: this frame's). Four rotors:
@@ -128,7 +129,7 @@ def read_escs(sample: EscSample, expected_n: np.ndarray, model: PropellerModel,
     volts_v = _median(volts) if volts else math.nan
     ceiling = model.ceiling_n(volts_v) if volts else math.inf
     expected_rpm = model.rpm(np.minimum(expected_n, ceiling)).tolist()
-    load_rpm = rpm if current_rpm is None else [c if math.isfinite(c) else r for c, r in zip(current_rpm.tolist(), rpm)]
+    load_rpm = rpm if current_rpm is None else [c if math.isfinite(c) else r for c, r in zip(current_rpm, rpm)]
     cubes = (np.maximum(load_rpm, th.speed_min_rpm) ** 3).tolist()
     loads = [c * (v if math.isfinite(v) else 1.0) / cube if math.isfinite(r) and r >= th.speed_min_rpm
              and math.isfinite(c) else math.nan for r, c, v, cube in zip(rpm, current, voltage, cubes)]
@@ -148,7 +149,12 @@ def read_escs(sample: EscSample, expected_n: np.ndarray, model: PropellerModel,
 def _reported(values, most: float) -> list[float]:
     """The four values as reported; NaN (not reported) where one is not a reading: not finite,
     negative or beyond `most`."""
-    return [v if 0.0 <= v <= most else math.nan for v in np.asarray(values, dtype=float).reshape(ROTOR_COUNT).tolist()]
+    return [v if 0.0 <= v <= most else math.nan for v in _floats(values)]
+
+
+def _floats(values) -> list[float]:
+    """The four rotors' values as Python floats."""
+    return np.asarray(values, dtype=float).reshape(ROTOR_COUNT).tolist()
 
 
 def _median(values: list[float]) -> float:

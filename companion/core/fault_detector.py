@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from enum import IntEnum
 from typing import NamedTuple
@@ -77,6 +78,7 @@ _STOPPED_SHARE = 0.1      # an ESC whose speed heads for less than this share of
 _LOST_SHARE = 0.25        # a damaged propeller sized below this share of its command may be a lost one
 _LAG_SPANS = 3.0          # the lag is undone in the sizing over spans up to this many motor time constants
 _DAMAGE_AVERAGE_S = 0.3   # a damaged propeller's sizing after confirmation averages its evidence over this long
+_EVERY_ROTOR = (True,) * ROTOR_COUNT    # an ESC measures what every rotor delivers
 _KIND_OF_CONDITION = {RotorCondition.STOPPED: FaultKind.MOTOR, RotorCondition.UNLOADED: FaultKind.PROPELLER,
                       RotorCondition.SLOW: FaultKind.DEGRADED, RotorCondition.NORMAL: FaultKind.DEGRADED}
 
@@ -145,10 +147,11 @@ class _Evidence:
     index: int | None                  # the rotor voted for, 0..3 (rotor - 1); None: no vote
     path: _Path
     kind: FaultKind
-    delivered_n: np.ndarray            # (4,) what each rotor delivered (ESC: the level its lag heads to)
-    expected_n: np.ndarray             # (4,) what the model expected of each rotor over the interval
-    short: np.ndarray                  # (4,) bool: clearly delivered less than expected (this rotor alone)
-    significant: np.ndarray            # (4,) bool: what it delivered is measured, not noise
+    # (4,) each: numpy arrays from the residual, Python lists from an ESC frame
+    delivered_n: Sequence[float]       # what each rotor delivered (ESC: the level its lag heads to)
+    expected_n: Sequence[float]        # what the model expected of each rotor over the interval
+    short: Sequence[bool]              # clearly delivered less than expected (this rotor alone)
+    significant: Sequence[bool]        # what it delivered is measured, not noise
 
 
 class FaultDetector:
@@ -176,11 +179,12 @@ class FaultDetector:
         self._cmd_lag_low_n = np.zeros(ROTOR_COUNT)
         self._cmd_lag_high_n = np.zeros(ROTOR_COUNT)
         self._esc_time_s = -math.inf               # newest ESC frame used
-        self._esc_thrust_n = np.zeros(ROTOR_COUNT)     # its speed-implied thrusts
-        self._esc_rpm: np.ndarray | None = None
+        # The ESC frames' per-rotor figures as Python floats (four rotors: no numpy call each).
+        self._esc_thrust_n = [0.0] * ROTOR_COUNT       # its speed-implied thrusts
+        self._esc_rpm: list[float] | None = None
         self._esc_sample: EscSample | None = None      # the last frame read
-        self._current_rpm: np.ndarray | None = None    # each rotor's speed when its current was measured
-        self._esc_heading_n = np.zeros(ROTOR_COUNT)    # the level those thrusts head to through the lag
+        self._current_rpm: list[float] | None = None   # each rotor's speed when its current was measured
+        self._esc_heading_n = [0.0] * ROTOR_COUNT      # the level those thrusts head to through the lag
         self._esc_voltage_v = math.nan                 # its voltage
         self._run: _Run | None = None
         self._window: deque[tuple[float, IntervalFit]] = deque()
@@ -358,36 +362,42 @@ class FaultDetector:
         reading = read_escs(esc, np.maximum(self._cmd_lag_high_n, self._asked_n), self._propeller,
                             current_rpm=self._current_rpm)
         self._esc_voltage_v = reading.voltage_v
-        self._esc_thrust_n = np.where(np.isfinite(reading.thrust_n), reading.thrust_n, self._cmd_lag_n)
+        thrust = [t if math.isfinite(t) else lag for t, lag in zip(reading.thrust_n.tolist(), self._cmd_lag_n.tolist())]
+        self._esc_thrust_n = thrust
         # The rotor speed follows its first-order lag: speed = heading + decay (previous - heading).
-        rpm = np.where(np.isfinite(reading.rpm), reading.rpm, self._propeller.rpm(self._esc_thrust_n))
+        rpm = reading.rpm.tolist()
+        if not all(math.isfinite(r) for r in rpm):        # a rotor not reported: the speed of its thrust
+            rpm = [r if math.isfinite(r) else m for r, m in zip(rpm, self._propeller.rpm(np.array(thrust)).tolist())]
         previous, self._esc_rpm = self._esc_rpm, rpm
         decay = self._model.motor_decay(esc_dt) if math.isfinite(esc_dt) else 1.0
-        heading = rpm if previous is None or decay >= 1 else np.maximum((rpm - decay * previous) / (1 - decay), 0.0)
-        self._esc_heading_n = np.minimum(self._esc_thrust_n, self._propeller.thrust_n(heading))
+        heading = rpm if previous is None or decay >= 1 else [max((r - decay * p) / (1 - decay), 0.0)
+                                                               for r, p in zip(rpm, previous)]
+        self._esc_heading_n = [min(t, h) for t, h in zip(thrust, self._propeller.thrust_n(heading).tolist())]
         return reading
 
     # -- evidence ----------------------------------------------------------------------------------
     def _esc_evidence(self, reading: EscReading) -> _Evidence:
         c = self._c
-        expected = self._cmd_lag_n
+        expected = self._cmd_lag_n.tolist()
         if math.isfinite(reading.battery_ceiling_n):
-            expected = np.minimum(expected, self._common_ceiling_n(reading))
-        deficit = expected - self._esc_thrust_n
+            common_n = self._common_ceiling_n(reading)
+            expected = [min(e, common_n) for e in expected]
+        deficit = [e - t for e, t in zip(expected, self._esc_thrust_n)]
         # A rotor is short only of the least it may have been asked (a rotor the FC is
         # spinning up between our frames is not short).
-        least = np.minimum(expected, self._cmd_lag_low_n) - self._esc_thrust_n
-        i = int(np.argmax(least))
-        alone = all(v < c.deficit_min_n / 2 for j, v in enumerate(least.tolist()) if j != i)
+        least = [min(e, low) - t for e, low, t in zip(expected, self._cmd_lag_low_n.tolist(), self._esc_thrust_n)]
+        i = max(range(ROTOR_COUNT), key=least.__getitem__)      # the first of the largest, as np.argmax
+        alone = all(v < c.deficit_min_n / 2 for j, v in enumerate(least) if j != i)
         large = least[i] >= c.deficit_min_n or (least[i] >= c.deficit_min_n / 2
                                                  and least[i] >= c.shortfall_min * expected[i])
-        self._deficit_n = deficit
+        self._deficit_n = np.array(deficit)
         kind = _KIND_OF_CONDITION[reading.condition[i]]
         if kind is FaultKind.DEGRADED and self._esc_heading_n[i] <= _STOPPED_SHARE * expected[i]:
             kind = FaultKind.MOTOR                # still spinning down, but heading for a standstill
+        least_n = self._af.thrust_min_n
         return _Evidence(index=i if alone and large else None, path=_Path.ESC, kind=kind,
-                         delivered_n=np.maximum(self._esc_heading_n, self._af.thrust_min_n), expected_n=expected,
-                         short=deficit >= c.ceiling_deficit_min_n, significant=np.ones(ROTOR_COUNT, dtype=bool))
+                         delivered_n=[max(h, least_n) for h in self._esc_heading_n], expected_n=expected,
+                         short=[d >= c.ceiling_deficit_min_n for d in deficit], significant=_EVERY_ROTOR)
 
     def _residual_evidence(self, time_s: float, x_prev: np.ndarray, x: np.ndarray, average_n: np.ndarray,
                            cmd: np.ndarray, dt: float, reading: EscReading | None) -> _Evidence:
@@ -501,7 +511,7 @@ class FaultDetector:
         if self._kind is FaultKind.DAMAGE:
             self._refine_damage(evidence, dt, reading)
             return
-        asked = min(float(np.clip(cmd[i], self._af.thrust_min_n, self._limit_n[i])), self._estimate_n + c.probe_n)
+        asked = min(self._clip(float(cmd[i])), self._estimate_n + c.probe_n)
         at_ceiling = asked >= self._estimate_n - c.saturation_margin_n
         if evidence.short[i] and at_ceiling:
             self._estimate_n = self._clip(self._estimate_n + c.estimate_gain * (delivered - self._estimate_n))
@@ -558,4 +568,5 @@ class FaultDetector:
         return self._clip(damaged_ceiling_n(self._af, self._effectiveness / self._overspeed, self._esc_voltage_v))
 
     def _clip(self, thrust_n: float) -> float:
-        return float(np.clip(thrust_n, self._af.thrust_min_n, self._limit_n[self._index]))
+        """Within the confirmed rotor's range (as np.clip: NaN stays NaN)."""
+        return float(min(max(thrust_n, self._af.thrust_min_n), self._limit_n[self._index]))
