@@ -103,8 +103,10 @@ class ThrustResidualModel:
     def __init__(self, af: Airframe, noise: ResidualNoise, codegen: bool = False):
         self._af = af
         f = rom.dynamics(af)
-        x, u, dt = ca.SX.sym("x", rom.NX), ca.SX.sym("u", rom.NU), ca.SX.sym("dt")
-        measured, bias_per_s = ca.SX.sym("measured", len(CHANNELS)), ca.SX.sym("bias_per_s", len(CHANNELS))
+        x, x_now, thrust, dt = ca.SX.sym("x", rom.NX), ca.SX.sym("x_now", rom.NX), ca.SX.sym("thrust", 4), ca.SX.sym("dt")
+        bias_per_s = ca.SX.sym("bias_per_s", len(CHANNELS))
+        u = ca.vertcat(thrust, (x_now[rom.HIP_RATE] - x[rom.HIP_RATE]) / dt)     # the hips' mean acceleration
+        measured = x_now[CHANNELS.tolist()]
         xk = rom.rk4(f, x, u, ca.DM.zeros(rom.ND), dt, _PREDICTION_SUBSTEPS)[CHANNELS.tolist()]
         com, inertia = rom.mass_properties(af, x[rom.HIP])
         torque = rom.thrust_torque_frd(af, x[rom.HIP], com, u[rom.THRUST])
@@ -116,7 +118,7 @@ class ThrustResidualModel:
         a, a_size = ((sens * sens).T @ weights for weights in (w, w_size))
         b, b_size = (-(sens.T @ (weights * r)) for weights in (w, w_size))
         sums = ca.vertcat(a, b, a_size, b_size, a_size * u[rom.THRUST], ca.dot(r, w * r))    # IntervalFit.sums
-        fit = ca.Function("m4_fault_fit", [x, u, dt, measured, bias_per_s], [sums, raw])
+        fit = ca.Function("m4_fault_fit", [x, x_now, thrust, dt, bias_per_s], [sums, raw])
         self._fit = BufferedFunction(compiled(fit) if codegen else fit)
 
     def motor_decay(self, dt_s: float) -> float:
@@ -149,10 +151,7 @@ class ThrustResidualModel:
         bias_per_s (6,): a slowly learnt residual rate the model always shows, removed first.
         Returns the fit and the raw residual (6,) (bias not removed), for learning the bias.
         """
-        u = np.zeros(rom.NU)
-        u[rom.THRUST] = expected_thrust_n
-        u[rom.HIP_ACCEL] = (x_now[rom.HIP_RATE] - x_prev[rom.HIP_RATE]) / dt_s
-        sums, raw = self._fit.evaluate(x_prev, u, dt_s, x_now[CHANNELS], bias_per_s)
+        sums, raw = self._fit.evaluate(x_prev, x_now, expected_thrust_n, dt_s, bias_per_s)
         return IntervalFit(sums.copy()), raw.copy()
 
 
