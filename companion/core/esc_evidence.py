@@ -134,11 +134,11 @@ def read_escs(sample: EscSample, expected_n: np.ndarray, model: PropellerModel,
     loads = [c * (v if math.isfinite(v) else 1.0) / cube if math.isfinite(r) and r >= th.speed_min_rpm
              and math.isfinite(c) else math.nan for r, c, v, cube in zip(rpm, current, voltage, cubes)]
     shares = [r / e if e >= th.speed_min_rpm else math.nan for r, e in zip(rpm, expected_rpm)]
+    measured = [(j, v) for j, v in enumerate(loads) if math.isfinite(v)]
     conditions = []
     for i, (load_i, share_i, rpm_i) in enumerate(zip(loads, shares, rpm)):
-        others = [v for j, v in enumerate(loads) if j != i and math.isfinite(v)]
         unloaded = share_i > th.overspeed_share
-        if math.isfinite(load_i) and others and share_i > th.loaded_share:
+        if math.isfinite(load_i) and share_i > th.loaded_share and (others := [v for j, v in measured if j != i]):
             unloaded |= load_i < th.unloaded_load_share * _median(others)
         conditions.append(_condition(share_i, unloaded, th) if math.isfinite(rpm_i) else RotorCondition.NORMAL)
     thrust = [0.0 if c is RotorCondition.UNLOADED else t for c, t in zip(conditions, model.thrust_n(rpm).tolist())]

@@ -176,7 +176,7 @@ class FaultDetector:
         # taken at its start or at its end; the low one through the lag of the rotor's speed,
         # the fastest a healthy rotor can give up its thrust (the cover drops a lost rotor's
         # diagonal partner to nothing within milliseconds).
-        self._cmd_lag_low_n = np.zeros(ROTOR_COUNT)
+        self._cmd_lag_low_n = [0.0] * ROTOR_COUNT    # (Python floats)
         self._cmd_lag_high_n = np.zeros(ROTOR_COUNT)
         self._esc_time_s = -math.inf               # newest ESC frame used
         # The ESC frames' per-rotor figures as Python floats (four rotors: no numpy call each).
@@ -252,7 +252,7 @@ class FaultDetector:
         if confirmed:
             known = "" if self._kind is FaultKind.UNKNOWN else f" ({self._kind.name.lower()})"
             message = f"thrust loss rotor {rotor}{known}"
-        deficit = self._deficit_n.copy()
+        deficit = self._deficit_n                  # replaced at each frame, never written into
         for array in (estimate, bound, deficit):
             array.flags.writeable = False
         return FaultStatus(state=self._state, rotor=rotor, kind=self._kind, thrust_max_estimate_n=estimate,
@@ -304,14 +304,16 @@ class FaultDetector:
         dt = None if prev is None else time_s - prev.time_s
         if dt is None or not 0 < dt <= self._c.max_gap_s:
             self._window.clear()
-            self._lag_n, self._cmd_lag_n, self._cmd_lag_low_n, self._cmd_lag_high_n = target, asked, asked, asked
+            self._lag_n, self._cmd_lag_n, self._cmd_lag_high_n = target, asked, asked
+            self._cmd_lag_low_n = asked.tolist()
             self._run = None
             return self.status
         averages, (self._lag_n, self._cmd_lag_n, self._cmd_lag_high_n) = self._model.motor_response(
             np.array([self._lag_n, self._cmd_lag_n, self._cmd_lag_high_n]),      # three lags in one call
             np.array([target, asked, np.maximum(asked_before, asked)]), dt)
         average_n = averages[0]
-        self._cmd_lag_low_n = self._model.spin_response_n(self._cmd_lag_low_n, np.minimum(asked_before, asked), dt)
+        self._cmd_lag_low_n = self._model.spin_response_n(
+            self._cmd_lag_low_n, [min(a, b) for a, b in zip(asked_before.tolist(), asked.tolist())], dt)
         reading = self._esc_reading(time_s, esc)
         if reading is not None and self._state is FaultState.CONFIRMED and self._kind is not FaultKind.DAMAGE:
             # The ESC measures the confirmed rotor (only a damaged propeller hides from it): the
@@ -385,7 +387,7 @@ class FaultDetector:
         deficit = [e - t for e, t in zip(expected, self._esc_thrust_n)]
         # A rotor is short only of the least it may have been asked (a rotor the FC is
         # spinning up between our frames is not short).
-        least = [min(e, low) - t for e, low, t in zip(expected, self._cmd_lag_low_n.tolist(), self._esc_thrust_n)]
+        least = [min(e, low) - t for e, low, t in zip(expected, self._cmd_lag_low_n, self._esc_thrust_n)]
         i = max(range(ROTOR_COUNT), key=least.__getitem__)      # the first of the largest, as np.argmax
         alone = all(v < c.deficit_min_n / 2 for j, v in enumerate(least) if j != i)
         large = least[i] >= c.deficit_min_n or (least[i] >= c.deficit_min_n / 2

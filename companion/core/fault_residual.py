@@ -135,14 +135,18 @@ class ThrustResidualModel:
         return (target_n + (start_n - target_n) * self._af.motor_time_constant_s / dt_s * (1 - decay),
                 target_n + (start_n - target_n) * decay)
 
-    def spin_response_n(self, start_n: np.ndarray, target_n: np.ndarray, dt_s: float) -> np.ndarray:
+    def spin_response_n(self, start_n: list[float], target_n: list[float], dt_s: float) -> list[float]:
         """The thrust at the end when the rotor's speed, not its thrust, follows the first-order
         lag (as a motor does): k_t w^2, w heading from sqrt(start / k_t) to sqrt(target / k_t).
-        A rotor slowing to a stop loses its thrust at twice the lag's rate."""
+        A rotor slowing to a stop loses its thrust at twice the lag's rate. Rotor by rotor, on
+        Python floats."""
         k_n_s2, decay = self._af.thrust_coefficient_n_s2, self.motor_decay(dt_s)
-        start, target = (np.sqrt(np.maximum(v, 0.0) / k_n_s2) for v in (start_n, target_n))
-        speed = target + (start - target) * decay
-        return k_n_s2 * speed * speed
+        ends = []
+        for start_i, target_i in zip(start_n, target_n):
+            start, target = math.sqrt(max(start_i, 0.0) / k_n_s2), math.sqrt(max(target_i, 0.0) / k_n_s2)
+            speed = target + (start - target) * decay
+            ends.append(k_n_s2 * speed * speed)
+        return ends
 
     def fit(self, x_prev: np.ndarray, x_now: np.ndarray, expected_thrust_n: np.ndarray,
             dt_s: float, bias_per_s: np.ndarray) -> tuple[IntervalFit, np.ndarray]:
