@@ -270,8 +270,9 @@ class FaultDetector:
         rotor's frame may find it lost after all, and a damaged propeller's ceiling falls at once
         on a clear deficit: such a frame is read before the solve (without ESCs a weak rotor's
         ceiling only moves by estimate_gain a frame)."""
-        limit = np.asarray(thrust_limit_n, dtype=float).reshape(ROTOR_COUNT)
-        if not np.array_equal(np.where(np.isfinite(limit), limit, self._af.thrust_max_n), self._limit_n):
+        most_n = self._af.thrust_max_n
+        limit = np.asarray(thrust_limit_n, dtype=float).reshape(ROTOR_COUNT).tolist()
+        if [v if math.isfinite(v) else most_n for v in limit] != self._limit_n.tolist():
             return False
         if self._state is FaultState.CONFIRMED:
             lost = self._kind in (FaultKind.MOTOR, FaultKind.PROPELLER)
