@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from m4.airframe import Airframe
+from m4.airframe import ROTOR_COUNT, Airframe
 from companion.core import rom
 from companion.core.casadi_call import BufferedFunction
 from companion.core.codegen_cache import compiled
@@ -103,7 +103,8 @@ class ThrustResidualModel:
     def __init__(self, af: Airframe, noise: ResidualNoise, codegen: bool = False):
         self._af = af
         f = rom.dynamics(af)
-        x, x_now, thrust, dt = ca.SX.sym("x", rom.NX), ca.SX.sym("x_now", rom.NX), ca.SX.sym("thrust", 4), ca.SX.sym("dt")
+        x, x_now, dt = ca.SX.sym("x", rom.NX), ca.SX.sym("x_now", rom.NX), ca.SX.sym("dt")
+        thrust = ca.SX.sym("thrust", ROTOR_COUNT)
         bias_per_s = ca.SX.sym("bias_per_s", len(CHANNELS))
         u = ca.vertcat(thrust, (x_now[rom.HIP_RATE] - x[rom.HIP_RATE]) / dt)     # the hips' mean acceleration
         measured = x_now[CHANNELS.tolist()]
