@@ -168,16 +168,17 @@ class FaultDetector:
             torque_share=config.torque_model_share), codegen)
         self._limit_n = np.full(ROTOR_COUNT, af.thrust_max_n)
         self._prev: _Frame | None = None
-        self._lag_n = np.zeros(ROTOR_COUNT)        # thrust the model says the motors deliver
-        self._cmd_lag_n = np.zeros(ROTOR_COUNT)    # the command through the motor lag: what the ESCs are asked for
-        self._asked_n = np.zeros(ROTOR_COUNT)      # the command in force (clipped to the limits)
+        # The lags, rotor by rotor as Python floats (four rotors: no numpy call each).
+        self._lag_n = [0.0] * ROTOR_COUNT          # thrust the model says the motors deliver
+        self._cmd_lag_n = [0.0] * ROTOR_COUNT      # the command through the motor lag: what the ESCs are asked for
+        self._asked_n = [0.0] * ROTOR_COUNT        # the command in force (clipped to the limits)
         # The FC may change a command anywhere between our frames (its rate feedback, its cover
         # of a failing rotor): the lagged command lies between these two, each frame's change
         # taken at its start or at its end; the low one through the lag of the rotor's speed,
         # the fastest a healthy rotor can give up its thrust (the cover drops a lost rotor's
         # diagonal partner to nothing within milliseconds).
-        self._cmd_lag_low_n = [0.0] * ROTOR_COUNT    # (Python floats)
-        self._cmd_lag_high_n = np.zeros(ROTOR_COUNT)
+        self._cmd_lag_low_n = [0.0] * ROTOR_COUNT
+        self._cmd_lag_high_n = [0.0] * ROTOR_COUNT
         self._esc_time_s = -math.inf               # newest ESC frame used
         # The ESC frames' per-rotor figures as Python floats (four rotors: no numpy call each).
         self._esc_thrust_n = [0.0] * ROTOR_COUNT       # its speed-implied thrusts
@@ -298,23 +299,24 @@ class FaultDetector:
         if thrust_limit_n is not None:
             limit = np.asarray(thrust_limit_n, dtype=float).reshape(ROTOR_COUNT)
             self._limit_n = np.where(np.isfinite(limit), limit, self._af.thrust_max_n)
-        asked_before, asked = self._asked_n, cmd.clip(self._af.thrust_min_n, self._limit_n)
+        asked_before, asked = self._asked_n, cmd.clip(self._af.thrust_min_n, self._limit_n).tolist()
         self._asked_n = asked
         target = self._expected_response(asked)
         prev, self._prev = self._prev, _Frame(time_s, x)
         dt = None if prev is None else time_s - prev.time_s
         if dt is None or not 0 < dt <= self._c.max_gap_s:
             self._window.clear()
-            self._lag_n, self._cmd_lag_n, self._cmd_lag_high_n = target, asked, asked
-            self._cmd_lag_low_n = asked.tolist()
+            self._lag_n, self._cmd_lag_n, self._cmd_lag_low_n, self._cmd_lag_high_n = target, asked, asked, asked
             self._run = None
             return self.status
-        averages, (self._lag_n, self._cmd_lag_n, self._cmd_lag_high_n) = self._model.motor_response(
-            np.array([self._lag_n, self._cmd_lag_n, self._cmd_lag_high_n]),      # three lags in one call
-            np.array([target, asked, np.maximum(asked_before, asked)]), dt)
-        average_n = averages[0]
+        averages, ends = self._model.motor_response(                           # three lags in one call
+            self._lag_n + self._cmd_lag_n + self._cmd_lag_high_n,
+            target + asked + [max(a, b) for a, b in zip(asked_before, asked)], dt)
+        average_n = averages[:ROTOR_COUNT]
+        r = ROTOR_COUNT
+        self._lag_n, self._cmd_lag_n, self._cmd_lag_high_n = ends[:r], ends[r:2 * r], ends[2 * r:]
         self._cmd_lag_low_n = self._model.spin_response_n(
-            self._cmd_lag_low_n, [min(a, b) for a, b in zip(asked_before.tolist(), asked.tolist())], dt)
+            self._cmd_lag_low_n, [min(a, b) for a, b in zip(asked_before, asked)], dt)
         reading = self._esc_reading(time_s, esc)
         if reading is not None and self._state is FaultState.CONFIRMED and self._kind is not FaultKind.DAMAGE:
             # The ESC measures the confirmed rotor (only a damaged propeller hides from it): the
@@ -335,14 +337,15 @@ class FaultDetector:
         return self.status
 
     # -- models ----------------------------------------------------------------------------------
-    def _expected_response(self, asked_n: np.ndarray) -> np.ndarray:
+    def _expected_response(self, asked_n: list[float]) -> list[float]:
         """What each rotor delivers for the command as far as the detector knows (the faulty
         rotor: its effectiveness and ceiling)."""
-        target = asked_n.copy()
+        target = list(asked_n)
         if self._state is FaultState.CONFIRMED:
             i = self._index
             target[i] = min(self._effectiveness * target[i], self._estimate_n)
-        return np.maximum(target, self._af.thrust_min_n)
+        least_n = self._af.thrust_min_n
+        return [max(t, least_n) for t in target]
 
     def _common_ceiling_n(self, reading: EscReading | None) -> float:
         """The ceiling a sagging battery may give every rotor: below it a shortfall is a rotor's."""
@@ -362,10 +365,10 @@ class FaultDetector:
         self._esc_sample = esc
         # Overspeed is judged against the most the rotor may have been asked: a rotor slowing
         # down after a command drop still turns faster than the lagged model says.
-        reading = read_escs(esc, np.maximum(self._cmd_lag_high_n, self._asked_n), self._propeller,
+        reading = read_escs(esc, [max(a, b) for a, b in zip(self._cmd_lag_high_n, self._asked_n)], self._propeller,
                             current_rpm=self._current_rpm)
         self._esc_voltage_v = reading.voltage_v
-        thrust = [t if math.isfinite(t) else lag for t, lag in zip(reading.thrust_n.tolist(), self._cmd_lag_n.tolist())]
+        thrust = [t if math.isfinite(t) else lag for t, lag in zip(reading.thrust_n.tolist(), self._cmd_lag_n)]
         self._esc_thrust_n = thrust
         # The rotor speed follows its first-order lag: speed = heading + decay (previous - heading).
         rpm = reading.rpm.tolist()
@@ -381,7 +384,7 @@ class FaultDetector:
     # -- evidence ----------------------------------------------------------------------------------
     def _esc_evidence(self, reading: EscReading) -> _Evidence:
         c = self._c
-        expected = self._cmd_lag_n.tolist()
+        expected = self._cmd_lag_n
         if math.isfinite(reading.battery_ceiling_n):
             common_n = self._common_ceiling_n(reading)
             expected = [min(e, common_n) for e in expected]

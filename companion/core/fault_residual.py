@@ -127,14 +127,16 @@ class ThrustResidualModel:
         tau = self._af.motor_time_constant_s
         return math.exp(-dt_s / tau) if tau > 0 else 0.0
 
-    def motor_response(self, start_n: np.ndarray, target_n: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    def motor_response(self, start_n: list[float], target_n: list[float],
+                       dt_s: float) -> tuple[list[float], list[float]]:
         """(interval-average thrust, thrust at the end) of the first-order motor lag, entry by entry
-        (one rotor's, or stacked: several lags at once)."""
+        on Python floats (one rotor's, or several lags' entries one after the other)."""
         decay = self.motor_decay(dt_s)
         if decay == 0:
-            return target_n.copy(), target_n.copy()
-        return (target_n + (start_n - target_n) * self._af.motor_time_constant_s / dt_s * (1 - decay),
-                target_n + (start_n - target_n) * decay)
+            return list(target_n), list(target_n)
+        tau_s = self._af.motor_time_constant_s
+        return ([t + (s - t) * tau_s / dt_s * (1 - decay) for s, t in zip(start_n, target_n)],
+                [t + (s - t) * decay for s, t in zip(start_n, target_n)])
 
     def spin_response_n(self, start_n: list[float], target_n: list[float], dt_s: float) -> list[float]:
         """The thrust at the end when the rotor's speed, not its thrust, follows the first-order
