@@ -116,7 +116,7 @@ def current_speed_rpm(sample: EscSample, before: EscSample | None,
             in zip(rpm, before_speed_rpm, _floats(sample.current_a), _floats(before.current_a))]
 
 
-def read_escs(sample: EscSample, expected_n: np.ndarray, model: PropellerModel,
+def read_escs(sample: EscSample, expected_n: list[float] | np.ndarray, model: PropellerModel,
               th: EscThresholds = EscThresholds(), current_rpm: list[float] | None = None) -> EscReading:
     """The thrusts and conditions of one ESC frame, against the thrust the rotors should give now
     (the command through the motor lag, within the battery's ceiling). current_rpm: each rotor's

@@ -312,8 +312,8 @@ class FaultDetector:
         averages, ends = self._model.motor_response(                           # three lags in one call
             self._lag_n + self._cmd_lag_n + self._cmd_lag_high_n,
             target + asked + [max(a, b) for a, b in zip(asked_before, asked)], dt)
-        average_n = averages[:ROTOR_COUNT]
         r = ROTOR_COUNT
+        average_n = averages[:r]
         self._lag_n, self._cmd_lag_n, self._cmd_lag_high_n = ends[:r], ends[r:2 * r], ends[2 * r:]
         self._cmd_lag_low_n = self._model.spin_response_n(
             self._cmd_lag_low_n, [min(a, b) for a, b in zip(asked_before, asked)], dt)
