@@ -31,7 +31,7 @@ class ComOffset:
         """(com_offset_frd_m (3), com_offset_rate_frd_m_s (3)) of posture hip_rad moving at
         hip_rate_rad_s (a float per leg each)."""
         reach_x, reach_y, rate_x, rate_y = [], [], [], []
-        for (hx, hy, lsx, lsy, minus_lsx), q, qd in zip(self._legs, hip_rad, hip_rate_rad_s):
+        for (hx, hy, lsx, lsy, minus_lsx), q, qd in zip(self._legs, hip_rad, hip_rate_rad_s, strict=True):
             cos_q, sin_q = (math.cos(q), math.sin(q)) if math.isfinite(q) else (math.nan, math.nan)
             # hip -> hub as the airframe takes it: the hub's position less the hip's (rounded so)
             reach_x.append((hx + lsx * cos_q) - hx)

@@ -52,8 +52,8 @@ LIVE_SHARE = 0.5
 
 
 class _Kept:
-    """The last value made, kept for the key it was made for: a step's gain, cover and geometry
-    are asked for again at the same posture until the posture moves."""
+    """The last value made, kept for the key it was made for: a step's gain and cover are asked
+    for again at the same posture until the posture moves."""
 
     def __init__(self):
         self._key: bytes | None = None
@@ -120,7 +120,8 @@ class RateFeedbackDesign:
             return None
         start, after = np.asarray(x_start)[rom.RATES], np.asarray(x_next)[rom.RATES]
         planned = np.empty((2, start.size), dtype=np.float32)            # as MAVLink carries them
-        planned[0], planned[1] = start, (after - start) / dt_s
+        with np.errstate(over="ignore"):        # beyond float32's range: inf, refused just below
+            planned[0], planned[1] = start, (after - start) / dt_s
         if not all(map(math.isfinite, planned.ravel().tolist())):         # six floats: cheaper than numpy's all
             return None
         start_f32, change_f32 = planned.astype(float)

@@ -61,6 +61,14 @@ def test_planned_rates_are_the_plans_start_and_their_change_its_next_node():
     assert np.all(fb.gain_n_per_rad_s.astype(np.float32) == fb.gain_n_per_rad_s)   # as MAVLink carries it
 
 
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("rate_rad_s", [np.inf, np.nan, 1e39])        # 1e39 rad/s: beyond what float32 carries
+def test_no_feedback_for_a_planned_rate_mavlink_cannot_carry(rate_rad_s):
+    x0, x1 = rom.hover_state(AF), rom.hover_state(AF)
+    x1[rom.RATES] = [rate_rad_s, 0.0, 0.0]
+    assert DESIGN.feedback(x0, x1, 0.1, ALL_LIVE) is None
+
+
 def test_the_fc_side_reads_no_feedback_from_zero_or_unusable_fields_and_holds_the_plan_after_the_period():
     zeros, three = np.zeros(12), np.zeros(3)
     assert RateFeedback.from_fields(three, three, zeros) is None
