@@ -1,8 +1,9 @@
 """The frame's read before the answer, on a recorded flight: `python -m benchmarks.frame_read FLIGHT_DIR`.
 
 FLIGHT_DIR is what `m4-sitl fly SCENARIO --out DIR` leaves (flight.tlog; mavlink.key when the
-flight was signed). The flight controller's packets between two of the companion's are one
-telemetry datagram, as it came; each is read as the companion reads it before its control step:
+flight was signed). The flight controller's packets between two of the companion's are taken
+for one telemetry datagram (in lockstep they are one; a HEARTBEAT, STATUSTEXT or ack the FC
+sends on its own between two answers counts in the next frame's); each is read as the companion reads it before its control step:
 the datagram decoded (signatures checked: `MavlinkLink.parse`), the telemetry's samples taken
 (`TelemetryAssembler.add`), then the snapshot and the ROM state (`rom_state`). Prints the median
 of each part per datagram, warm (datagram after datagram) and cold (the caches flushed before
