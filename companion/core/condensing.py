@@ -2,10 +2,10 @@
 
 `linearisation(step, horizon)` is ONE CasADi function: from (x0, U, d) it rolls the model
 out over the horizon and returns the trajectory with every stage's Jacobians A_k = dx+/dx,
-B_k = dx+/du. `sensitivities` and `TrackingCost.gauss_newton` then eliminate the states: with
-dX = Gamma dU the Gauss-Newton QP of the tracking cost has only the N * 8 inputs as
-variables, and every state constraint is a linear row in the inputs. At N = 5 that is 40
-variables, small enough for a dense active-set solver.
+B_k = dx+/du. `sensitivities_and_parameters` and `TrackingCost.gauss_newton` then eliminate
+the states: with dX = Gamma dU the Gauss-Newton QP of the tracking cost has only the N * 8
+inputs as variables, and every state constraint is a linear row in the inputs. At N = 5 that
+is 40 variables, small enough for a dense active-set solver.
 """
 
 from __future__ import annotations
@@ -60,33 +60,26 @@ class Linearisation:
                 *(m.reshape(n, m.size // (n * NX), NX).transpose(0, 2, 1).copy() for m in jac))
 
 
-def sensitivities(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Gamma (N*20, N*8): row block k is d x_{k+1} / d U, from A_k = a[k], B_k = b[k]."""
-    horizon = a.shape[0]
-    gamma = np.zeros((horizon * NX, horizon * NU))
-    for k in range(horizon):
-        rows = slice(k * NX, (k + 1) * NX)
-        if k:
-            prev = slice((k - 1) * NX, k * NX)
-            gamma[rows, :k * NU] = a[k] @ gamma[prev, :k * NU]
-        gamma[rows, k * NU:(k + 1) * NU] = b[k]
-    return gamma
-
-
-def sensitivities_and_parameters(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """`sensitivities`' Gamma (N*20, N*8) and (N*20, 26): row block k is d x_{k+1} / d(x0, d),
-    from A_k = a[k], B_k = b[k] and D_k = c[k], in one pass: row block k of [Gamma | P] is A_k
-    times block k-1, with B_k and D_k added in their columns (block 0: [B_0 0 | A_0 D_0])."""
+def sensitivities_and_parameters(a: np.ndarray, b: np.ndarray,
+                                 c: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Gamma (N*20, N*8): row block k is d x_{k+1} / d U, from A_k = a[k], B_k = b[k]; with
+    D_k = c[k] also P (N*20, 26): row block k is d x_{k+1} / d(x0, d) (without c, None: the
+    converged SQP's linearisation has no D). One pass: row block k of [Gamma | P] is A_k times
+    block k-1, with B_k and D_k added in their columns (block 0: [B_0 0 | A_0 D_0])."""
     horizon = a.shape[0]
     inputs = horizon * NU
-    both = np.zeros((horizon * NX, inputs + NX + ND))
-    both[:NX, :NU], both[:NX, inputs:inputs + NX], both[:NX, inputs + NX:] = b[0], a[0], c[0]
+    both = np.zeros((horizon * NX, inputs + (0 if c is None else NX + ND)))
+    both[:NX, :NU] = b[0]
+    if c is not None:
+        both[:NX, inputs:inputs + NX], both[:NX, inputs + NX:] = a[0], c[0]
     for k in range(1, horizon):
         rows = slice(k * NX, (k + 1) * NX)
         np.matmul(a[k], both[rows.start - NX:rows.start], out=both[rows])
         both[rows, k * NU:(k + 1) * NU] = b[k]          # block k-1 has no part of input k: exact
-        both[rows, inputs + NX:] += c[k]
-    return np.ascontiguousarray(both[:, :inputs]), both[:, inputs:]     # Gamma contiguous: its products are faster
+        if c is not None:
+            both[rows, inputs + NX:] += c[k]
+    gamma = np.ascontiguousarray(both[:, :inputs])      # Gamma contiguous: its products are faster
+    return gamma, (None if c is None else both[:, inputs:])
 
 
 class TrackingCost:

@@ -39,7 +39,7 @@ from companion.core.condensing import (
     Linearisation,
     TrackingCost,
     linearisation,
-    sensitivities,
+    sensitivities_and_parameters,
     state_rows,
 )
 from companion.core.control_types import thrust_bounds
@@ -323,7 +323,7 @@ class Nmpc:
         for it in range(1, self.config.max_iterations + 1):
             if not (np.isfinite(merit) and np.isfinite(a).all() and np.isfinite(b).all()):
                 return self._fallback(x0, lo, hi, "qp_failed", it, t0)
-            gamma = sensitivities(a, b)
+            gamma, _ = sensitivities_and_parameters(a, b)
             hess, grad = self.cost.gauss_newton(gamma, xs, us, ref, u_ref)
             hess[self._diagonal] += _LEVENBERG * hess[self._diagonal].max()
             step = self._qp_step(hess, grad, self._row_jacobian(gamma), x0, xs, us, lo, hi)
