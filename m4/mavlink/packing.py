@@ -5,7 +5,7 @@ struct and hands it to `MAVLink_message._pack`, which strips the payload's trail
 builds a header object and packs it, checks the frame through a CRC object and signs it
 through `hashlib.new`: about 14 µs a signed frame, most of the SITL's cost of sending its
 telemetry. `fast_pack` does the same with one struct for the header, the C CRC pymavlink
-uses and one SHA-256 call, and leaves the message and the protocol object as `_pack` leaves
+uses and `signature`, and leaves the message and the protocol object as `_pack` leaves
 them (header, payload, CRC, buffer; sequence and signing timestamp). MAVLink 1 goes to
 pymavlink's own. `m4.mavlink.dialect` installs it in place of pymavlink's.
 """
@@ -21,7 +21,17 @@ PYMAVLINK_PACK = mavlink.MAVLink_message._pack
 _HEADER = struct.Struct("<BBBBBBBHB")          # magic, length, flags (2), seq, system, component, id
 _CRC = struct.Struct("<H")
 _SIGNATURE_HEAD = struct.Struct("<BQ")        # link id, then the timestamp's low 6 bytes (7 of the 9 packed)
-_SIGNATURE_BYTES = 6
+SIGNATURE_BYTES = 6
+
+
+def signature(keyed, signed_part) -> bytes:
+    """The MAVLink 2 signature (the first 6 bytes of SHA-256(key + signed part)) of `signed_part`
+    (bytes, or a memoryview of a packet: no copy) from `keyed`, the SHA-256 state after the key:
+    a copy of it starts each signature, without OpenSSL looking the digest up again. The one
+    implementation: the sender's (`fast_pack`) and the checks' (m4/mavlink/signing.py)."""
+    digest = keyed.copy()
+    digest.update(signed_part)
+    return digest.digest()[:SIGNATURE_BYTES]
 
 
 def fast_pack(self: mavlink.MAVLink_message, mav: mavlink.MAVLink, crc_extra: int, payload: bytes,
@@ -42,7 +52,8 @@ def fast_pack(self: mavlink.MAVLink_message, mav: mavlink.MAVLink, crc_extra: in
     if signing.sign_outgoing:
         timestamp = signing.timestamp
         frame += _SIGNATURE_HEAD.pack(signing.link_id, timestamp)[:7]
-        frame += hashlib.sha256(signing.secret_key + frame).digest()[:_SIGNATURE_BYTES]
+        keyed = getattr(signing, "keyed", None)       # kept by setup_signing; pymavlink's own signing has none
+        frame += signature(hashlib.sha256(signing.secret_key) if keyed is None else keyed, frame)
         signing.timestamp = timestamp + 1
     self._msgbuf = bytearray(frame)
     return frame

@@ -47,6 +47,7 @@ from pathlib import Path
 
 from m4.log_limit import RepeatFilter
 from m4.mavlink.dialect import mavlink
+from m4.mavlink.packing import SIGNATURE_BYTES, signature
 from m4.toml_fields import ConfigError
 
 log = logging.getLogger(__name__)
@@ -57,7 +58,6 @@ UNSIGNED_ALLOWED_IDS = frozenset({mavlink.MAVLINK_MSG_ID_HEARTBEAT, mavlink.MAVL
 _SIGNING_EPOCH_UNIX_S = 1420070400         # MAVLink signing timestamps count 10 us from 2015-01-01
 _TICKS_PER_S = 100_000
 NEW_STREAM_BEHIND_S = 60                   # a new stream may start this far behind our timestamp
-SIGNATURE_BYTES = 6
 SAVE_PERIOD_S = 1.0
 
 
@@ -105,8 +105,8 @@ def _wall_timestamp() -> int:
 
 class _WallClockSigning(mavlink.MAVLinkSigning):
     """pymavlink's signing state whose own timestamp never falls behind the wall clock; with
-    the key's SHA-256 state kept (`keyed`: a copy of it starts each signature, without
-    OpenSSL looking the digest up again)."""
+    the key's SHA-256 state kept (`keyed`: a copy of it starts each signature, sent or checked,
+    m4.mavlink.packing.signature)."""
 
     keyed = None
 
@@ -119,14 +119,6 @@ class _WallClockSigning(mavlink.MAVLinkSigning):
         self._timestamp = value
 
 
-def _signature(keyed, signed_part) -> bytes:
-    """The signature of `signed_part` (a memoryview of the packet: no copy) from `keyed`, the
-    SHA-256 state after the key."""
-    digest = keyed.copy()
-    digest.update(signed_part)
-    return digest.digest()[:SIGNATURE_BYTES]
-
-
 def _allow_unsigned(_mav, msg_id: int) -> bool:
     return msg_id in UNSIGNED_ALLOWED_IDS
 
@@ -137,7 +129,7 @@ def check_signature(mav: mavlink.MAVLink, msgbuf: bytearray, src_system: int, sr
     is newer than the last of its stream (link id, system, component), or, for a new stream,
     at most NEW_STREAM_BEHIND_S behind our own timestamp."""
     s = mav.signing
-    if not hmac.compare_digest(_signature(s.keyed, memoryview(msgbuf)[:-SIGNATURE_BYTES]),
+    if not hmac.compare_digest(signature(s.keyed, memoryview(msgbuf)[:-SIGNATURE_BYTES]),
                                bytes(msgbuf[-SIGNATURE_BYTES:])):
         log.info("signature mismatch: packet dropped")
         return False
@@ -158,7 +150,7 @@ def refusal(key: bytes, packet: bytes) -> str:
     "replayed" (its signature is good: its timestamp was not newer than its stream's)."""
     if len(packet) < 3 or packet[0] != mavlink.PROTOCOL_MARKER_V2 or not packet[2] & mavlink.MAVLINK_IFLAG_SIGNED:
         return "unsigned"
-    good = hmac.compare_digest(_signature(hashlib.sha256(key), packet[:-SIGNATURE_BYTES]),
+    good = hmac.compare_digest(signature(hashlib.sha256(key), packet[:-SIGNATURE_BYTES]),
                                bytes(packet[-SIGNATURE_BYTES:]))
     return "replayed" if good else "bad signature"
 
