@@ -169,13 +169,10 @@ def test_every_figure_in_every_format_with_legends_beside_the_data(tlog, tmp_pat
     assert all(p.read_bytes().startswith(magic) for p in paths)
 
 
-def test_legends_sit_outside_the_panels_and_name_fault_and_detection(tlog, tmp_path, monkeypatch):
-    import matplotlib.pyplot as plt
-
+def test_legends_sit_outside_the_panels_and_name_fault_and_detection(tlog, tmp_path, drawn_figures):
     record = read_tlog(tlog)
     faults = telemetry_metrics(record, record.injected, AF)["faults"]
-    seen = []
-    monkeypatch.setattr(plt, "close", lambda fig: seen.append(fig))
+    seen = drawn_figures
     draw(record, tmp_path, "synthetic", faults)
     fault, detected = "fault: rotor 4, degraded 100 % (1.00 s)", "detected: rotor 4 (1.06 s)"
     for fig in seen:
@@ -207,19 +204,16 @@ def test_without_a_fault_in_the_log_the_metrics_count_from_the_first_confirmatio
     assert "no fault instant in the log" in capsys.readouterr().err
 
 
-def _figure_axes(record, faults, tmp_path, monkeypatch) -> dict[str, list]:
-    import matplotlib.pyplot as plt
-
-    seen = []
-    monkeypatch.setattr(plt, "close", lambda fig: seen.append(fig))
+def _figure_axes(record, faults, tmp_path, drawn_figures) -> dict[str, list]:
+    before = len(drawn_figures)
     draw(record, tmp_path, "synthetic", faults)
-    return {fig.get_suptitle() + str(i): fig.axes for i, fig in enumerate(seen)}
+    return {fig.get_suptitle() + str(i): fig.axes for i, fig in enumerate(drawn_figures[before:])}
 
 
 def test_the_altitude_has_an_axis_scaled_to_the_sag_and_esc_speed_and_current_are_drawn(tlog, tmp_path,
-                                                                                         monkeypatch):
+                                                                                         drawn_figures):
     record = read_tlog(tlog)
-    axes = [ax for fig_axes in _figure_axes(record, [], tmp_path, monkeypatch).values() for ax in fig_axes]
+    axes = [ax for fig_axes in _figure_axes(record, [], tmp_path, drawn_figures).values() for ax in fig_axes]
     [altitude] = [ax for ax in axes if ax.get_ylabel() == "altitude (m)" and ax.get_title() == ""]
     low, high = altitude.get_ylim()
     assert high - low < 0.2                                  # the 0.1 m sag fills the panel
@@ -227,29 +221,26 @@ def test_the_altitude_has_an_axis_scaled_to_the_sag_and_esc_speed_and_current_ar
 
 
 def test_a_confirmation_is_drawn_without_a_fault_and_a_fault_stands_apart_from_its_detection(tlog, tmp_path,
-                                                                                             monkeypatch):
+                                                                                             drawn_figures):
     record = read_tlog(tlog)
-    for ax in (ax for fig_axes in _figure_axes(record, [], tmp_path, monkeypatch).values() for ax in fig_axes
+    for ax in (ax for fig_axes in _figure_axes(record, [], tmp_path, drawn_figures).values() for ax in fig_axes
                if ax.get_legend() is not None):
         assert "confirmed: rotor 4, unknown (1.06 s)" in [t.get_text() for t in ax.get_legend().get_texts()]
     faults = telemetry_metrics(record, record.injected, AF)["faults"]
-    [zoom] = [ax for fig_axes in _figure_axes(record, faults, tmp_path, monkeypatch).values() for ax in fig_axes
+    [zoom] = [ax for fig_axes in _figure_axes(record, faults, tmp_path, drawn_figures).values() for ax in fig_axes
               if ax.get_title() == "around the fault"]
     low, high = zoom.get_xlim()
     assert (DETECTED_S - FAULT_S) / (high - low) > 0.04     # 6 ms apart on a 1 s window: 40 px on 1000
 
 
-def test_a_windy_simulated_flight_draws_the_air_as_truth_beside_the_companions_estimate(tmp_path, monkeypatch,
+def test_a_windy_simulated_flight_draws_the_air_as_truth_beside_the_companions_estimate(tmp_path, drawn_figures,
                                                                                         capsys):
     """m4-sitl fly's layout: truth.npz in the folder above the companion's log. The wind figure
     draws the simulator's air (so labelled) and the companion's disturbance estimate."""
-    import matplotlib.pyplot as plt
-
     tlog = _flight(tmp_path / "companion-log" / "flight-1.tlog", disturbance=True)
     t = np.arange(0.0, 3.0, 0.01)
     np.savez(tmp_path / "truth.npz", time_s=t, wind_ned_m_s=np.column_stack([-5.0 - np.sin(t), 0 * t, 0 * t]))
-    seen = []
-    monkeypatch.setattr(plt, "close", lambda fig: seen.append(fig))
+    seen = drawn_figures
     assert main(["plot", str(tlog), "--out", str(tmp_path / "out")]) == 0
     assert "wind.png" in capsys.readouterr().out and (tmp_path / "out" / "wind.png").stat().st_size > 0
     [air, estimate, speed] = next(fig.axes for fig in seen if "air velocity (m/s, NED)" in
@@ -260,12 +251,9 @@ def test_a_windy_simulated_flight_draws_the_air_as_truth_beside_the_companions_e
     assert speed.get_ylabel() == "hull speed (m/s)"
 
 
-def test_a_real_flights_log_draws_the_companions_estimate_alone(tmp_path, monkeypatch):
-    import matplotlib.pyplot as plt
-
+def test_a_real_flights_log_draws_the_companions_estimate_alone(tmp_path, drawn_figures):
     tlog = _flight(tmp_path / "flight.tlog", disturbance=True)
-    seen = []
-    monkeypatch.setattr(plt, "close", lambda fig: seen.append(fig))
+    seen = drawn_figures
     assert main(["plot", str(tlog), "--out", str(tmp_path / "out")]) == 0
     [estimate] = next(fig.axes for fig in seen if "force (N, NED)" in [ax.get_ylabel() for ax in fig.axes])
     assert len(estimate.get_lines()) >= 3
