@@ -99,21 +99,22 @@ def safe_setpoint(af: Airframe, thrust_n, hip_rad, hip_rate_rad_s, thrust_bound_
     thrust, hip, rate = (np.asarray(v, dtype=float).reshape(r).tolist() for v in (thrust_n, hip_rad, hip_rate_rad_s))
     if not all(map(math.isfinite, thrust + hip + rate)):
         thrust, hip, rate = _finite(af, thrust, hip, rate, measured_hip_rad)
-    t_min, hip_min, hip_max, rate_max = af.thrust_min_n, af.hip_min_rad, af.hip_max_rad, af.hip_rate_max_rad_s
+    thrust_min_n, hip_min_rad, hip_max_rad = af.thrust_min_n, af.hip_min_rad, af.hip_max_rad
+    rate_max_rad_s = af.hip_rate_max_rad_s
     bound = thrust_bounds(af, thrust_bound_n).tolist()
-    thrust = [0.0] * r if thrust_cut else [min(max(t, t_min), b) for t, b in zip(thrust, bound, strict=True)]
-    hip = [min(max(h, hip_min), hip_max) for h in hip]
-    rate = [min(max(v, -rate_max), rate_max) for v in rate]
+    thrust = [0.0] * r if thrust_cut else [min(max(t, thrust_min_n), b) for t, b in zip(thrust, bound, strict=True)]
+    hip = [min(max(h, hip_min_rad), hip_max_rad) for h in hip]
+    rate = [min(max(v, -rate_max_rad_s), rate_max_rad_s) for v in rate]
     for pair in af.same_side_pairs:
         excess = sum(hip[i] for i in pair) - af.same_side_sum_max_rad
         if excess > 0:
             for i in pair:
-                hip[i] = max(hip[i] - excess / 2, hip_min)
+                hip[i] = max(hip[i] - excess / 2, hip_min_rad)
     # As float32: thrusts within [thrust_min (0 when cut), bound], the hips at most themselves,
     # the rates within +-hip_rate_max.
     values = thrust + hip + rate
-    lo = [0.0 if thrust_cut else t_min] * r + [hip_min] * r + [-rate_max] * r
-    hi = bound + hip + [rate_max] * r
+    lo = [0.0 if thrust_cut else thrust_min_n] * r + [hip_min_rad] * r + [-rate_max_rad_s] * r
+    hi = bound + hip + [rate_max_rad_s] * r
     sent = np.array(_float32_within(values, lo, hi))
     return Setpoint(thrust_n=sent[:r], hip_rad=sent[r:2 * r], hip_rate_rad_s=sent[2 * r:], thrust_cut=thrust_cut)
 

@@ -405,7 +405,7 @@ class FaultDetector:
                          delivered_n=[max(h, least_n) for h in self._esc_heading_n], expected_n=expected,
                          short=[d >= c.ceiling_deficit_min_n for d in deficit], significant=_EVERY_ROTOR)
 
-    def _residual_evidence(self, time_s: float, x_prev: np.ndarray, x: np.ndarray, average_n: np.ndarray,
+    def _residual_evidence(self, time_s: float, x_prev: np.ndarray, x: np.ndarray, average_n: list[float],
                            cmd: np.ndarray, dt: float, reading: EscReading | None) -> _Evidence:
         c = self._c
         raw = self._window_fit(time_s, x_prev, x, average_n, dt)
@@ -434,7 +434,7 @@ class FaultDetector:
                          kind=kind, delivered_n=delivered, expected_n=expected, short=short,
                          significant=pooled.b**2 / pooled.a >= c.chi2_min)
 
-    def _window_fit(self, time_s: float, x_prev: np.ndarray, x: np.ndarray, average_n: np.ndarray,
+    def _window_fit(self, time_s: float, x_prev: np.ndarray, x: np.ndarray, average_n: list[float],
                     dt: float) -> np.ndarray:
         """The interval's fit into the evidence window (the last window_s); its raw residual (6,)."""
         fit, raw = self._model.fit(x_prev, x, average_n, dt, self._bias_per_s)

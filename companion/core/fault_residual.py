@@ -151,7 +151,7 @@ class ThrustResidualModel:
             ends.append(k_n_s2 * speed * speed)
         return ends
 
-    def fit(self, x_prev: np.ndarray, x_now: np.ndarray, expected_thrust_n: np.ndarray,
+    def fit(self, x_prev: np.ndarray, x_now: np.ndarray, expected_thrust_n: list[float],
             dt_s: float, bias_per_s: np.ndarray) -> tuple[IntervalFit, np.ndarray]:
         """Fit the interval x_prev -> x_now flown with the given interval-average thrusts.
 
