@@ -38,12 +38,17 @@ def _fc_frame(t_ms: int) -> list:
                                                        [AF.thrust_max_n] * 4)]
 
 
-def _send(sock: socket.socket, packets: list[bytes], app) -> None:
+def _send(sock: socket.socket, packets: list[bytes], app, until=None) -> None:
+    """Send the packets to the app and poll it: until `until()` holds (at most 5 s: a busy machine),
+    or for 0.3 s when nothing is awaited (what must not happen has had its chance). Polling on a
+    fixed time after the awaited state would let the link-loss deadline pass and undo it."""
     for packet in packets:
         sock.sendto(packet, ("127.0.0.1", app.fc.link.local_port))
-    deadline = time.monotonic() + 0.3
+    deadline = time.monotonic() + (0.3 if until is None else 5.0)
     while time.monotonic() < deadline:
         app.poll()
+        if until is not None and until():
+            return
         time.sleep(0.01)
 
 
@@ -89,7 +94,7 @@ def test_a_restarted_companion_refuses_fc_packets_captured_before_it_restarted(t
             socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as attacker:
         first = open_app(config)
         try:
-            _send(fc, captured, first)
+            _send(fc, captured, first, until=lambda: first.fc.locked and first.fc.connected)
             assert first.fc.locked and first.fc.connected
         finally:
             close_app(first)
@@ -101,7 +106,8 @@ def test_a_restarted_companion_refuses_fc_packets_captured_before_it_restarted(t
             restart_s = 2.0                                                  # what a restart takes
             now = signing._wall_timestamp() + round(restart_s * 100_000)
             monkeypatch.setattr(signing, "_wall_timestamp", lambda: now)
-            _send(fc, packed(_fc_frame(7000), FC_SYSTEM_ID, FC_COMPONENT_ID, key), second)
+            _send(fc, packed(_fc_frame(7000), FC_SYSTEM_ID, FC_COMPONENT_ID, key), second,
+                  until=lambda: second.fc.locked and second.fc.connected)
             assert second.fc.locked and second.fc.connected
         finally:
             close_app(second)
@@ -183,7 +189,7 @@ def test_the_signing_timestamps_are_saved_off_the_control_loop_and_once_more_at_
         app = open_app(config)
         try:
             del saved_by[:]                                   # the save on load
-            _send(fc, packed(_fc_frame(5000), FC_SYSTEM_ID, FC_COMPONENT_ID, key), app)
+            _send(fc, packed(_fc_frame(5000), FC_SYSTEM_ID, FC_COMPONENT_ID, key), app, until=lambda: app.fc.locked)
             assert app.fc.locked
             deadline = time.monotonic() + 5.0                 # a busy machine may hold the thread back
             while not saved_by and time.monotonic() < deadline:
