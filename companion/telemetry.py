@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -60,36 +61,52 @@ LABELS = {ATTITUDE: "attitude", LOCAL_POSITION: "position", JOINT_STATE: "joints
 _QUAT_NORM_TOLERANCE = 0.05
 
 
-def _decode(msg, msg_id: int) -> dict[str, tuple[float, ...]]:
-    """The fields of one telemetry message as floats, named with units and frames."""
-    if msg_id == ATTITUDE:
-        return {"euler_rad": (msg.roll, msg.pitch, msg.yaw),
-                "rates_frd_rad_s": (msg.rollspeed, msg.pitchspeed, msg.yawspeed)}
-    if msg_id == ATTITUDE_QUATERNION:
-        return {"quat_wxyz": (msg.q1, msg.q2, msg.q3, msg.q4),
-                "rates_frd_rad_s": (msg.rollspeed, msg.pitchspeed, msg.yawspeed)}
-    if msg_id == LOCAL_POSITION:
-        return {"pos_ned_m": (msg.x, msg.y, msg.z), "vel_ned_m_s": (msg.vx, msg.vy, msg.vz)}
-    if msg_id == JOINT_STATE:
-        return {"hip_rad": tuple(msg.hip_angle_rad), "hip_rate_rad_s": tuple(msg.hip_rate_rad_s)}
-    return {"thrust_cmd_n": tuple(msg.thrust_cmd_n), "thrust_limit_n": tuple(msg.thrust_limit_n)}
+def _finite(values: tuple[tuple[float, ...], ...]) -> bool:
+    return all(all(map(math.isfinite, v)) for v in values)
 
 
-def _valid(msg_id: int, values: dict[str, tuple[float, ...]]) -> bool:
-    if msg_id == THRUSTER_STATUS:
-        return all(len(v) == ROTOR_COUNT for v in values.values())
-    if not all(math.isfinite(x) for v in values.values() for x in v):
-        return False
-    if msg_id == ATTITUDE_QUATERNION:
-        return abs(math.hypot(*values["quat_wxyz"]) - 1.0) <= _QUAT_NORM_TOLERANCE
-    return True
+def _attitude(msg) -> tuple[tuple[float, ...], ...] | None:
+    values = (msg.roll, msg.pitch, msg.yaw), (msg.rollspeed, msg.pitchspeed, msg.yawspeed)
+    return values if _finite(values) else None
 
 
-@dataclass(frozen=True)
-class Sample:
+def _quaternion(msg) -> tuple[tuple[float, ...], ...] | None:
+    values = (msg.q1, msg.q2, msg.q3, msg.q4), (msg.rollspeed, msg.pitchspeed, msg.yawspeed)
+    return values if _finite(values) and abs(math.hypot(*values[0]) - 1.0) <= _QUAT_NORM_TOLERANCE else None
+
+
+def _position(msg) -> tuple[tuple[float, ...], ...] | None:
+    values = (msg.x, msg.y, msg.z), (msg.vx, msg.vy, msg.vz)
+    return values if _finite(values) else None
+
+
+def _joints(msg) -> tuple[tuple[float, ...], ...] | None:
+    values = tuple(msg.hip_angle_rad), tuple(msg.hip_rate_rad_s)
+    return values if _finite(values) else None
+
+
+def _thrusters(msg) -> tuple[tuple[float, ...], ...] | None:
+    """NaN kept: the FC cannot tell."""
+    values = tuple(msg.thrust_cmd_n), tuple(msg.thrust_limit_n)
+    return values if len(values[0]) == ROTOR_COUNT and len(values[1]) == ROTOR_COUNT else None
+
+
+# Each stream's fields as floats, named with units and frames by the comments (None: the message
+# is rejected: a non-finite field, a quaternion that is not a unit one, a thruster array of
+# another length):
+_READERS = {
+    ATTITUDE: _attitude,              # (euler_rad, rates_frd_rad_s)
+    ATTITUDE_QUATERNION: _quaternion,  # (quat_wxyz, rates_frd_rad_s)
+    LOCAL_POSITION: _position,        # (pos_ned_m, vel_ned_m_s)
+    JOINT_STATE: _joints,             # (hip_rad, hip_rate_rad_s)
+    THRUSTER_STATUS: _thrusters,      # (thrust_cmd_n, thrust_limit_n)
+}
+
+
+class Sample(NamedTuple):
     time_ms: int              # the FC's clock
     received_s: float         # the companion's monotonic clock
-    values: dict[str, tuple[float, ...]]
+    values: tuple[tuple[float, ...], ...]      # the stream's fields (_READERS)
 
 
 @dataclass
@@ -99,8 +116,7 @@ class TelemetryCounters:
     nonfinite: int = 0        # NaN/inf field or a quaternion that is not a unit one
 
 
-@dataclass(frozen=True)
-class VehicleSnapshot:
+class VehicleSnapshot(NamedTuple):
     """The newest sample of every stream; hull centre position (NED) as on the wire."""
 
     time_ms: int                        # the newest instant among the streams
@@ -128,12 +144,11 @@ class TelemetryAssembler:
     def add(self, msg, now_s: float) -> bool:
         """Take one message; True when it is a telemetry sample and was accepted."""
         msg_id = msg.get_msgId()
-        if msg_id == ESC_TELEMETRY:
-            return self._add_esc(msg, now_s)
-        if msg_id not in STREAMS:
-            return False
-        values = _decode(msg, msg_id)
-        if not _valid(msg_id, values):
+        read = _READERS.get(msg_id)
+        if read is None:
+            return msg_id == ESC_TELEMETRY and self._add_esc(msg, now_s)
+        values = read(msg)
+        if values is None:
             self.counters.nonfinite += 1
             return False
         t_ms = int(msg.time_boot_ms)
@@ -142,7 +157,8 @@ class TelemetryAssembler:
             self.counters.stale += 1
             return False
         self._samples[msg_id] = Sample(t_ms, now_s, values)
-        self._newest_ms = t_ms if self._newest_ms is None else max(self._newest_ms, t_ms)
+        if self._newest_ms is None or t_ms > self._newest_ms:
+            self._newest_ms = t_ms
         if self._first is None:
             self._first = (t_ms / 1000.0, now_s)
         self.counters.accepted += 1
@@ -173,6 +189,8 @@ class TelemetryAssembler:
         if self._first is None:
             return ()
         newest_fc_s = self._newest_ms / 1000.0
+        if self._fresh_on_fc_clock(newest_fc_s, limit_s):
+            return ()
         newest_s = max(x.received_s for x in self._samples.values())
         out = []
         for ids in NEEDED:
@@ -185,6 +203,20 @@ class TelemetryAssembler:
             out.append(ESC_TELEMETRY)
         return tuple(out)
 
+    def _fresh_on_fc_clock(self, newest_fc_s: float, limit_s: float) -> bool:
+        """Every needed stream (and the ESC telemetry, once some came) within limit_s of the
+        newest instant on the FC's clock: none is stale, whatever our clock says (as `stale` finds
+        with fewer steps: the oldest stream's newest instant decides)."""
+        s = self._samples
+        att, quat, pos, joints, thr = s.get(ATTITUDE), s.get(ATTITUDE_QUATERNION), s.get(LOCAL_POSITION), \
+            s.get(JOINT_STATE), s.get(THRUSTER_STATUS)
+        if pos is None or joints is None or thr is None or att is None and quat is None:
+            return False
+        att_ms = quat.time_ms if att is None else att.time_ms if quat is None else max(att.time_ms, quat.time_ms)
+        oldest_ms = min(att_ms, pos.time_ms, joints.time_ms, thr.time_ms)
+        return newest_fc_s - oldest_ms / 1000.0 <= limit_s and \
+            (self._esc is None or newest_fc_s - self._esc.time_s <= limit_s)
+
     def last_received_s(self) -> float | None:
         return max((s.received_s for s in self._samples.values()), default=None)
 
@@ -195,16 +227,16 @@ class TelemetryAssembler:
         if att is None and quat is None or any(i not in s for i in (LOCAL_POSITION, JOINT_STATE, THRUSTER_STATUS)):
             return None
         if att is not None and (quat is None or att.time_ms >= quat.time_ms):
-            euler, rates = _array(att.values["euler_rad"]), att.values["rates_frd_rad_s"]
+            euler, rates = att.values
+            euler = _array(euler)
         else:
-            euler, rates = euler_from_quat_wxyz(quat.values["quat_wxyz"]), quat.values["rates_frd_rad_s"]
-        pos, joints, thr = s[LOCAL_POSITION].values, s[JOINT_STATE].values, s[THRUSTER_STATUS].values
-        return VehicleSnapshot(
-            time_ms=self._newest_ms, times_ms={i: sample.time_ms for i, sample in s.items()}, euler_rad=euler,
-            rates_frd_rad_s=_array(rates), pos_ned_m=_array(pos["pos_ned_m"]), vel_ned_m_s=_array(pos["vel_ned_m_s"]),
-            hip_rad=_array(joints["hip_rad"]), hip_rate_rad_s=_array(joints["hip_rate_rad_s"]),
-            thrust_cmd_n=_array(thr["thrust_cmd_n"]), thrust_limit_n=_array(thr["thrust_limit_n"]),
-            esc=self._esc)
+            quat_wxyz, rates = quat.values
+            euler = euler_from_quat_wxyz(quat_wxyz)
+        (pos, vel), (hip, hip_rate), (cmd, limit) = s[LOCAL_POSITION].values, s[JOINT_STATE].values, \
+            s[THRUSTER_STATUS].values
+        return VehicleSnapshot(self._newest_ms, {i: sample.time_ms for i, sample in s.items()}, euler, _array(rates),
+                               _array(pos), _array(vel), _array(hip), _array(hip_rate), _array(cmd), _array(limit),
+                               self._esc)
 
 
 def _array(values: tuple[float, ...]) -> np.ndarray:
