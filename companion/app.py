@@ -67,13 +67,13 @@ from companion.core.com_offset import ComOffset
 from companion.core.control_types import FaultState
 from companion.core.esc_evidence import PropellerModel
 from companion.fc_link import FcLink, LinkEvent, mission_progress
-from companion.fc_mission import FcMission
+from companion.fc_mission import MISSION_MESSAGES, FcMission
 from companion.feed_publisher import Feed, open_feed
 from companion.loop_timing import LoopTiming
 from companion.params import CompanionParams
 from companion.flight_log import FlightLog, open_flight_log
 from companion.stream_watch import Report, StreamWatch, blocking, labels
-from companion.telemetry import ESC_TELEMETRY, THRUSTER_STATUS, TelemetryAssembler, VehicleSnapshot, rom_state
+from companion.telemetry import ESC_TELEMETRY, REQUESTED, THRUSTER_STATUS, TelemetryAssembler, VehicleSnapshot, rom_state
 from m4.airframe import ROTOR_COUNT
 from m4.fc_mode import FcMode
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink
@@ -171,20 +171,21 @@ class CompanionApp:
         now = self.clock()
         since = self.flight_log.position()          # a new flight found in this poll starts with its packets
         received = self.fc.receive(now)
-        self.flight_log.observe(received.messages, since, LinkEvent.REBOOTED in received.events)
         self._received += len(received.messages)
         messages = self._profiled(received.messages)          # before LOCKED asks for the profile's streams
         for event in received.events:
             self._on_event(event, now)
         for msg in messages:
             msg_id = msg.get_msgId()
-            if self.telemetry.add(msg, now) and msg_id == THRUSTER_STATUS:
-                self._frame_ms = msg.time_boot_ms
+            if msg_id in REQUESTED:
+                if self.telemetry.add(msg, now) and msg_id == THRUSTER_STATUS:
+                    self._frame_ms = msg.time_boot_ms
             elif msg_id == mavlink.MAVLINK_MSG_ID_M4_FAULT_STATUS:
                 self._on_kept_status(msg)
             elif msg_id == mavlink.MAVLINK_MSG_ID_CURRENT_MODE:
                 self._on_mode(msg)
-            if self.fc_mission is not None and (flown := self.fc_mission.on_message(msg, now)) is not None:
+            elif msg_id in MISSION_MESSAGES and self.fc_mission is not None and \
+                    (flown := self.fc_mission.on_message(msg, now)) is not None:
                 self._new_mission = flown.mission
         for msg in received.param_requests:
             if replies := self.params.handle(msg):
@@ -192,6 +193,7 @@ class CompanionApp:
         self._watch_streams(now)
         if self._frame_ms is not None and self._due(self._frame_ms) and not self._joining(now):
             self._answer(self._frame_ms, now)
+        self.flight_log.observe(received.messages, since, LinkEvent.REBOOTED in received.events)   # not for the answer
         while self.flight_log.notices:             # a gap in the flight log (it has no link of its own)
             self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, self.flight_log.notices.popleft())
         if self.fc_mission is not None and (flown := self.fc_mission.tick(now)) is not None:

@@ -221,7 +221,11 @@ class FcLink:
                 elif msg_id == mavlink.MAVLINK_MSG_ID_TIMESYNC:
                     self._on_timesync(msg, now_s)
                 elif msg_id in STREAMS:
-                    events |= self._on_telemetry(int(msg.time_boot_ms), now_s)
+                    time_ms = int(msg.time_boot_ms)
+                    if self.connected and self.fc_time_ms is not None and time_ms >= self.fc_time_ms:
+                        self.fc_time_ms, self.last_telemetry_s = time_ms, now_s     # flowing: nothing to tell
+                    else:
+                        events |= self._on_telemetry(time_ms, now_s)
                 out.append(msg)
         if self.connected and now_s >= self.loss_deadline_s():
             self.connected = False
@@ -299,7 +303,8 @@ class FcLink:
 
     def kept_state_pending(self) -> bool:
         """Is a request of request_kept_state() still unanswered (and not given up)?"""
-        return any(self.commands.waiting(mavlink.MAV_CMD_REQUEST_MESSAGE, float(i)) for i in KEPT_STATE)
+        return self.commands.pending > 0 and \
+            any(self.commands.waiting(mavlink.MAV_CMD_REQUEST_MESSAGE, float(i)) for i in KEPT_STATE)
 
     def tick(self, now_s: float) -> None:
         """Heartbeat when due; the pending command sent or resent."""

@@ -106,6 +106,9 @@ class MissionDownload:
 
 
 _REPLIES = frozenset({m.MAVLINK_MSG_ID_MISSION_COUNT, m.MAVLINK_MSG_ID_MISSION_ITEM_INT, m.MAVLINK_MSG_ID_MISSION_ACK})
+# What `FcMission.on_message` reads: it may be handed these alone (another message changes nothing
+# it keeps, and what `tick` does with the time, in the same poll, is done there).
+MISSION_MESSAGES = _REPLIES | {m.MAVLINK_MSG_ID_HOME_POSITION, m.MAVLINK_MSG_ID_MISSION_CURRENT}
 _HOME_REQUEST = Command(m.MAV_CMD_REQUEST_MESSAGE, (float(m.MAVLINK_MSG_ID_HOME_POSITION),), KEPT_STATE_RETRY_S)
 
 

@@ -30,6 +30,7 @@ class LinkDelay:
         self._rtts_s: deque[float] = deque(maxlen=WINDOW)
         self._last_request_ms: int | None = None        # the FC instant of our last request
         self.samples = 0
+        self.lead_s: float | None = None                # median lead of the last replies (None: none yet)
 
     def request_due(self, time_ms: int) -> bool:
         """Whether the setpoint answering FC instant time_ms should carry a request."""
@@ -52,6 +53,7 @@ class LinkDelay:
         self._leads_s.append(max(0.0, (int(tc1_ns) - int(ts1_ns)) / 1e9))
         self._rtts_s.append(now_s - sent_s)
         self.samples += 1
+        self.lead_s = statistics.median(self._leads_s)      # read every step: kept, not recomputed
         return True
 
     def reset(self) -> None:
@@ -59,11 +61,7 @@ class LinkDelay:
         self._pending.clear()
         self._leads_s.clear()
         self._rtts_s.clear()
-
-    @property
-    def lead_s(self) -> float | None:
-        """Median lead of the last replies (None: none yet)."""
-        return statistics.median(self._leads_s) if self._leads_s else None
+        self.lead_s = None
 
     @property
     def round_trip_s(self) -> float | None:

@@ -50,6 +50,9 @@ class StreamNews:
     report: Report | None = None
 
 
+_QUIET = StreamNews()
+
+
 class StreamWatch:
     def __init__(self, period_s: float):
         self.limit_s = STREAM_STALE_PERIODS * period_s
@@ -60,6 +63,8 @@ class StreamWatch:
         self._ask_s = 0.0                  # when stale streams may be asked for again
 
     def update(self, stale: tuple[int, ...], now_s: float, fc_time_ms: int) -> StreamNews:
+        if not stale and not self.stale and not self._reported:
+            return _QUIET                  # every poll in a healthy flight
         ask = ()
         if stale and now_s >= self._ask_s:
             ask = tuple(j for i in stale for j in ((ATTITUDE, ATTITUDE_QUATERNION) if i == ATTITUDE else (i,)))
