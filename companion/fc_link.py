@@ -231,7 +231,7 @@ class FcLink:
             self.connected = False
             self.link.lock_peer(self.fc_address, hear_others=True)     # a restarted FC may come from elsewhere
             events.add(LinkEvent.LOST)
-        return Received(tuple(e for e in LinkEvent if e in events), out, param_requests)
+        return Received(tuple(e for e in LinkEvent if e in events) if events else (), out, param_requests)
 
     def _warn_fc(self, text: str) -> None:
         """A STATUSTEXT WARNING to the FC, once there is one (nothing is sent before)."""

@@ -53,26 +53,26 @@ class _Plan:
             list(message_class.orders) == list(range(len(lengths)))
         self.constants = _constants(message_class)
 
-    def arguments(self, payload: bytearray) -> tuple | list:
+    def arguments(self, frame: bytearray, start: int, end: int) -> tuple | list:
+        """The arguments of the payload frame[start:end]."""
         size = self.unpacker.size
-        if len(payload) < size:
-            payload.extend(bytes(size - len(payload)))       # MAVLink 2 cut the trailing zeros
-        t = self.unpacker.unpack_from(payload)
+        if end - start >= size:
+            t = self.unpacker.unpack_from(frame, start)
+        else:
+            t = self.unpacker.unpack_from(frame[start:end] + bytes(size - end + start))   # MAVLink 2 cut the trailing zeros
         if self.as_unpacked:
             return t
-        if self.has_arrays:
-            args = [t[start] if count == 1 or isinstance(t[start], bytes) else list(t[start:start + count])
-                    for start, count in self.fields]
-        else:
-            args = [t[start] for start, _ in self.fields]
-        return [a.rstrip(b"\x00") if isinstance(a, bytes) else a for a in args] if self.has_text else args
+        if not self.has_text:
+            return [t[at] if count == 1 else list(t[at:at + count]) for at, count in self.fields]
+        args = [t[at] if count == 1 or isinstance(t[at], bytes) else list(t[at:at + count]) for at, count in self.fields]
+        return [a.rstrip(b"\x00") if isinstance(a, bytes) else a for a in args]
 
-    def message(self, payload: bytearray):
-        """The message object pymavlink's constructor builds from the payload's arguments."""
+    def message(self, frame: bytearray, start: int, end: int):
+        """The message object pymavlink's constructor builds from the payload frame[start:end]."""
         if self.constants is None:
-            return self.message_class(*self.arguments(payload))
+            return self.message_class(*self.arguments(frame, start, end))
         attributes = self.constants.copy()
-        attributes.update(zip(self.fieldnames, self.arguments(payload)))
+        attributes.update(zip(self.fieldnames, self.arguments(frame, start, end)))
         msg = object.__new__(self.message_class)
         msg.__dict__ = attributes
         return msg
@@ -146,7 +146,7 @@ def _decode(frame: bytearray, plan: _Plan, tail: int):
     length), its signature (if any) accepted."""
     _, length, incompat_flags, compat_flags, seq, system, component, id_low, id_high = _HEADER.unpack_from(frame)
     crc_at = len(frame) - tail
-    msg = plan.message(frame[_HEADER_LEN:crc_at])
+    msg = plan.message(frame, _HEADER_LEN, crc_at)
     msg._msgbuf = frame
     msg._payload = frame[6:crc_at]              # sic: pymavlink's slice
     msg._crc = _CRC.unpack_from(frame, crc_at)[0]
