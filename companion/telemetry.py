@@ -245,15 +245,18 @@ def _array(values: tuple[float, ...]) -> np.ndarray:
 
 def rom_state(snap: VehicleSnapshot, com: ComOffset) -> np.ndarray:
     """The NMPC's state (20) from a snapshot: centre of mass position and velocity (NED), on
-    floats but for the two rotations (numpy's matrix product rounds as the floats would not); an
-    angle that is not finite gives NaN, as numpy's cosine does."""
+    floats (the rotations too: numpy's matrix product, through OpenBLAS, fuses its multiplies
+    and adds and rounds the last bit otherwise, at a few times the cost); an angle that is not
+    finite gives NaN, as numpy's cosine does."""
     euler, rates = snap.euler_rad.tolist(), snap.rates_frd_rad_s.tolist()
     hip, hip_rate = snap.hip_rad.tolist(), snap.hip_rate_rad_s.tolist()
-    rot = np.array(rotation_rows(*(f(a) if math.isfinite(a) else math.nan
-                                   for a in euler for f in (math.cos, math.sin))))
-    r_frd, r_dot_frd = com.offset_and_rate(hip, hip_rate)
-    (w0, w1, w2), (r0, r1, r2) = rates, r_frd
-    moving_frd = [w1 * r2 - w2 * r1 + r_dot_frd[0], w2 * r0 - w0 * r2 + r_dot_frd[1], w0 * r1 - w1 * r0 + r_dot_frd[2]]
-    p_ned = [a + b for a, b in zip(snap.pos_ned_m.tolist(), (rot @ np.array(r_frd)).tolist())]
-    v_ned = [a + b for a, b in zip(snap.vel_ned_m_s.tolist(), (rot @ np.array(moving_frd)).tolist())]
-    return np.array(p_ned + euler + hip + v_ned + rates + hip_rate)         # rom_layout's order
+    (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = rotation_rows(*(f(a) if math.isfinite(a) else math.nan
+                                                               for a in euler for f in (math.cos, math.sin)))
+    (r0, r1, r2), (d0, d1, d2) = com.offset_and_rate(hip, hip_rate)
+    w0, w1, w2 = rates
+    m0, m1, m2 = w1 * r2 - w2 * r1 + d0, w2 * r0 - w0 * r2 + d1, w0 * r1 - w1 * r0 + d2     # the offset's motion
+    (p0, p1, p2), (v0, v1, v2) = snap.pos_ned_m.tolist(), snap.vel_ned_m_s.tolist()
+    return np.array([p0 + (a0 * r0 + a1 * r1 + a2 * r2), p1 + (b0 * r0 + b1 * r1 + b2 * r2),
+                     p2 + (c0 * r0 + c1 * r1 + c2 * r2), *euler, *hip,
+                     v0 + (a0 * m0 + a1 * m1 + a2 * m2), v1 + (b0 * m0 + b1 * m1 + b2 * m2),
+                     v2 + (c0 * m0 + c1 * m1 + c2 * m2), *rates, *hip_rate])         # rom_layout's order
