@@ -112,3 +112,33 @@ def test_a_frame_cut_short_by_its_datagram_does_not_swallow_the_next_ones():
     companion.close()
     assert [m.time_boot_ms for m in got] == [20, 40]
     assert fc.bad_packets == 1
+
+
+class _CountingReads:
+    """A socket whose reads are counted."""
+
+    def __init__(self, sock: socket.socket):
+        self.sock, self.reads = sock, 0
+
+    def recvfrom(self, size: int):
+        self.reads += 1
+        return self.sock.recvfrom(size)
+
+    def __getattr__(self, name: str):
+        return getattr(self.sock, name)
+
+
+def test_receiving_reads_each_waiting_datagram_and_no_more():
+    """A read that finds nothing raises, at several times a read's cost: after the last datagram
+    the link asks whether another waits instead of reading."""
+    fc = UdpLink("udpin:127.0.0.1:0", 1, 1)
+    companion = UdpLink(f"udpout:127.0.0.1:{fc.local_port}", 1, 191)
+    for t in (20, 40):
+        companion.send(mavlink.MAVLink_attitude_message(t, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0))
+    assert wait_readable([fc], 2.0)
+    fc.sock = counting = _CountingReads(fc.sock)
+    got = fc.receive_from()
+    assert [m.time_boot_ms for _, msgs in got for m in msgs] == [20, 40] and counting.reads == 2
+    assert fc.receive_from() == [] and counting.reads == 3        # nothing waits: one read finds nothing
+    fc.close()
+    companion.close()
