@@ -61,34 +61,34 @@ LABELS = {ATTITUDE: "attitude", LOCAL_POSITION: "position", JOINT_STATE: "joints
 _QUAT_NORM_TOLERANCE = 0.05
 
 
-def _finite(values: tuple[tuple[float, ...], ...]) -> bool:
-    return all(all(map(math.isfinite, v)) for v in values)
+def _finite(first: tuple[float, ...], second: tuple[float, ...]) -> bool:
+    return all(map(math.isfinite, first)) and all(map(math.isfinite, second))
 
 
 def _attitude(msg) -> tuple[tuple[float, ...], ...] | None:
-    values = (msg.roll, msg.pitch, msg.yaw), (msg.rollspeed, msg.pitchspeed, msg.yawspeed)
-    return values if _finite(values) else None
+    euler, rates = (msg.roll, msg.pitch, msg.yaw), (msg.rollspeed, msg.pitchspeed, msg.yawspeed)
+    return (euler, rates) if _finite(euler, rates) else None
 
 
 def _quaternion(msg) -> tuple[tuple[float, ...], ...] | None:
-    values = (msg.q1, msg.q2, msg.q3, msg.q4), (msg.rollspeed, msg.pitchspeed, msg.yawspeed)
-    return values if _finite(values) and abs(math.hypot(*values[0]) - 1.0) <= _QUAT_NORM_TOLERANCE else None
+    quat, rates = (msg.q1, msg.q2, msg.q3, msg.q4), (msg.rollspeed, msg.pitchspeed, msg.yawspeed)
+    return (quat, rates) if _finite(quat, rates) and abs(math.hypot(*quat) - 1.0) <= _QUAT_NORM_TOLERANCE else None
 
 
 def _position(msg) -> tuple[tuple[float, ...], ...] | None:
-    values = (msg.x, msg.y, msg.z), (msg.vx, msg.vy, msg.vz)
-    return values if _finite(values) else None
+    pos, vel = (msg.x, msg.y, msg.z), (msg.vx, msg.vy, msg.vz)
+    return (pos, vel) if _finite(pos, vel) else None
 
 
 def _joints(msg) -> tuple[tuple[float, ...], ...] | None:
-    values = tuple(msg.hip_angle_rad), tuple(msg.hip_rate_rad_s)
-    return values if _finite(values) else None
+    hip, hip_rate = tuple(msg.hip_angle_rad), tuple(msg.hip_rate_rad_s)
+    return (hip, hip_rate) if _finite(hip, hip_rate) else None
 
 
 def _thrusters(msg) -> tuple[tuple[float, ...], ...] | None:
     """NaN kept: the FC cannot tell."""
-    values = tuple(msg.thrust_cmd_n), tuple(msg.thrust_limit_n)
-    return values if len(values[0]) == ROTOR_COUNT and len(values[1]) == ROTOR_COUNT else None
+    cmd, limit = tuple(msg.thrust_cmd_n), tuple(msg.thrust_limit_n)
+    return (cmd, limit) if len(cmd) == ROTOR_COUNT and len(limit) == ROTOR_COUNT else None
 
 
 # Each stream's fields as floats, named with units and frames by the comments (None: the message
