@@ -73,7 +73,8 @@ from companion.loop_timing import LoopTiming
 from companion.params import CompanionParams
 from companion.flight_log import FlightLog, open_flight_log
 from companion.stream_watch import Report, StreamWatch, blocking, labels
-from companion.telemetry import ESC_TELEMETRY, REQUESTED, THRUSTER_STATUS, TelemetryAssembler, VehicleSnapshot, rom_state
+from companion.telemetry import (ESC_TELEMETRY, REQUESTED, THRUSTER_STATUS, TelemetryAssembler, VehicleSnapshot,
+                                 rom_state)
 from m4.airframe import ROTOR_COUNT
 from m4.fc_mode import FcMode
 from m4.mavlink import COMPANION_COMPONENT_ID, FC_SYSTEM_ID, mavlink

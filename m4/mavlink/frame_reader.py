@@ -58,13 +58,14 @@ class _Plan:
         size = self.unpacker.size
         if end - start >= size:
             t = self.unpacker.unpack_from(frame, start)
-        else:
-            t = self.unpacker.unpack_from(frame[start:end] + bytes(size - end + start))   # MAVLink 2 cut the trailing zeros
+        else:                                               # MAVLink 2 cut the payload's trailing zeros
+            t = self.unpacker.unpack_from(frame[start:end] + bytes(size - end + start))
         if self.as_unpacked:
             return t
         if not self.has_text:
             return [t[at] if count == 1 else list(t[at:at + count]) for at, count in self.fields]
-        args = [t[at] if count == 1 or isinstance(t[at], bytes) else list(t[at:at + count]) for at, count in self.fields]
+        args = [t[at] if count == 1 or isinstance(t[at], bytes) else list(t[at:at + count])
+                for at, count in self.fields]
         return [a.rstrip(b"\x00") if isinstance(a, bytes) else a for a in args]
 
     def message(self, frame: bytearray, start: int, end: int):
