@@ -5,6 +5,8 @@ call on top of the evaluation itself (measured: a 6-output model step of 57 us t
 called directly, 60 us on buffers). `BufferedFunction` binds numpy buffers to the function's
 inputs and outputs once; a call copies the arguments in, evaluates and copies the results
 out. The values are the function's own: the same evaluation, only the conversion is gone.
+Inputs that change more slowly than the calls (what a preparation fixed for the next calls)
+can be set apart as parameters: written once by `set_parameters`, kept between calls.
 """
 
 from __future__ import annotations
@@ -17,13 +19,28 @@ class BufferedFunction:
     """`fn` evaluated on numpy buffers. Call with one array (or float) per input, each holding
     that input's entries in column-major order; returns one fresh array per output, shaped
     (rows, columns) like np.asarray of the DM it would return, sparse outputs made dense.
-    An evaluation that reports failure gives NaN everywhere (like a diverged model)."""
+    An evaluation that reports failure gives NaN everywhere (like a diverged model).
+    With `parameters` = k, the last k inputs are not passed at the calls: `set_parameters`
+    writes them by name (zero until then), and every call after reads them. `shared` gives a
+    parameter (by its name) the buffer of another BufferedFunction's parameter (`buffer`: one
+    copy of a big parameter in memory for two functions, written by either) or result
+    (`result`: what one function computes, the other reads without a copy)."""
 
-    def __init__(self, fn: ca.Function):
+    def __init__(self, fn: ca.Function, parameters: int = 0, shared: dict[str, np.ndarray] | None = None):
         if not all(fn.sparsity_in(i).is_dense() for i in range(fn.n_in())):
             raise ValueError(f"BufferedFunction: every input of {fn.name()} must be dense")
+        if not 0 <= parameters <= fn.n_in():
+            raise ValueError(f"BufferedFunction: {fn.name()} has {fn.n_in()} inputs, not {parameters} parameters")
         self._fn = fn                                  # the buffers below refer to it
         self._args = [np.zeros(fn.nnz_in(i)) for i in range(fn.n_in())]
+        self._inputs = self._args[:fn.n_in() - parameters]
+        self._parameters = {fn.name_in(i): i for i in range(fn.n_in() - parameters, fn.n_in())}
+        for name, arr in (shared or {}).items():
+            i = self._parameter(name)
+            if arr.shape != self._args[i].shape or arr.dtype != np.float64:
+                raise ValueError(f"BufferedFunction: parameter {name} of {fn.name()} takes {fn.nnz_in(i)} floats, "
+                                 f"not a buffer of shape {arr.shape} and type {arr.dtype}")
+            self._args[i] = arr
         self._results = [np.zeros(fn.nnz_out(i)) for i in range(fn.n_out())]
         self._shapes = [fn.size_out(i) for i in range(fn.n_out())]
         self._scatter = [_dense_positions(fn.sparsity_out(i)) for i in range(fn.n_out())]
@@ -39,16 +56,33 @@ class BufferedFunction:
     def evaluate(self, *args) -> list[np.ndarray]:
         """Each output's structural nonzeros in column-major order: the buffers themselves,
         overwritten by the next call."""
-        for buffer, value in zip(self._args, args, strict=True):
-            if isinstance(value, np.ndarray) and value.ndim < 2:
-                buffer[:] = value                          # already in order: no column-major copy first
-            else:
-                buffer[:] = np.ravel(value, order="F")
+        for buffer, value in zip(self._inputs, args, strict=True):
+            _write(buffer, value)
         self._evaluate()
         if self._buffer.ret() != 0:
             for arr in self._results:
                 arr.fill(np.nan)
         return self._results
+
+    def buffer(self, name: str) -> np.ndarray:
+        """The buffer of the parameter `name` (its entries in column-major order)."""
+        return self._args[self._parameter(name)]
+
+    def result(self, name: str) -> np.ndarray:
+        """The buffer of the output `name` (its structural nonzeros), overwritten by every call."""
+        return self._results[self._fn.index_out(name)]
+
+    def set_parameters(self, **values) -> None:
+        """Parameters' values by name (an array or float each, as for a call), for every call from now on."""
+        for name, value in values.items():
+            _write(self._args[self._parameter(name)], value)
+
+    def _parameter(self, name: str) -> int:
+        i = self._parameters.get(name)
+        if i is None:
+            raise ValueError(f"BufferedFunction: {self._fn.name()} has no parameter {name!r} "
+                             f"(its parameters: {', '.join(self._parameters) or 'none'})")
+        return i
 
     def _dense(self, i: int, nonzeros: np.ndarray) -> np.ndarray:
         rows, cols = self._shapes[i]
@@ -59,6 +93,14 @@ class BufferedFunction:
             flat = np.zeros(rows * cols)
             flat[positions] = nonzeros
         return np.ascontiguousarray(flat.reshape((rows, cols), order="F"))   # laid out as np.asarray(DM)
+
+
+def _write(buffer: np.ndarray, value) -> None:
+    """An input's value into its buffer, in column-major order."""
+    if isinstance(value, np.ndarray) and value.ndim < 2:
+        buffer[:] = value                          # already in order: no column-major copy first
+    else:
+        buffer[:] = np.ravel(value, order="F")
 
 
 def _dense_positions(sparsity: ca.Sparsity) -> np.ndarray | None:

@@ -43,3 +43,33 @@ def test_a_sparse_input_is_refused():
     x = ca.SX.sym("x", ca.Sparsity.diag(2))
     with pytest.raises(ValueError, match="dense"):
         BufferedFunction(ca.Function("m4_test_sparse_in", [x], [ca.sum1(x)]))
+
+
+def params_model():
+    x, p, q = ca.SX.sym("x", 2), ca.SX.sym("p", 2, 2), ca.SX.sym("q")
+    return ca.Function("m4_test_params", [x, p, q], [ca.mtimes(p, x) * q], ["x", "p", "q"], ["y"])
+
+
+def test_parameters_are_set_by_name_and_kept_between_calls():
+    fn = BufferedFunction(params_model(), parameters=2)
+    fn.set_parameters(p=np.array([[1.0, 2.0], [3.0, 4.0]]), q=10.0)
+    (first,) = fn(np.array([1.0, 0.0]))
+    fn.set_parameters(q=1.0)
+    (second,) = fn(np.array([0.0, 1.0]))
+    assert np.array_equal(first.ravel(), [10.0, 30.0]) and np.array_equal(second.ravel(), [2.0, 4.0])
+
+
+def test_a_shared_parameter_is_written_by_either_function():
+    owner = BufferedFunction(params_model(), parameters=2)
+    other = BufferedFunction(params_model(), parameters=2, shared={"p": owner.buffer("p")})
+    owner.set_parameters(p=np.eye(2), q=1.0)
+    other.set_parameters(q=2.0)
+    assert np.array_equal(other(np.array([1.0, 3.0]))[0].ravel(), [2.0, 6.0])
+
+
+def test_a_parameter_is_named_or_refused_by_name():
+    fn = BufferedFunction(params_model(), parameters=1)
+    with pytest.raises(ValueError, match="m4_test_params has no parameter 'p' \\(its parameters: q\\)"):
+        fn.set_parameters(p=np.eye(2))
+    with pytest.raises(ValueError, match="m4_test_params has 3 inputs, not 4 parameters"):
+        BufferedFunction(params_model(), parameters=4)
