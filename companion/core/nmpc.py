@@ -122,6 +122,7 @@ class Nmpc:
         self._row_count = row_count
         self._sense = np.concatenate([np.zeros(n * NU, dtype=np.int32), np.full(row_count, 8, dtype=np.int32)])
         self._feedback_qp = FeedbackQp(n * NU, self._sense, _DAQP_ITER_LIMIT)
+        self._targets = BufferedFunction(build(hover_targets(airframe, n, config.dt_s, self.hip_ref_rad)))
         self._guess: np.ndarray | None = None
         self._duals: np.ndarray | None = None
         # The warm start: the previous plan shifted by warm_start_shift stages, interpolated
@@ -156,7 +157,9 @@ class Nmpc:
         """(state reference (N+1, 20), input reference (N, 8)) the cost tracks: x_ref with the
         hips at the posture the NMPC pulls towards and the roll, pitch and thrust of a hover
         under the disturbance (see nmpc_targets)."""
-        return hover_targets(self.af, x0, x_ref, disturbance, self.config.dt_s, self.hip_ref_rad)
+        n = self.config.horizon
+        ref, u_ref = self._targets(x0, np.ravel(x_ref), disturbance)
+        return ref.reshape(n + 1, NX), u_ref.reshape(n, NU)
 
     @property
     def cost(self) -> TrackingCost:
