@@ -101,17 +101,16 @@ class TrackingCost:
     def gauss_newton(self, gamma: np.ndarray, xs: np.ndarray, us: np.ndarray, x_ref: np.ndarray,
                      u_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Hessian and gradient of the cost in dU, with dX = Gamma dU (x0 is fixed)."""
-        hess, grad, _ = self.gauss_newton_parts(gamma, xs, us, x_ref, u_ref)
-        return hess, grad
-
-    def gauss_newton_parts(self, gamma: np.ndarray, xs: np.ndarray, us: np.ndarray, x_ref: np.ndarray,
-                           u_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """gauss_newton's Hessian and gradient, and (2 Q Gamma)^T (N*8, N*20): the gradient's
-        change per unit of change of the states 1..N or, negated, of their reference."""
         wg = self._qw2 * gamma
         hess = gamma.T @ wg + self._r_hess
         grad = wg.T @ (xs[1:] - x_ref[1:]).ravel() + self._rw2 * (us - u_ref).ravel()
-        return hess, grad, wg.T
+        return hess, grad
+
+    @property
+    def state_gradient_scale(self) -> np.ndarray:
+        """(N*20,) the state weights of stages 1..N times 2: the gradient is Gamma^T times them
+        times the states' distance to their targets, plus the inputs' part."""
+        return self._qw2.ravel()
 
     @property
     def input_gradient_scale(self) -> np.ndarray:
@@ -193,6 +192,7 @@ class FirstPeriodHipRows:
     lo: np.ndarray
     hi: np.ndarray
     jac: np.ndarray         # (m, N*8)
+    state_jac: np.ndarray   # (m, 20): the rows' derivatives in the initial state
 
     @staticmethod
     def build(horizon: int, tau: float, hip_bounds: tuple[float, float],
@@ -203,7 +203,9 @@ class FirstPeriodHipRows:
         hi = np.r_[np.full(hips, hip_bounds[1]), np.full(len(side_pairs), side_sum_max_rad)]
         jac = np.zeros((select.shape[0], horizon * NU))
         jac[:, rom.HIP_ACCEL] = 0.5 * tau ** 2 * select
-        return FirstPeriodHipRows(tau, select, lo, hi, jac)
+        state_jac = np.zeros((select.shape[0], NX))
+        state_jac[:, rom.HIP], state_jac[:, rom.HIP_RATE] = select, tau * select
+        return FirstPeriodHipRows(tau, select, lo, hi, jac, state_jac)
 
     @property
     def count(self) -> int:
@@ -215,6 +217,40 @@ class FirstPeriodHipRows:
 
     def violation(self, x0: np.ndarray, us: np.ndarray) -> float:
         return _violation(self.values(x0, us), self.lo, self.hi)
+
+
+class QpRows:
+    """The QP's general constraints over `horizon` stages: the state rows at the nodes 1..N,
+    then the first period's hip rows (when there are), with their bounds lo and hi (m,). For fixed inputs, the rows
+    change by `selection` (m, N*20) times the change of x_{1..N} plus `initial` (m, 20) times
+    that of x0."""
+
+    def __init__(self, horizon: int, nodes: StateRows, first: FirstPeriodHipRows | None):
+        self.nodes, self.first = nodes, first
+        parts = (nodes,) if first is None else (nodes, first)
+        self.count = sum(part.count for part in parts)
+        self.lo = np.concatenate([part.lo for part in parts])
+        self.hi = np.concatenate([part.hi for part in parts])
+        self.selection = np.zeros((self.count, horizon * NX))      # (m, N*20)
+        self.initial = np.zeros((self.count, NX))                  # (m, 20)
+        node_rows = np.arange(nodes.count)
+        np.add.at(self.selection, (node_rows, nodes.first), 1.0)
+        np.add.at(self.selection, (node_rows[nodes.paired], nodes.second), 1.0)
+        if first is not None:
+            self.initial[nodes.count:] = first.state_jac
+
+    def values(self, x0: np.ndarray, xs: np.ndarray, us: np.ndarray) -> np.ndarray:
+        """(m,) the rows at the states xs (N+1, 20), the first period's from x0 and us (N, 8)."""
+        nodes = self.nodes.values(xs)
+        return nodes if self.first is None else np.concatenate([nodes, self.first.values(x0, us)])
+
+    def jacobian(self, gamma: np.ndarray) -> np.ndarray:
+        """(m, N*8) the rows' derivatives in the step dU, from Gamma (N*20, N*8)."""
+        rows = np.empty((self.count, gamma.shape[1]))
+        self.nodes.jacobian(gamma, out=rows[:self.nodes.count])
+        if self.first is not None:
+            rows[self.nodes.count:] = self.first.jac
+        return rows
 
 
 def _violation(c: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:

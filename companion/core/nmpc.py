@@ -23,6 +23,7 @@ reset or a fallback) the feedback prepares at the arrived state itself ("rti_unp
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
@@ -37,16 +38,17 @@ from companion.core.codegen_cache import compiled
 from companion.core.condensing import (
     FirstPeriodHipRows,
     Linearisation,
+    QpRows,
     TrackingCost,
     linearisation,
     sensitivities_and_parameters,
     state_rows,
 )
 from companion.core.control_types import thrust_bounds
-from companion.core.feedback_qp import NO_BOUND, FeedbackQp
+from companion.core.feedback_qp import NO_BOUND
 from companion.core.nmpc_config import NmpcConfig
 from companion.core.nmpc_targets import hover_targets
-from companion.core.rti import PreparedQp, prepare_qp
+from companion.core.rti import PreparedQp, RtiFeedback, prepare_qp
 from companion.core.rom import ND, NU, NX
 
 _MERIT_PENALTY = 1e4         # per unit of state-constraint violation, in the line search
@@ -83,11 +85,6 @@ class Nmpc:
         self.rom = rom.build_rom(airframe, config.dt_s, config.rk4_substeps)
         build = compiled if config.codegen else (lambda fn: fn)
         self._rollout = Linearisation(build(linearisation(self.rom.step, n)), n)
-        self._rti_rollout = self._advance = None
-        if config.scheme == "rti":
-            self._rti_rollout = Linearisation(build(linearisation(self.rom.step, n, disturbance_jacobian=True)), n)
-            period_s = config.dt_s * config.warm_start_shift
-            self._advance = BufferedFunction(build(rom.rk4_step(self.rom.f, period_s, config.rk4_substeps)))
         self._prepared: PreparedQp | None = None
         self._bounds: tuple[bytes, tuple[np.ndarray, np.ndarray]] | None = None   # the last input_bounds, by its argument
         self._fixed: tuple[np.ndarray, ...] | None = None     # _fixed_bounds: (lo, hi, upper, lower)
@@ -108,7 +105,7 @@ class Nmpc:
         if fixed is None and tau < config.dt_s:
             self.first_rows = FirstPeriodHipRows.build(n, tau, hip_bounds, airframe.same_side_pairs,
                                                        airframe.same_side_sum_max_rad)
-        row_count = self.rows.count + (0 if self.first_rows is None else self.first_rows.count)
+        self._qp_rows = QpRows(n, self.rows, self.first_rows)
         w = config.weights
         state_w = np.tile(w.state_diag(), (n + 1, 1))
         state_w[-1] *= w.terminal_scale
@@ -119,10 +116,15 @@ class Nmpc:
                                             airframe.total_mass_kg * airframe.gravity_m_s2)
         self._hover_u = np.tile(rom.hover_input(airframe), (n, 1))
         self._diagonal = np.diag_indices(n * NU)         # of the condensed QP's Hessian
-        self._row_count = row_count
-        self._sense = np.concatenate([np.zeros(n * NU, dtype=np.int32), np.full(row_count, 8, dtype=np.int32)])
-        self._feedback_qp = FeedbackQp(n * NU, self._sense, _DAQP_ITER_LIMIT)
-        self._targets = BufferedFunction(build(hover_targets(airframe, n, config.dt_s, self.hip_ref_rad)))
+        self._sense = np.concatenate([np.zeros(n * NU, dtype=np.int32),
+                                      np.full(self._qp_rows.count, 8, dtype=np.int32)])
+        targets = hover_targets(airframe, n, config.dt_s, self.hip_ref_rad)
+        self._targets = BufferedFunction(build(targets))
+        self._rti_rollout = self._advance = self._feedback = None
+        if config.scheme == "rti":
+            self._rti_rollout = Linearisation(build(linearisation(self.rom.step, n, disturbance_jacobian=True)), n)
+            self._advance = BufferedFunction(build(rom.rk4_step(self.rom.f, tau, config.rk4_substeps)))
+            self._feedback = RtiFeedback(targets, n, self._qp_rows, self._sense, _DAQP_ITER_LIMIT, build)
         self._guess: np.ndarray | None = None
         self._duals: np.ndarray | None = None
         # The warm start: the previous plan shifted by warm_start_shift stages, interpolated
@@ -216,6 +218,8 @@ class Nmpc:
         if x0.size != NX or x_ref.shape != (n + 1, NX):
             raise ValueError(f"x0 must have {NX} entries and x_ref shape ({n + 1}, {NX}); "
                              f"got {x0.size} and {x_ref.shape}")
+        if self._prepared is not None:          # the feedback checks x0 and x_ref in its compiled call
+            return self._rti(x0, x_ref, d, lo, hi, t0)
         if not (np.isfinite(x0).all() and np.isfinite(x_ref).all()):
             return self._fallback(x0, lo, hi, "invalid_input", 0, t0)
         if self.config.scheme == "rti":
@@ -226,39 +230,38 @@ class Nmpc:
     def _prepare_at(self, x0, x_ref, d, lo, hi) -> PreparedQp | None:
         """The QP at (x0, x_ref, d), loaded into the feedback's DAQP model (None: not finite)."""
         ref, u_ref = self.targets(x0, x_ref, d)
-        prep = prepare_qp(self._rti_rollout, self.cost, x0, self._initial_guess(u_ref, lo, hi), d, ref, u_ref,
-                          _LEVENBERG, self._row_jacobian)
+        prep = prepare_qp(self._rti_rollout, self.cost, self._qp_rows, x0, self._initial_guess(u_ref, lo, hi), d,
+                          ref, u_ref, _LEVENBERG)
         if prep is not None:
-            self._feedback_qp.load(prep.hess, prep.rows, warm=self._duals is not None)
+            self._feedback.load(prep, warm=self._duals is not None)
         return prep
 
     def _rti(self, x0, x_ref, d, lo, hi, t0) -> NmpcResult:
         """The feedback: the prepared QP moved to (x0, x_ref, d), one QP, the full step."""
-        prep, status, self._prepared = self._prepared, "rti", None
-        if prep is None:
-            prep, status = self._prepare_at(x0, x_ref, d, lo, hi), "rti_unprepared"
-            if prep is None:
+        status = "rti"
+        if self._prepared is None:                 # what is fed back is loaded by the preparation
+            status = "rti_unprepared"
+            if self._prepare_at(x0, x_ref, d, lo, hi) is None:
                 return self._fallback(x0, lo, hi, "qp_failed", 1, t0)
-        n = self.config.horizon
-        ref, u_ref = self.targets(x0, x_ref, d)
-        xs = prep.states(x0, d)
-        upper, lower = self._qp_bounds(x0, xs, prep.us, lo, hi)
-        step = self._step(*self._feedback_qp.solve(prep.gradient(xs, ref, u_ref), upper, lower))
-        if step is None:
+        self._prepared = None
+        feedback = self._feedback
+        grad, upper, lower, _, inputs_sum = feedback.qp(x0, x_ref, d, lo, hi)
+        if not math.isfinite(inputs_sum[0]):       # an entry of x0 or x_ref is not
+            return self._fallback(x0, lo, hi, "invalid_input", 0, t0)
+        step, flag, self._duals = feedback.solver.solve(grad, upper, lower)
+        if flag not in _DAQP_OK:
             return self._fallback(x0, lo, hi, "qp_failed", 1, t0)
-        us = np.minimum(np.maximum(prep.us + step, lo), hi)
-        xs[1:] += (prep.gamma @ step.ravel()).reshape(n, NX)
-        if not np.isfinite(xs).all():
+        us, xs, cost = feedback.plan(step)
+        if not math.isfinite(cost):               # a step, state or input that is not finite makes it so
             return self._fallback(x0, lo, hi, "qp_failed", 1, t0)
         self._guess = us.copy()
         self._planned = (x0.copy(), us[0].copy())
         return NmpcResult(u=us[0].copy(), x_pred=xs, u_pred=us, solve_ms=_ms_since(t0), iterations=1, status=status,
-                          ok=True, cost=self.cost.value(xs, us, ref, u_ref), fallback=False,
-                          altitude_first=self.altitude_first.active)
+                          ok=True, cost=cost, fallback=False, altitude_first=self.altitude_first.active)
 
     def _qp_step(self, hess, grad, rows, x0, xs, us, lo, hi) -> np.ndarray | None:
         """The QP's step dU (N, 8) within the input bounds (lo, hi: one stage's, (8,)) and the
-        state rows, their derivatives `rows` (from _row_jacobian) taken from xs; None when DAQP
+        state rows, their derivatives `rows` (QpRows.jacobian) taken from xs; None when DAQP
         fails. Its duals warm-start the next QP."""
         upper, lower = self._qp_bounds(x0, xs, us, lo, hi)
         step, _, flag, info = daqp.solve(hess, grad, rows, upper, lower, self._sense,
@@ -269,10 +272,7 @@ class Nmpc:
         """(upper, lower) of the QP on the step dU from us: the input bounds (lo, hi: one stage's, at
         every stage) first, then the state rows at xs (the first period's rows from x0 and us)."""
         upper, lower = self._fixed_bounds(lo, hi)
-        parts = [us.ravel(), self.rows.values(xs)]
-        if self.first_rows is not None:
-            parts.append(self.first_rows.values(x0, us))
-        moved = np.concatenate(parts)              # what each bound is taken from: inputs, then rows
+        moved = np.concatenate([us.ravel(), self._qp_rows.values(x0, xs, us)])   # what each bound is taken from
         return np.minimum(upper - moved, NO_BOUND), np.maximum(lower - moved, -NO_BOUND)   # no-ops on the inputs'
 
     def _fixed_bounds(self, lo, hi) -> tuple[np.ndarray, np.ndarray]:
@@ -280,9 +280,9 @@ class Nmpc:
         rows are taken off them; kept while input_bounds hands out the same lo and hi."""
         kept = self._fixed
         if kept is None or kept[0] is not lo or kept[1] is not hi:
-            n, first = self.config.horizon, self.first_rows
-            upper = np.concatenate([np.tile(hi, n), self.rows.hi, *(() if first is None else (first.hi,))])
-            lower = np.concatenate([np.tile(lo, n), self.rows.lo, *(() if first is None else (first.lo,))])
+            n = self.config.horizon
+            upper = np.concatenate([np.tile(hi, n), self._qp_rows.hi])
+            lower = np.concatenate([np.tile(lo, n), self._qp_rows.lo])
             self._fixed = kept = (lo, hi, upper, lower)
         return kept[2], kept[3]
 
@@ -299,16 +299,6 @@ class Nmpc:
         if self.first_rows is not None:
             violation += self.first_rows.violation(x0, us)
         return self.cost.value(xs, us, ref, u_ref) + _MERIT_PENALTY * violation
-
-    def _row_jacobian(self, gamma) -> np.ndarray:
-        """(m, N*8) the QP's general constraints' derivatives in the step dU, from Gamma: the state
-        rows on top, the first period's rows (constant) below. The real-time iteration takes them
-        at its preparation: Gamma does not move with the arrived state."""
-        rows = np.empty((self._row_count, gamma.shape[1]))
-        self.rows.jacobian(gamma, out=rows[:self.rows.count])
-        if self.first_rows is not None:
-            rows[self.rows.count:] = self.first_rows.jac
-        return rows
 
     def _initial_guess(self, u_ref, lo, hi) -> np.ndarray:
         if self._guess is None:
@@ -329,7 +319,7 @@ class Nmpc:
             gamma, _ = sensitivities_and_parameters(a, b)
             hess, grad = self.cost.gauss_newton(gamma, xs, us, ref, u_ref)
             hess[self._diagonal] += _LEVENBERG * hess[self._diagonal].max()
-            step = self._qp_step(hess, grad, self._row_jacobian(gamma), x0, xs, us, lo, hi)
+            step = self._qp_step(hess, grad, self._qp_rows.jacobian(gamma), x0, xs, us, lo, hi)
             if step is None:
                 return self._fallback(x0, lo, hi, "qp_failed", it, t0)
             decrease = float(grad @ step.ravel())

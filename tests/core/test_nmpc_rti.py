@@ -41,6 +41,13 @@ def prepared(rti, x0, d):
     return rti._prepared
 
 
+def moved(rti, x0, x_ref, d, bound=FULL):
+    """The prepared QP's feedback at (x0, x_ref, d): (gradient, upper, lower, states (N+1, 20)):
+    the states as the plan of a zero step gives them."""
+    grad, upper, lower = (a.copy() for a in rti._feedback.qp(x0, x_ref, d, *rti.input_bounds(bound))[:3])
+    return grad, upper, lower, rti._feedback.plan(np.zeros(N * rom.NU))[1]
+
+
 def offset(rng, scale):
     dx = np.zeros(rom.NX)
     dx[rom.V] = rng.uniform(-1, 1, 3) * 0.1 * scale
@@ -58,22 +65,59 @@ def test_the_feedback_moves_the_predicted_states_to_the_arrived_state_and_distur
 
     def error(scale):
         dx, dd = offset(np.random.default_rng(0), scale)
-        moved = prep.states(prep.x0 + dx, prep.d + dd)
+        states = moved(rti, prep.x0 + dx, hover_ref(), prep.d + dd)[3]
         x = prep.x0 + dx
         errors = []
         for k in range(N):
             x = np.asarray(rollout(x, prep.us[k], prep.d + dd)).ravel()
-            errors.append(np.abs(moved[k + 1] - x).max())
+            errors.append(np.abs(states[k + 1] - x).max())
         return max(errors)
 
     assert error(0.1) < error(1.0) / 50
 
 
-def test_the_feedback_moves_the_gradient_exactly_with_the_targets(rti):
+def test_the_feedback_moves_the_gradient_exactly_with_the_states_and_the_targets(rti):
     prep = prepared(rti, moving_state(), WIND)
-    ref, u_ref = rti.targets(prep.x0, hover_ref() + 0.3, prep.d + np.r_[1.0, 0.0, -2.0, 0.0, 0.0, 0.0])
-    _, expected, _ = rti.cost.gauss_newton_parts(prep.gamma, prep.xs, prep.us, ref, u_ref)
-    assert prep.gradient(prep.xs, ref, u_ref) == pytest.approx(expected, rel=1e-9, abs=1e-9)
+    x0, x_ref = prep.x0 + offset(np.random.default_rng(1), 1.0)[0], hover_ref() + 0.3
+    d = prep.d + np.r_[1.0, 0.0, -2.0, 0.0, 0.0, 0.0]
+    grad, _, _, states = moved(rti, x0, x_ref, d)
+    ref, u_ref = rti.targets(x0, x_ref, d)
+    _, expected = rti.cost.gauss_newton(prep.gamma, states, prep.us, ref, u_ref)
+    assert grad == pytest.approx(expected, rel=1e-9, abs=1e-9)
+
+
+def test_the_feedback_bounds_the_step_by_the_input_bounds_and_the_rows_at_the_moved_states(rti):
+    prep = prepared(rti, moving_state(), WIND)
+    x0, d = prep.x0 + offset(np.random.default_rng(2), 1.0)[0], prep.d + 0.1
+    x0[rom.HIP_RATE] += 0.5                        # the first period's rows move with the hip rates
+    _, upper, lower, states = moved(rti, x0, hover_ref(), d, ROTOR_4_OFF)
+    want_upper, want_lower = rti._qp_bounds(x0, states, prep.us, *rti.input_bounds(ROTOR_4_OFF))
+    assert upper == pytest.approx(want_upper, rel=1e-12, abs=1e-12)
+    assert lower == pytest.approx(want_lower, rel=1e-12, abs=1e-12)
+
+
+def test_the_plan_takes_the_step_within_the_bounds_and_costs_what_the_cost_says(rti):
+    prep = prepared(rti, moving_state(), WIND)
+    x0, x_ref, d = prep.x0 + 0.01, hover_ref(), prep.d
+    step = np.random.default_rng(3).normal(scale=2.0, size=N * rom.NU)
+    states = moved(rti, x0, x_ref, d, ROTOR_4_OFF)[3]
+    us, xs, cost = rti._feedback.plan(step)
+    lo, hi = rti.input_bounds(ROTOR_4_OFF)
+    assert np.array_equal(us, np.clip(prep.us + step.reshape(N, rom.NU), lo, hi))
+    assert xs[1:] == pytest.approx(states[1:] + (prep.gamma @ step).reshape(N, rom.NX), rel=1e-12, abs=1e-12)
+    assert np.array_equal(xs[0], x0)
+    assert cost == pytest.approx(rti.cost.value(xs, us, *rti.targets(x0, x_ref, d)), rel=1e-12)
+
+
+def test_a_step_that_is_not_finite_falls_back_to_a_bounded_command(rti, monkeypatch):
+    prepared(rti, moving_state(), WIND)
+    solve = rti._feedback.solver.solve
+    monkeypatch.setattr(rti._feedback.solver, "solve",
+                        lambda *qp: (np.full(N * rom.NU, np.nan), *solve(*qp)[1:]))
+    res = rti.solve(moving_state(), hover_ref(), FULL, WIND)
+    lo, hi = rti.input_bounds(FULL)
+    assert res.status == "qp_failed" and res.fallback
+    assert np.all(np.isfinite(res.u)) and np.all(res.u >= lo) and np.all(res.u <= hi)
 
 
 def test_on_a_held_problem_it_reaches_the_sqp_optimum(rti):
@@ -143,3 +187,35 @@ def test_a_yaw_that_wrapped_past_south_since_the_preparation_is_a_small_turn(rti
         arrived[rom.EULER.stop - 1] = yaw_rad
         return rti.solve(arrived, hover_ref(), FULL, WIND).u
     assert command(-np.pi + 0.005) == pytest.approx(command(np.pi + 0.005), abs=1e-6)
+
+
+def test_the_uncompiled_feedback_computes_what_the_compiled_one_does(rti):
+    vm = Nmpc(AF, NmpcConfig(control_period_s=PERIOD_S, scheme="rti", codegen=False))
+    step = rom.rk4_step(rti.rom.f, PERIOD_S)
+    rti.reset()
+    x = moving_state()
+    for _ in range(5):
+        a, b = rti.solve(x, hover_ref(), ROTOR_4_OFF, WIND), vm.solve(x, hover_ref(), ROTOR_4_OFF, WIND)
+        assert b.status == a.status and b.u == pytest.approx(a.u, abs=1e-9) and b.cost == pytest.approx(a.cost)
+        x = np.asarray(step(x, a.u, WIND)).ravel()
+        rti.prepare(hover_ref(), ROTOR_4_OFF, WIND)
+        vm.prepare(hover_ref(), ROTOR_4_OFF, WIND)
+        compiled_qp, vm_qp = moved(rti, x, hover_ref(), WIND), moved(vm, x, hover_ref(), WIND)
+        for a, b in zip(compiled_qp, vm_qp, strict=True):
+            assert a == pytest.approx(b, rel=1e-12, abs=1e-12)
+
+
+def test_the_feedback_takes_the_weights_of_the_cost_it_was_prepared_for(rti):
+    prep = prepared(rti, moving_state(), WIND)
+    rti.altitude_first.active = True                # the horizontal weights scaled down
+    try:
+        prep = rti._prepare_at(prep.x0, hover_ref(), prep.d, *rti.input_bounds(FULL))
+        assert prep.cost is rti.cost is not rti._costs[0]
+        x0 = prep.x0 + 0.01
+        grad, _, _, states = moved(rti, x0, hover_ref(), prep.d)
+        ref, u_ref = rti.targets(x0, hover_ref(), prep.d)
+        assert grad == pytest.approx(rti.cost.gauss_newton(prep.gamma, states, prep.us, ref, u_ref)[1], rel=1e-9)
+        us, xs, cost = rti._feedback.plan(np.zeros(N * rom.NU))
+        assert cost == pytest.approx(rti.cost.value(xs, us, ref, u_ref), rel=1e-12)
+    finally:
+        rti.reset()
