@@ -86,6 +86,7 @@ class Nmpc:
         build = compiled if config.codegen else (lambda fn: fn)
         self._rollout = Linearisation(build(linearisation(self.rom.step, n)), n)
         self._prepared: PreparedQp | None = None
+        self._saturation: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None   # (u, hi, d) of the last solve
         self._bounds: tuple[bytes, tuple[np.ndarray, np.ndarray]] | None = None   # the last input_bounds, by its argument
         self._fixed: tuple[np.ndarray, ...] | None = None     # _fixed_bounds: (lo, hi, upper, lower)
         self._planned: tuple[np.ndarray, np.ndarray] | None = None   # (x0, u0) of the last plan
@@ -138,6 +139,7 @@ class Nmpc:
     # ----------------------------------------------------------------- public API
     def reset(self) -> None:
         """Drop the warm start (e.g. after a jump of the reference)."""
+        self._saturation = None
         self.altitude_first.reset()
         self._guess = None
         self._duals = None
@@ -167,16 +169,17 @@ class Nmpc:
     def cost(self) -> TrackingCost:
         """The cost the next solve tracks: the horizontal weights scaled down while the plans
         saturate the rotors (altitude before place)."""
+        self._note_saturation()
         return self._costs[self.altitude_first.active]
 
     def solve(self, x0, x_ref, thrust_bound_n, disturbance=None) -> NmpcResult:
         """One receding-horizon step from state x0 (20,) along x_ref (N+1, 20)."""
         t0 = time.perf_counter()
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):   # every result is checked
-            lo, hi = self.input_bounds(thrust_bound_n)
-            d = _finite_disturbance(disturbance)
-            res = self._solve(x0, x_ref, lo, hi, d, t0)
-        self.altitude_first.update(res.u[rom.THRUST], hi[rom.THRUST], d[2])
+        self._note_saturation()
+        lo, hi = self.input_bounds(thrust_bound_n)
+        d = _finite_disturbance(disturbance)
+        res = self._solve(x0, x_ref, lo, hi, d, t0)
+        self._saturation = (res.u, hi, d)
         return res
 
     def prepare(self, x_ref, thrust_bound_n, disturbance=None) -> None:
@@ -186,6 +189,7 @@ class Nmpc:
         disturbance. Nothing in the sqp scheme, or without a plan to go on (the next solve then
         prepares at its own state)."""
         t0 = time.perf_counter()
+        self._note_saturation()
         planned, self._planned, self._prepared = self._planned, None, None
         if self.config.scheme != "rti" or planned is None:
             return
@@ -225,7 +229,17 @@ class Nmpc:
         if self.config.scheme == "rti":
             return self._rti(x0, x_ref, d, lo, hi, t0)
         ref, u_ref = self.targets(x0, x_ref, d)
-        return self._sqp(x0, ref, u_ref, d, lo, hi, t0)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):   # every result is checked
+            return self._sqp(x0, ref, u_ref, d, lo, hi, t0)
+
+    def _note_saturation(self) -> None:
+        """The last plan's first thrusts against their bounds into altitude_first, which picks
+        the cost of the plans after it: read after the send (at the preparation, or at the next
+        solve), not between the state and the setpoint."""
+        if self._saturation is not None:
+            u, hi, d = self._saturation
+            self._saturation = None
+            self.altitude_first.update(u[rom.THRUST], hi[rom.THRUST], d[2])
 
     def _prepare_at(self, x0, x_ref, d, lo, hi) -> PreparedQp | None:
         """The QP at (x0, x_ref, d), loaded into the feedback's DAQP model (None: not finite)."""
@@ -241,8 +255,9 @@ class Nmpc:
         status = "rti"
         if self._prepared is None:                 # what is fed back is loaded by the preparation
             status = "rti_unprepared"
-            if self._prepare_at(x0, x_ref, d, lo, hi) is None:
-                return self._fallback(x0, lo, hi, "qp_failed", 1, t0)
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):   # every result is checked
+                if self._prepare_at(x0, x_ref, d, lo, hi) is None:
+                    return self._fallback(x0, lo, hi, "qp_failed", 1, t0)
         self._prepared = None
         feedback = self._feedback
         grad, upper, lower, _, inputs_sum = feedback.qp(x0, x_ref, d, lo, hi)

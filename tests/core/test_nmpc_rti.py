@@ -219,3 +219,18 @@ def test_the_feedback_takes_the_weights_of_the_cost_it_was_prepared_for(rti):
         assert cost == pytest.approx(rti.cost.value(xs, us, ref, u_ref), rel=1e-12)
     finally:
         rti.reset()
+
+
+def test_altitude_before_place_reads_the_plan_after_the_send_before_the_next_plan(rti, monkeypatch):
+    """The plan's saturation picks the cost of the plans after it: read at the preparation,
+    after the setpoint left, not between the state and the setpoint."""
+    seen = []
+    monkeypatch.setattr(rti.altitude_first, "update", lambda thrust_n, *_: seen.append(thrust_n.copy()))
+    rti.reset()
+    res = rti.solve(moving_state(), hover_ref(), ROTOR_4_OFF, WIND)
+    assert seen == []
+    rti.prepare(hover_ref(), ROTOR_4_OFF, WIND)
+    assert len(seen) == 1 and np.array_equal(seen[0], res.u[rom.THRUST])
+    res = rti.solve(moving_state(), hover_ref(), ROTOR_4_OFF, WIND)
+    rti.solve(moving_state(), hover_ref(), ROTOR_4_OFF, WIND)        # no preparation between: read then
+    assert len(seen) == 2 and np.array_equal(seen[1], res.u[rom.THRUST])
