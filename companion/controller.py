@@ -78,7 +78,7 @@ import numpy as np
 from companion.core import rom
 from companion.core.applied_thrust import AppliedThrust
 from companion.core.control_types import (FaultState, FaultStatus, one_period_apart, plausible_state, safe_setpoint,
-                                          thrust_bounds)
+                                          thrust_bound_list)
 from companion.core.disturbance import DisturbanceEstimator
 from companion.core.esc_evidence import EscSample, PropellerModel
 from companion.core.fault_detector import FaultDetector, FaultDetectorConfig
@@ -161,8 +161,8 @@ def _drifted(goal_rad: list[float], hip_rad: list[float]) -> bool:
 class HipGoal:
     """The servos' goal now: the ROM's hip states the NMPC plans from."""
 
-    angle_rad: np.ndarray         # (4,)
-    rate_rad_s: np.ndarray        # (4,)
+    angle_rad: list[float]        # (4,)
+    rate_rad_s: list[float]       # (4,)
 
 
 @dataclass
@@ -217,6 +217,8 @@ class Controller:
         self._last_step_s: float | None = None
         self._takeover = True             # the next step takes control from the FC's own controller
         self._deferred: tuple | None = None   # a frame for the detector after the send: update()'s arguments
+        self._unrecorded: tuple | None = None  # the last step's command and hip goal, kept once the setpoint has left
+        self._cap_limit: tuple[float, np.ndarray] = (math.nan, np.full(ROTOR_COUNT, math.nan))   # the detector's limits by cap
 
     @property
     def started(self) -> bool:
@@ -273,6 +275,7 @@ class Controller:
         stale. The disturbance estimate is kept (it describes the robot, not the moment)."""
         self.read_deferred()
         self.nmpc.reset()
+        self._unrecorded = None
         self.sent.clear()
         self.applied.clear()
         self._hip_goal = None
@@ -313,21 +316,23 @@ class Controller:
         (_estimate_disturbance)."""
         af = self.af
         self.read_deferred()               # the last frame first, had nobody read it after the send
+        self._record()
         self._note_gap(time_s)
-        lead_known = lead_s is not None and bool(np.isfinite(lead_s))
+        lead_known = lead_s is not None and math.isfinite(lead_s)
         lead_s = max(float(lead_s), 0.0) if lead_known else 0.0
         x = np.asarray(x_measured, dtype=float).reshape(rom.NX)
-        thrust_limit_n = self._thrust_telemetry(thrust_limit_n)
         self.applied.report(time_s, self._thrust_telemetry(thrust_cmd_n))
         usable = plausible_state(af, x)
         if usable:
             x = self._with_hip_goal(x)
-        in_force = self._in_force_last_period(time_s, lead_s)
-        fault, confirmed_now = self._detect(time_s, x, usable, in_force, esc, thrust_limit_n)
+        in_force, in_force_thrust_n = self._in_force_last_period(time_s, lead_s)
+        fault, confirmed_now = self._detect(time_s, x, usable, in_force_thrust_n, esc,
+                                            self._thrust_telemetry(thrust_limit_n))
         if confirmed_now:
             self.disturbance.reset()      # it held the lost rotor's effect, which the bound now models
             self.flight.reference.fault_detected(self.flight.mission_time_s(time_s), x[rom.P])
-        d = self._estimate_disturbance(time_s, x, usable and lead_known, in_force, fault.thrust_bound_n, lead_s)
+        d = self._estimate_disturbance(time_s, x, usable and lead_known, in_force, in_force_thrust_n,
+                                       fault.thrust_bound_n, lead_s)
         if self.flight is None or not usable:
             return self._fallback(time_s, x, fault, confirmed_now, d)
         took_over = self._takeover
@@ -344,14 +349,14 @@ class Controller:
         x_plan = self.predictor.predict(x, time_s, lead_s, self.sent, d, fault.thrust_bound_n)
         x_ref = self._reference(time_s, lead_s, c.horizon, c.dt_s)
         res = self.nmpc.solve(x_plan, x_ref, fault.thrust_bound_n, d)
-        checked = self._setpoint(x_plan, res, fault.thrust_bound_n)
+        hip_accel = res.u[rom.HIP_ACCEL].tolist()
+        checked = self._setpoint(x_plan, res.u[rom.THRUST], hip_accel, fault.thrust_bound_n)
         x_next = res.x_pred[1] if res.ok else x_plan          # a failed solve plans no change of the rates
         sp = Setpoint(thrust_n=self.ramp.limit(checked.thrust_n, fault.thrust_bound_n), hip_rad=checked.hip_rad,
                       hip_rate_rad_s=checked.hip_rate_rad_s,
                       rate_feedback=self.rate_feedback.feedback(x_plan, x_next, c.dt_s, fault.thrust_bound_n),
                       shortfall_cover=self.rate_feedback.cover(x_plan[rom.HIP], fault.state is FaultState.CONFIRMED))
-        self.sent.add(SentCommand(time_s, x, np.concatenate([sp.thrust_n, res.u[rom.HIP_ACCEL]]), sp.rate_feedback,
-                                  sp.shortfall_cover))
+        self._unrecorded = (time_s, x, x_plan, sp, hip_accel)
         self._solved = (time_s, lead_s, fault.thrust_bound_n, d, fault.state is FaultState.CONFIRMED)
         return ControlStep(time_s=time_s, setpoint=sp, state=x_plan, fault=fault, fault_confirmed_now=confirmed_now,
                            disturbance=d, lead_s=lead_s, reference=x_ref, nmpc=res, took_over=took_over,
@@ -363,6 +368,7 @@ class Controller:
         SQP, or when the last step solved nothing: what was prepared before is dropped), and the
         FC's rate feedback and cover are designed for the hip goal the next step starts from.
         The next step is expected one period on, at the same lead, with the same bounds."""
+        self._record()
         solved, self._solved = self._solved, None
         if solved is None or self.flight is None:
             self.nmpc.unprepare()
@@ -416,16 +422,16 @@ class Controller:
             return reference_rows(f.hold, self.af, time_s + lead_s, horizon, dt_s)
         return f.reference.reference(f.mission_time_s(time_s) + lead_s, horizon, dt_s)
 
-    def _thrust_telemetry(self, thrust_n) -> np.ndarray | None:
+    def _thrust_telemetry(self, thrust_n) -> list[float] | None:
         """Per-rotor thrusts from the FC with what cannot be a thrust (non-finite, negative,
         beyond twice the airframe's maximum) as NaN: unknown."""
         if thrust_n is None:
             return None
-        t = np.array(thrust_n, dtype=float).reshape(ROTOR_COUNT)
+        t = np.asarray(thrust_n, dtype=float).reshape(ROTOR_COUNT).tolist()    # four floats: cheaper than numpy's calls
         most = 2.0 * self.af.thrust_max_n
-        if all(0.0 <= v <= most for v in t.tolist()):       # four floats at every step: cheaper than numpy's
+        if all(0.0 <= v <= most for v in t):
             return t
-        return np.where((t >= 0.0) & (t <= most), t, np.nan)     # false for NaN and inf
+        return [v if 0.0 <= v <= most else math.nan for v in t]      # false for NaN and inf
 
     def _consecutive(self, time_s: float) -> bool:
         newest = self.sent.newest
@@ -433,31 +439,31 @@ class Controller:
             return False
         return one_period_apart(newest.time_s, time_s, self.period_s)
 
-    def _in_force_last_period(self, time_s: float, lead_s: float) -> SentCommand | None:
-        """The command the FC flew over the period that ends at time_s (None: none of ours):
-        the thrusts as the FC reports them when it does (companion.core.applied_thrust), the
-        hips as we planned them."""
+    def _in_force_last_period(self, time_s: float, lead_s: float) -> tuple[SentCommand | None, np.ndarray | None]:
+        """The command the FC flew over the period that ends at time_s (None: none of ours) and
+        its thrusts: as the FC reports them when it does (companion.core.applied_thrust), else
+        ours; the hips are as we planned them."""
         ours = self.sent.in_force(time_s - 0.5 * self.period_s, lead_s)
+        if ours is None:
+            return None, None
         reported = self.applied.over_period(time_s, lead_s)
-        if ours is None or reported is None:
-            return ours
-        u = ours.input.copy()
-        u[rom.THRUST] = reported
-        return replace(ours, input=u)
+        return ours, ours.thrust_n if reported is None else reported
 
-    def _detect(self, time_s, x, usable, in_force, esc, limit_n) -> tuple[FaultStatus, bool]:
+    def _detect(self, time_s, x, usable, in_force_thrust_n, esc, limit_n) -> tuple[FaultStatus, bool]:
         """The detector's status after this frame (before it, for a frame left for after the send);
         True at each new confirmation in a flight."""
-        if not usable or in_force is None:
+        if not usable or in_force_thrust_n is None:
             return self.detector.status, False
         if self._on_ground_in_landing(time_s, x):
             self.detector.hold()
             return self.detector.status, False
         cap = self.af.thrust_max_n
-        known = [] if limit_n is None else [v for v in limit_n.tolist() if v == v]   # (4,) from _thrust_telemetry: NaN or finite
+        known = [] if limit_n is None else [v for v in limit_n if v == v]    # (4,) from _thrust_telemetry: NaN or finite
         if known:
             cap = min(max(max(known), self.af.thrust_min_n), self.af.thrust_max_n)
-        frame = (time_s, x, in_force.thrust_n, np.full(ROTOR_COUNT, cap), esc)
+        if cap != self._cap_limit[0]:
+            self._cap_limit = (cap, np.full(ROTOR_COUNT, cap))
+        frame = (time_s, x, in_force_thrust_n, self._cap_limit[1], esc)
         if self.detector.cannot_confirm(time_s, frame[3]):
             self._deferred = frame
             return self.detector.status, False
@@ -482,7 +488,8 @@ class Controller:
             flight.fault_announced = True
         return status, confirmed_now
 
-    def _estimate_disturbance(self, time_s, x, usable, in_force, thrust_bound_n, lead_s) -> np.ndarray:
+    def _estimate_disturbance(self, time_s, x, usable, in_force, in_force_thrust_n, thrust_bound_n,
+                              lead_s) -> np.ndarray:
         """Updated over the last period with our command within the current bounds. A rotor lost
         but not yet confirmed shows up here as a disturbance within a few periods, so the NMPC
         compensates it before the detector confirms it (measured on the SITL at 50 Hz: altitude
@@ -497,7 +504,8 @@ class Controller:
         if not (usable and in_force is not None and self._consecutive(time_s)):
             return self.disturbance.estimate.copy()
         u = in_force.input.copy()
-        u[rom.THRUST] = np.minimum(u[rom.THRUST], thrust_bounds(self.af, thrust_bound_n))
+        u[rom.THRUST] = [min(t, b) for t, b in zip(in_force_thrust_n.tolist(), thrust_bound_list(self.af, thrust_bound_n),
+                                                   strict=True)]
         return self.disturbance.update(self.sent.newest.state, u, x, gain_scale=self.period_s / (self.period_s + lead_s))
 
     def _on_ground_in_landing(self, time_s: float, x: np.ndarray) -> bool:
@@ -516,27 +524,37 @@ class Controller:
         """The NMPC's state: measured, but the hip goal in place of the measured joints."""
         hip = x_measured[rom.HIP]
         goal = self._hip_goal
-        if goal is None or _drifted(goal.angle_rad.tolist(), hip.tolist()):
+        if goal is None or _drifted(goal.angle_rad, hip.tolist()):
             fixed = self.nmpc.config.fixed_hip_rad        # the fixed-posture variant: the legs go there
-            start = hip.clip(self.af.hip_min_rad, self.af.hip_max_rad) if fixed is None else np.full(ROTOR_COUNT, fixed)
-            goal = self._hip_goal = HipGoal(start, np.zeros(ROTOR_COUNT))
+            start = hip.clip(self.af.hip_min_rad, self.af.hip_max_rad).tolist() if fixed is None else [fixed] * ROTOR_COUNT
+            goal = self._hip_goal = HipGoal(start, [0.0] * ROTOR_COUNT)
         x = x_measured.copy()
         x[rom.HIP], x[rom.HIP_RATE] = goal.angle_rad, goal.rate_rad_s
         return x
 
-    def _setpoint(self, x: np.ndarray, res: NmpcResult, thrust_bound_n) -> Setpoint:
+    def _setpoint(self, x: np.ndarray, thrust_n: np.ndarray, hip_accel: list[float], thrust_bound_n) -> Setpoint:
         """Thrusts now; the hips from the goal now to the planned goal one period later (the FC's
         servo moves its goal from the angle at the rate, so the rate is the chord's)."""
-        af, tau = self.af, self.period_s                  # four hips: Python floats, cheaper than numpy's calls
-        hip, rate, accel = x[rom.HIP].tolist(), x[rom.HIP_RATE].tolist(), res.u[rom.HIP_ACCEL].tolist()
-        chord = [(h + r * tau + 0.5 * a * tau**2 - h) / tau for h, r, a in zip(hip, rate, accel, strict=True)]
-        sp = safe_setpoint(af, res.u[rom.THRUST], hip, chord, thrust_bound_n, hip)
+        tau = self.period_s                               # four hips: Python floats, cheaper than numpy's calls
+        hip, rate = x[rom.HIP].tolist(), x[rom.HIP_RATE].tolist()
+        chord = [(h + r * tau + 0.5 * a * tau**2 - h) / tau for h, r, a in zip(hip, rate, hip_accel, strict=True)]
+        return safe_setpoint(self.af, thrust_n, hip, chord, thrust_bound_n, hip)
+
+    def _record(self) -> None:
+        """Once the last step's setpoint has left: its command into the history, and the hip goal
+        one period on (where the setpoint's hips lead, at the planned rate) for the next step."""
+        if self._unrecorded is None:
+            return
+        (time_s, x, x_plan, sp, hip_accel), self._unrecorded = self._unrecorded, None
+        af, tau = self.af, self.period_s
         rate_max = af.hip_rate_max_rad_s
-        next_rate = [min(max(r + a * tau, -rate_max), rate_max) for r, a in zip(rate, accel, strict=True)]
+        next_rate = [min(max(r + a * tau, -rate_max), rate_max)
+                     for r, a in zip(x_plan[rom.HIP_RATE].tolist(), hip_accel, strict=True)]
         goal = [min(max(h + r * tau, af.hip_min_rad), af.hip_max_rad)
                 for h, r in zip(sp.hip_rad.tolist(), sp.hip_rate_rad_s.tolist(), strict=True)]
-        self._hip_goal = HipGoal(np.array(goal), np.array([r if math.isfinite(r) else 0.0 for r in next_rate]))
-        return sp
+        self._hip_goal = HipGoal(goal, [r if math.isfinite(r) else 0.0 for r in next_rate])
+        self.sent.add(SentCommand(time_s, x, np.concatenate([sp.thrust_n, hip_accel]), sp.rate_feedback,
+                                  sp.shortfall_cover))
 
     def _cut(self, time_s, x, fault, confirmed_now, d, crash: str | None = None, crash_now: bool = False) -> ControlStep:
         """Thrust cut (after a touchdown, or for good after a crash), the hips held."""

@@ -13,6 +13,7 @@ feed and the tests share with the controller without loading a solver.
 
 from __future__ import annotations
 
+import functools
 import math
 from array import array
 from dataclasses import dataclass
@@ -32,15 +33,18 @@ _PLAUSIBLE = ((rom_layout.P, 1e5), (rom_layout.EULER, 2 * np.pi), (rom_layout.V,
               (rom_layout.RATES, 100.0), (rom_layout.HIP_RATE, 100.0))
 
 
-def _per_entry(limits) -> np.ndarray:
-    """(NX,) the limit on each state entry's magnitude (inf: none), from (slice, limit) pairs."""
-    out = np.full(rom_layout.NX, np.inf)
-    for part, limit in limits:
-        out[part] = limit
-    return out
+@functools.cache
+def _plausible_range(hip_min_rad: float, hip_max_rad: float) -> tuple[np.ndarray, np.ndarray]:
+    """(NX,) the least and the most each state entry may be: +-its limit, the hips within the
+    joint range widened by _HIP_MARGIN_RAD (every entry finite: NaN and inf fall outside)."""
+    most = np.full(rom_layout.NX, np.inf)
+    for part, limit in _PLAUSIBLE:
+        most[part] = limit
+    least = -most
+    least[rom_layout.HIP], most[rom_layout.HIP] = hip_min_rad - _HIP_MARGIN_RAD, hip_max_rad + _HIP_MARGIN_RAD
+    return least, most
 
 
-_PLAUSIBLE_ABS = _per_entry(_PLAUSIBLE)       # one comparison per state, not one per part
 _FLOAT32_DOWN, _FLOAT32_UP = np.float32(-np.inf), np.float32(np.inf)
 
 
@@ -67,10 +71,9 @@ class FaultStatus:
 def plausible_state(af: Airframe, x) -> bool:
     """Finite and physically possible (a state outside this is a broken measurement: the
     controller falls back instead of planning from it)."""
+    least, most = _plausible_range(af.hip_min_rad, af.hip_max_rad)
     x = np.asarray(x, dtype=float)
-    hip = x[rom_layout.HIP]         # every comparison is false for NaN, and every entry has a finite limit
-    return bool((np.abs(x) <= _PLAUSIBLE_ABS).all() and (hip >= af.hip_min_rad - _HIP_MARGIN_RAD).all()
-                and (hip <= af.hip_max_rad + _HIP_MARGIN_RAD).all())
+    return bool(((least <= x) & (x <= most)).all())      # every comparison is false for NaN
 
 
 def one_period_apart(earlier_s: float, later_s: float, period_s: float) -> bool:
@@ -81,11 +84,16 @@ def one_period_apart(earlier_s: float, later_s: float, period_s: float) -> bool:
 
 def thrust_bounds(af: Airframe, thrust_bound_n) -> np.ndarray:
     """Per-rotor upper bounds: finite entries clipped into [thrust_min, thrust_max], the rest the maximum."""
+    return np.array(thrust_bound_list(af, thrust_bound_n))
+
+
+def thrust_bound_list(af: Airframe, thrust_bound_n) -> list[float]:
+    """thrust_bounds as Python floats (four comparisons each cost less than a numpy call)."""
     bound = np.asarray(thrust_bound_n, dtype=float).reshape(-1)
     if bound.size != ROTOR_COUNT:
         raise ValueError(f"thrust_bound_n must have {ROTOR_COUNT} entries, got {bound.size}")
-    return np.minimum(np.maximum(np.where(np.isfinite(bound), bound, af.thrust_max_n), af.thrust_min_n),
-                      af.thrust_max_n)
+    least_n, most_n = af.thrust_min_n, af.thrust_max_n
+    return [min(max(b if math.isfinite(b) else most_n, least_n), most_n) for b in bound.tolist()]
 
 
 def safe_setpoint(af: Airframe, thrust_n, hip_rad, hip_rate_rad_s, thrust_bound_n, measured_hip_rad=None,
@@ -101,7 +109,7 @@ def safe_setpoint(af: Airframe, thrust_n, hip_rad, hip_rate_rad_s, thrust_bound_
         thrust, hip, rate = _finite(af, thrust, hip, rate, measured_hip_rad)
     thrust_min_n, hip_min_rad, hip_max_rad = af.thrust_min_n, af.hip_min_rad, af.hip_max_rad
     rate_max_rad_s = af.hip_rate_max_rad_s
-    bound = thrust_bounds(af, thrust_bound_n).tolist()
+    bound = thrust_bound_list(af, thrust_bound_n)
     thrust = [0.0] * r if thrust_cut else [min(max(t, thrust_min_n), b) for t, b in zip(thrust, bound, strict=True)]
     hip = [min(max(h, hip_min_rad), hip_max_rad) for h in hip]
     rate = [min(max(v, -rate_max_rad_s), rate_max_rad_s) for v in rate]
