@@ -101,29 +101,28 @@ def safe_setpoint(af: Airframe, thrust_n, hip_rad, hip_rate_rad_s, thrust_bound_
     """A setpoint that is finite and within every bound, whatever goes in (NaN, inf, out of range).
 
     Its twelve values are checked as Python floats (the step answers with them: a dozen float
-    comparisons cost less than numpy's calls on arrays of four); min and max keep the first of
-    two equal values, as numpy's minimum and maximum do."""
+    comparisons cost less than numpy's calls on arrays of four), each clamp a comparison, as
+    numpy's minimum and maximum (which keep the first of two equal values) would clamp it: the
+    airframe's bounds are ordered (m4.airframe) and thrust_bound_list's lie within them."""
     r = ROTOR_COUNT
     thrust, hip, rate = (np.asarray(v, dtype=float).reshape(r).tolist() for v in (thrust_n, hip_rad, hip_rate_rad_s))
     if not all(map(math.isfinite, thrust + hip + rate)):
         thrust, hip, rate = _finite(af, thrust, hip, rate, measured_hip_rad)
-    thrust_min_n, hip_min_rad, hip_max_rad = af.thrust_min_n, af.hip_min_rad, af.hip_max_rad
-    rate_max_rad_s = af.hip_rate_max_rad_s
+    least_n = 0.0 if thrust_cut else af.thrust_min_n
+    hip_min_rad, hip_max_rad, rate_max_rad_s = af.hip_min_rad, af.hip_max_rad, af.hip_rate_max_rad_s
     bound = thrust_bound_list(af, thrust_bound_n)
-    thrust = [0.0] * r if thrust_cut else [min(max(t, thrust_min_n), b) for t, b in zip(thrust, bound, strict=True)]
-    hip = [min(max(h, hip_min_rad), hip_max_rad) for h in hip]
-    rate = [min(max(v, -rate_max_rad_s), rate_max_rad_s) for v in rate]
-    for pair in af.same_side_pairs:
-        excess = sum(hip[i] for i in pair) - af.same_side_sum_max_rad
+    thrust = [0.0] * r if thrust_cut else [least_n if t < least_n else b if t > b else t
+                                           for t, b in zip(thrust, bound, strict=True)]
+    hip = [hip_min_rad if h < hip_min_rad else hip_max_rad if h > hip_max_rad else h for h in hip]
+    rate = [-rate_max_rad_s if v < -rate_max_rad_s else rate_max_rad_s if v > rate_max_rad_s else v for v in rate]
+    for i, j in af.same_side_pairs:
+        excess = hip[i] + hip[j] - af.same_side_sum_max_rad
         if excess > 0:
-            for i in pair:
-                hip[i] = max(hip[i] - excess / 2, hip_min_rad)
+            hip[i], hip[j] = max(hip[i] - excess / 2, hip_min_rad), max(hip[j] - excess / 2, hip_min_rad)
     # As float32: thrusts within [thrust_min (0 when cut), bound], the hips at most themselves,
     # the rates within +-hip_rate_max.
-    values = thrust + hip + rate
-    lo = [0.0 if thrust_cut else thrust_min_n] * r + [hip_min_rad] * r + [-rate_max_rad_s] * r
-    hi = bound + hip + [rate_max_rad_s] * r
-    sent = np.array(_float32_within(values, lo, hi))
+    sent = np.array(_float32_within(thrust + hip + rate, [least_n] * r + [hip_min_rad] * r + [-rate_max_rad_s] * r,
+                                    bound + hip + [rate_max_rad_s] * r))
     return Setpoint(thrust_n=sent[:r], hip_rad=sent[r:2 * r], hip_rate_rad_s=sent[2 * r:], thrust_cut=thrust_cut)
 
 

@@ -38,6 +38,7 @@ Pure logic: no clock, no I/O.
 from __future__ import annotations
 
 import math
+from array import array
 
 import casadi as ca
 import numpy as np
@@ -85,9 +86,15 @@ class RateFeedbackDesign:
         """(4, 3) thrust change per rotor per unit rate error (N per rad/s) at posture hip_rad;
         None without feedback (bandwidth 0, fewer than three live rotors, a posture the model
         cannot take)."""
+        designed = self._designed_gain(hip_rad, thrust_bound_n)
+        return None if designed is None else designed[0]
+
+    def _designed_gain(self, hip_rad, thrust_bound_n) -> tuple[np.ndarray, np.ndarray] | None:
+        """The gain and, once, the same as MAVLink's float32 carries it (read-only: every
+        setpoint at the posture shares it)."""
         live = np.asarray(thrust_bound_n, dtype=float) > LIVE_SHARE * self.af.hover_thrust_per_rotor_n
         hip = np.asarray(hip_rad, dtype=float)
-        return self._gain.get(hip.tobytes() + live.tobytes(), lambda: self._design_gain(hip, live))
+        return self._gain.get(hip.tobytes() + live.tobytes(), lambda: _with_float32(self._design_gain(hip, live)))
 
     def _design_gain(self, hip: np.ndarray, live: np.ndarray) -> np.ndarray | None:
         if self.bandwidth_rad_s <= 0 or live.sum() < 3 or not np.isfinite(hip).all():
@@ -115,17 +122,22 @@ class RateFeedbackDesign:
 
     def feedback(self, x_start, x_next, dt_s: float, thrust_bound_n) -> RateFeedback | None:
         """The feedback for a plan from ROM state x_start whose next node, dt_s later, is x_next."""
-        gain = self.gain(np.asarray(x_start)[rom.HIP], thrust_bound_n)
-        if gain is None:
+        designed = self._designed_gain(x_start[rom.HIP], thrust_bound_n)
+        if designed is None:
             return None
-        start, after = np.asarray(x_start)[rom.RATES], np.asarray(x_next)[rom.RATES]
-        planned = np.empty((2, start.size), dtype=np.float32)            # as MAVLink carries them
-        with np.errstate(over="ignore"):        # beyond float32's range: inf, refused just below
-            planned[0], planned[1] = start, (after - start) / dt_s
-        if not all(map(math.isfinite, planned.ravel().tolist())):         # six floats: cheaper than numpy's all
+        start, after = x_start[rom.RATES].tolist(), x_next[rom.RATES].tolist()     # six floats: cheaper than numpy's
+        planned = array("f", start + [(a - s) / dt_s for a, s in zip(after, start, strict=True)]).tolist()   # as MAVLink carries them
+        if not all(map(math.isfinite, planned)):      # beyond float32's range: inf
             return None
-        start_f32, change_f32 = planned.astype(float)
-        return RateFeedback(start_f32, change_f32, gain.astype(np.float32).astype(float))
+        return RateFeedback(np.array(planned[:3]), np.array(planned[3:]), designed[1])
+
+
+def _with_float32(gain: np.ndarray | None) -> tuple[np.ndarray, np.ndarray] | None:
+    if gain is None:
+        return None
+    carried = gain.astype(np.float32).astype(float)
+    carried.flags.writeable = False
+    return gain, carried
 
 
 def _design_functions(af: Airframe, bandwidth_rad_s: float) -> tuple[ca.Function, ca.Function]:
