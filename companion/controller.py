@@ -94,7 +94,7 @@ from m4.airframe import ROTOR_COUNT, Airframe
 from m4.fc_mode import FcMode
 from m4.mission import Mission
 from m4.mission_plan import MissionProgress, stopping
-from m4.setpoint import Setpoint
+from m4.setpoint import RateFeedback, Setpoint, ShortfallCover
 
 if TYPE_CHECKING:
     from companion.config import CompanionConfig
@@ -350,14 +350,15 @@ class Controller:
         x_ref = self._reference(time_s, lead_s, c.horizon, c.dt_s)
         res = self.nmpc.solve(x_plan, x_ref, fault.thrust_bound_n, d)
         hip_accel = res.u[rom.HIP_ACCEL].tolist()
-        checked = self._setpoint(x_plan, res.u[rom.THRUST], hip_accel, fault.thrust_bound_n)
         x_next = res.x_pred[1] if res.ok else x_plan          # a failed solve plans no change of the rates
-        sp = Setpoint(thrust_n=self.ramp.limit(checked.thrust_n, fault.thrust_bound_n), hip_rad=checked.hip_rad,
-                      hip_rate_rad_s=checked.hip_rate_rad_s,
-                      rate_feedback=self.rate_feedback.feedback(x_plan, x_next, c.dt_s, fault.thrust_bound_n),
-                      shortfall_cover=self.rate_feedback.cover(x_plan[rom.HIP], fault.state is FaultState.CONFIRMED))
+        confirmed = fault.state is FaultState.CONFIRMED
+        sp = self._setpoint(x_plan, res.u[rom.THRUST], hip_accel, fault.thrust_bound_n,
+                            self.rate_feedback.feedback(x_plan, x_next, c.dt_s, fault.thrust_bound_n),
+                            self.rate_feedback.cover(x_plan[rom.HIP], confirmed))
+        if self.ramp.active:
+            sp = replace(sp, thrust_n=self.ramp.limit(sp.thrust_n, fault.thrust_bound_n))
         self._unrecorded = (time_s, x, x_plan, sp, hip_accel)
-        self._solved = (time_s, lead_s, fault.thrust_bound_n, d, fault.state is FaultState.CONFIRMED)
+        self._solved = (time_s, lead_s, fault.thrust_bound_n, d, confirmed)
         return ControlStep(time_s=time_s, setpoint=sp, state=x_plan, fault=fault, fault_confirmed_now=confirmed_now,
                            disturbance=d, lead_s=lead_s, reference=x_ref, nmpc=res, took_over=took_over,
                            followed=followed)
@@ -532,13 +533,16 @@ class Controller:
         x[rom.HIP], x[rom.HIP_RATE] = goal.angle_rad, goal.rate_rad_s
         return x
 
-    def _setpoint(self, x: np.ndarray, thrust_n: np.ndarray, hip_accel: list[float], thrust_bound_n) -> Setpoint:
+    def _setpoint(self, x: np.ndarray, thrust_n: np.ndarray, hip_accel: list[float], thrust_bound_n,
+                  rate_feedback: RateFeedback | None, shortfall_cover: ShortfallCover | None) -> Setpoint:
         """Thrusts now; the hips from the goal now to the planned goal one period later (the FC's
-        servo moves its goal from the angle at the rate, so the rate is the chord's)."""
+        servo moves its goal from the angle at the rate, so the rate is the chord's); the FC's
+        rate feedback and cover with them."""
         tau = self.period_s                               # four hips: Python floats, cheaper than numpy's calls
         hip, rate = x[rom.HIP].tolist(), x[rom.HIP_RATE].tolist()
         chord = [(h + r * tau + 0.5 * a * tau**2 - h) / tau for h, r, a in zip(hip, rate, hip_accel, strict=True)]
-        return safe_setpoint(self.af, thrust_n, hip, chord, thrust_bound_n, hip)
+        return safe_setpoint(self.af, thrust_n, hip, chord, thrust_bound_n, hip, rate_feedback=rate_feedback,
+                             shortfall_cover=shortfall_cover)
 
     def _record(self) -> None:
         """Once the last step's setpoint has left: its command into the history, and the hip goal

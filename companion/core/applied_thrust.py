@@ -18,6 +18,8 @@ Pure logic: no clock, no I/O.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from companion.core.control_types import one_period_apart
@@ -25,23 +27,24 @@ from m4.airframe import ROTOR_COUNT
 
 
 class AppliedThrust:
-    """The FC's last two thrust-command reports."""
+    """The FC's last two thrust-command reports (four Python floats each: cheaper than numpy's
+    calls on arrays of four)."""
 
     def __init__(self, period_s: float):
         self.period_s = period_s
-        self._previous: tuple[float, np.ndarray] | None = None
-        self._newest: tuple[float, np.ndarray] | None = None
+        self._previous: tuple[float, list[float]] | None = None
+        self._newest: tuple[float, list[float]] | None = None
 
     def report(self, time_s: float, thrust_cmd_n) -> None:
         """The FC's command at FC instant time_s (None or any non-finite entry: it cannot
         tell, which forgets what was reported)."""
-        thrust = None if thrust_cmd_n is None else np.asarray(thrust_cmd_n, dtype=float).reshape(ROTOR_COUNT)
-        if thrust is None or not np.isfinite(thrust).all():
+        thrust = None if thrust_cmd_n is None else np.asarray(thrust_cmd_n, dtype=float).reshape(ROTOR_COUNT).tolist()
+        if thrust is None or not all(map(math.isfinite, thrust)):
             self.clear()
             return
         if self._newest is not None and time_s <= self._newest[0]:
             return                                  # a repeated or older frame changes nothing
-        self._previous, self._newest = self._newest, (time_s, thrust.copy())
+        self._previous, self._newest = self._newest, (time_s, thrust)
 
     def clear(self) -> None:
         self._previous = self._newest = None
@@ -55,6 +58,6 @@ class AppliedThrust:
         previous = self._previous
         p = self.period_s
         if previous is None or not one_period_apart(previous[0], time_s, p):
-            return now.copy()
-        share_previous = (max(float(lead_s), 0.0) % p) / p if np.isfinite(lead_s) else 0.0
-        return share_previous * previous[1] + (1.0 - share_previous) * now
+            return np.array(now)
+        share_previous = (max(float(lead_s), 0.0) % p) / p if math.isfinite(lead_s) else 0.0
+        return np.array([share_previous * b + (1.0 - share_previous) * n for b, n in zip(previous[1], now, strict=True)])

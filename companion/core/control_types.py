@@ -24,7 +24,7 @@ import numpy as np
 from companion.core import rom_layout
 from m4.airframe import ROTOR_COUNT, Airframe
 from m4.fault_kind import FaultKind
-from m4.setpoint import Setpoint
+from m4.setpoint import RateFeedback, Setpoint, ShortfallCover
 
 _HIP_MARGIN_RAD = 0.5            # measured hips beyond the joint range by more than this are broken
 _CONSECUTIVE_TOLERANCE = 0.5     # of a period: the FC's frames are on a grid of the period, and half
@@ -97,8 +97,10 @@ def thrust_bound_list(af: Airframe, thrust_bound_n) -> list[float]:
 
 
 def safe_setpoint(af: Airframe, thrust_n, hip_rad, hip_rate_rad_s, thrust_bound_n, measured_hip_rad=None,
-                  thrust_cut: bool = False) -> Setpoint:
-    """A setpoint that is finite and within every bound, whatever goes in (NaN, inf, out of range).
+                  thrust_cut: bool = False, rate_feedback: RateFeedback | None = None,
+                  shortfall_cover: ShortfallCover | None = None) -> Setpoint:
+    """A setpoint that is finite and within every bound, whatever goes in (NaN, inf, out of range),
+    with the FC's rate feedback and cover as they are (each checked where it is made).
 
     Its twelve values are checked as Python floats (the step answers with them: a dozen float
     comparisons cost less than numpy's calls on arrays of four), each clamp a comparison, as
@@ -123,7 +125,8 @@ def safe_setpoint(af: Airframe, thrust_n, hip_rad, hip_rate_rad_s, thrust_bound_
     # the rates within +-hip_rate_max.
     sent = np.array(_float32_within(thrust + hip + rate, [least_n] * r + [hip_min_rad] * r + [-rate_max_rad_s] * r,
                                     bound + hip + [rate_max_rad_s] * r))
-    return Setpoint(thrust_n=sent[:r], hip_rad=sent[r:2 * r], hip_rate_rad_s=sent[2 * r:], thrust_cut=thrust_cut)
+    return Setpoint(thrust_n=sent[:r], hip_rad=sent[r:2 * r], hip_rate_rad_s=sent[2 * r:], thrust_cut=thrust_cut,
+                    rate_feedback=rate_feedback, shortfall_cover=shortfall_cover)
 
 
 def _finite(af: Airframe, thrust: list[float], hip: list[float], rate: list[float],
