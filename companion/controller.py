@@ -505,8 +505,8 @@ class Controller:
         if not (usable and in_force is not None and self._consecutive(time_s)):
             return self.disturbance.estimate.copy()
         u = in_force.input.copy()
-        u[rom.THRUST] = [min(t, b) for t, b in zip(in_force_thrust_n.tolist(), thrust_bound_list(self.af, thrust_bound_n),
-                                                   strict=True)]
+        u[rom.THRUST] = [b if t >= b else t for t, b in zip(in_force_thrust_n.tolist(),      # the bound when equal, as
+                                                             thrust_bound_list(self.af, thrust_bound_n), strict=True)]  # numpy's
         return self.disturbance.update(self.sent.newest.state, u, x, gain_scale=self.period_s / (self.period_s + lead_s))
 
     def _on_ground_in_landing(self, time_s: float, x: np.ndarray) -> bool:

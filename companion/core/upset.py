@@ -61,14 +61,16 @@ class UpsetDetector:
         """The crash's reason from the first instant its condition has held long enough on."""
         if self.crash is not None:
             return self.crash
-        x = np.asarray(x, dtype=float).tolist()       # a few entries: Python floats, cheaper than numpy's calls
+        x = np.asarray(x, dtype=float)
         c = self._c
-        height_m = self._ground_z - x[rom_layout.P.start + 2]   # above the standing height
+        values = x.tolist()                    # a few entries: Python floats, cheaper than numpy's scalars
+        height_m = self._ground_z - values[rom_layout.P.start + 2]   # above the standing height
         self._airborne |= height_m > c.airborne_margin_m
-        if self._held("upside down", tilt_rad(x[rom_layout.EULER]) > c.tilt_max_rad, c.upside_down_s, time_s):
+        if self._held("upside down", tilt_rad(values[rom_layout.EULER]) > c.tilt_max_rad, c.upside_down_s, time_s):
             return self.crash
+        v = x[rom_layout.V]
         on_ground = (self._airborne and not landing and height_m < c.ground_margin_m
-                     and math.sqrt(sum(v * v for v in x[rom_layout.V])) < c.still_speed_m_s)
+                     and math.sqrt(v.dot(v)) < c.still_speed_m_s)
         if self._held("on the ground", on_ground, c.ground_s, time_s):
             return self.crash
         return None
