@@ -47,7 +47,9 @@ recovery) bounds the next setpoint, one period later. A frame's fault status goe
 detector has read it: with the setpoint when read before the solve, else alone right after it
 (`read_deferred` returns it; the app sends it stamped with the frame), so a status is never
 later than the frame it reads. A frame nobody read after the send is read by the next `step`
-first.
+first. Likewise what only the next step needs of this one waits until the setpoint has left:
+its command's record (the history the next step's in-force command and prediction come from)
+and the hip goal one period on are kept by `prepare`, or by the next `step` first.
 
 Takeover: at the flight's first step and after a gap in which our setpoints went stale at the
 FC (its failsafe flew; FC_STALE_PERIODS, FC_STALE_MIN_S: the FC contract), the thrusts ramp
