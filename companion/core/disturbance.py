@@ -56,14 +56,15 @@ class DisturbanceEstimator:
         self.lower = np.r_[f_low, np.full(3, -t_max)]
         self.upper = np.r_[f_high, np.full(3, t_max)]
         step = rom.build_rom(airframe, period_s, substeps=2).step
-        x, u, d, measured = ca.SX.sym("x", NX), ca.SX.sym("u", NU), ca.SX.sym("d", ND), ca.SX.sym("m", len(_MEASURED))
+        frame = ca.SX.sym("frame", NX + NU + ND + NX)   # x_prev, u_applied, the estimate, x_new: one copy a call
+        x, u, d, x_new = ca.vertsplit(frame, [0, NX, NX + NU, NX + NU + ND, 2 * NX + NU + ND])
         predicted = step(x, u, d)[_MEASURED]
         # One call from the measurement to the correction: the innovation mapped back through the
         # sensitivity dx+/dd (square, 6 x 6) by a solve generated with the model (CasADi's
         # symbolic QR), not by numpy operations after it. A sensitivity it cannot invert gives a
         # non-finite correction: no update.
-        correction = ca.Function("m4_disturbance_correction", [x, u, d, measured],
-                                 [ca.solve(ca.jacobian(predicted, d), measured - predicted)])
+        correction = ca.Function("m4_disturbance_correction", [frame],
+                                 [ca.solve(ca.jacobian(predicted, d), x_new[_MEASURED] - predicted)])
         self._correction = BufferedFunction(compiled(correction) if codegen else correction)
         self.estimate = np.zeros(ND)
 
@@ -74,9 +75,13 @@ class DisturbanceEstimator:
         """New estimate (6,) after the robot went from x_prev to x_new under u_applied; the
         step is gain x gain_scale (in (0, 1]) of the innovation."""
         x_prev, u_applied, x_new = (np.asarray(v, dtype=float).ravel() for v in (x_prev, u_applied, x_new))
-        if not np.isfinite(np.concatenate([x_prev, u_applied, x_new])).all():
+        if (x_prev.size, u_applied.size, x_new.size) != (NX, NU, NX):
+            raise ValueError(f"DisturbanceEstimator.update needs states of {NX} and an input of {NU} entries, got "
+                             f"{x_prev.size}, {u_applied.size} and {x_new.size}")
+        frame = np.concatenate([x_prev, u_applied, self.estimate, x_new])
+        if not np.isfinite(frame).all():           # the estimate is: it moves only by finite corrections
             return self.estimate.copy()
-        correction = self._correction.evaluate(x_prev, u_applied, self.estimate, x_new[_MEASURED])[0]
+        correction = self._correction.evaluate(frame)[0]
         if np.isfinite(correction).all():             # else a state too wild for the model to step
             step = self.gain * min(max(float(gain_scale), 0.0), 1.0)
             self.estimate = np.minimum(np.maximum(self.estimate + step * correction, self.lower), self.upper)

@@ -116,3 +116,9 @@ def test_the_estimate_carries_the_weight_downwards_but_only_half_of_it_upwards()
     down = run(DisturbanceEstimator(AF, PERIOD, gain=1.0), np.array([0, 0, 2.0 * weight_n, 0, 0, 0]), steps=20)
     up = run(DisturbanceEstimator(AF, PERIOD, gain=1.0), np.array([0, 0, -2.0 * weight_n, 0, 0, 0]), steps=20)
     assert down[2] == pytest.approx(weight_n) and up[2] == pytest.approx(-0.5 * weight_n)
+
+
+def test_states_or_an_input_of_the_wrong_size_are_named_in_one_line():
+    est = DisturbanceEstimator(AF, PERIOD)
+    with pytest.raises(ValueError, match=r"needs states of 20 and an input of 8 entries, got 19, 9 and 20"):
+        est.update(np.zeros(rom.NX - 1), np.zeros(rom.NU + 1), np.zeros(rom.NX))
