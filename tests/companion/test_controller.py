@@ -404,6 +404,21 @@ def test_after_prepare_the_next_step_finds_the_fcs_rate_feedback_and_cover_desig
     assert np.array_equal(sp.shortfall_cover.gain, expected.shortfall_cover.gain)
 
 
+def test_what_only_the_next_step_needs_is_recorded_after_the_send():
+    """A step's command (the history the next step's in-force command and prediction read) waits
+    until its setpoint has left: prepare() records it, or else the next step first."""
+    c = controller()
+    x = rom.hover_state(AF)
+    step(c, 0.0, x)
+    assert c.sent.newest is None
+    c.prepare()
+    assert c.sent.newest.time_s == 0.0
+    step(c, PERIOD, x)
+    assert c.sent.newest.time_s == 0.0
+    step(c, 2 * PERIOD, x)                       # no prepare() since the last step: recorded first
+    assert c.sent.newest.time_s == PERIOD
+
+
 def test_the_frame_left_for_after_the_send_is_read_once_by_read_deferred_not_by_prepare():
     c = controller()
     x = rom.hover_state(AF)
