@@ -220,7 +220,7 @@ class Controller:
         self._takeover = True             # the next step takes control from the FC's own controller
         self._deferred: tuple | None = None   # a frame for the detector after the send: update()'s arguments
         self._unrecorded: tuple | None = None  # the last step's command and hip goal, kept once the setpoint has left
-        self._cap_limit: tuple[float, np.ndarray] = (math.nan, np.full(ROTOR_COUNT, math.nan))   # the detector's limits by cap
+        self._cap_limit = (math.nan, np.full(ROTOR_COUNT, math.nan))   # the detector's limits array, by its cap
 
     @property
     def started(self) -> bool:
@@ -461,7 +461,7 @@ class Controller:
             self.detector.hold()
             return self.detector.status, False
         cap = self.af.thrust_max_n
-        known = [] if limit_n is None else [v for v in limit_n if v == v]    # (4,) from _thrust_telemetry: NaN or finite
+        known = [] if limit_n is None else [v for v in limit_n if v == v]    # from _thrust_telemetry: NaN or finite
         if known:
             cap = min(max(max(known), self.af.thrust_min_n), self.af.thrust_max_n)
         if cap != self._cap_limit[0]:
@@ -506,9 +506,9 @@ class Controller:
         wobble of 6 deg and 0.13 m that the fault at 1 s met half-settled)."""
         if not (usable and in_force is not None and self._consecutive(time_s)):
             return self.disturbance.estimate.copy()
-        u = in_force.input.copy()
-        u[rom.THRUST] = [b if t >= b else t for t, b in zip(in_force_thrust_n.tolist(),      # the bound when equal, as
-                                                             thrust_bound_list(self.af, thrust_bound_n), strict=True)]  # numpy's
+        u = in_force.input.copy()                 # its thrusts within the bounds (the bound when equal, as numpy's)
+        bound_n = thrust_bound_list(self.af, thrust_bound_n)
+        u[rom.THRUST] = [b if t >= b else t for t, b in zip(in_force_thrust_n.tolist(), bound_n, strict=True)]
         return self.disturbance.update(self.sent.newest.state, u, x, gain_scale=self.period_s / (self.period_s + lead_s))
 
     def _on_ground_in_landing(self, time_s: float, x: np.ndarray) -> bool:
@@ -529,7 +529,8 @@ class Controller:
         goal = self._hip_goal
         if goal is None or _drifted(goal.angle_rad, hip.tolist()):
             fixed = self.nmpc.config.fixed_hip_rad        # the fixed-posture variant: the legs go there
-            start = hip.clip(self.af.hip_min_rad, self.af.hip_max_rad).tolist() if fixed is None else [fixed] * ROTOR_COUNT
+            start = ([fixed] * ROTOR_COUNT if fixed is not None
+                     else hip.clip(self.af.hip_min_rad, self.af.hip_max_rad).tolist())
             goal = self._hip_goal = HipGoal(start, [0.0] * ROTOR_COUNT)
         x = x_measured.copy()
         x[rom.HIP], x[rom.HIP_RATE] = goal.angle_rad, goal.rate_rad_s

@@ -60,4 +60,5 @@ class AppliedThrust:
         if previous is None or not one_period_apart(previous[0], time_s, p):
             return np.array(now)
         share_previous = (max(float(lead_s), 0.0) % p) / p if math.isfinite(lead_s) else 0.0
-        return np.array([share_previous * b + (1.0 - share_previous) * n for b, n in zip(previous[1], now, strict=True)])
+        return np.array([share_previous * b + (1.0 - share_previous) * n
+                         for b, n in zip(previous[1], now, strict=True)])

@@ -94,9 +94,11 @@ def thrust_bound_list(af: Airframe, thrust_bound_n) -> list[float]:
     bound = np.asarray(thrust_bound_n, dtype=float).reshape(-1)
     if bound.size != ROTOR_COUNT:
         raise ValueError(f"thrust_bound_n must have {ROTOR_COUNT} entries, got {bound.size}")
-    least_n, most_n = af.thrust_min_n, af.thrust_max_n        # ordered (m4.airframe): one comparison a clamp, a
-    return [(least_n if b <= least_n else most_n if b >= most_n else b) if math.isfinite(b) else most_n   # bound
-            for b in bound.tolist()]                                         # when equal, as numpy's (+-0 too)
+    # The bounds are ordered (m4.airframe): one comparison a clamp, which gives the bound itself
+    # when a value equals it, as numpy's minimum and maximum do (+0.0 for a -0.0 at a bound of 0).
+    least_n, most_n = af.thrust_min_n, af.thrust_max_n
+    return [(least_n if b <= least_n else most_n if b >= most_n else b) if math.isfinite(b) else most_n
+            for b in bound.tolist()]
 
 
 def safe_setpoint(af: Airframe, thrust_n, hip_rad, hip_rate_rad_s, thrust_bound_n, measured_hip_rad=None,

@@ -122,12 +122,14 @@ class RateFeedbackDesign:
 
     def feedback(self, x_start, x_next, dt_s: float, thrust_bound_n) -> RateFeedback | None:
         """The feedback for a plan from ROM state x_start whose next node, dt_s later, is x_next."""
+        x_start, x_next = np.asarray(x_start, dtype=float), np.asarray(x_next, dtype=float)
         designed = self._designed_gain(x_start[rom.HIP], thrust_bound_n)
         if designed is None:
             return None
         start, after = x_start[rom.RATES].tolist(), x_next[rom.RATES].tolist()     # six floats: cheaper than numpy's
-        planned = array("f", start + [(a - s) / dt_s for a, s in zip(after, start, strict=True)]).tolist()   # as MAVLink carries them
-        if not all(map(math.isfinite, planned)):      # beyond float32's range: inf
+        change = [(a - s) / dt_s for a, s in zip(after, start, strict=True)]
+        planned = array("f", start + change).tolist()      # as MAVLink carries them (beyond float32's range: inf)
+        if not all(map(math.isfinite, planned)):
             return None
         return RateFeedback(np.array(planned[:3]), np.array(planned[3:]), designed[1])
 
