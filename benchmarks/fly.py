@@ -1,7 +1,7 @@
 """Speed of the whole loop (plant and companion, lockstep): simulated seconds per wall second.
 
     python -m benchmarks.fly [--scenario NAME] [--rate-hz HZ]... [--priority P] [--feed-rate-hz HZ] [--realtime]
-                             [--keep DIR]
+                             [--companion-cpus LIST] [--sitl-cpus LIST] [--keep DIR]
 
 flies the scenario once per control rate (default 50 Hz) without figures and prints, per rate:
 - the real-time factor of the whole loop (wall clock: noisy on a shared machine);
@@ -23,12 +23,16 @@ gives it the robot's default instead (each topic at what a viewer needs: fewer p
 NMPC figures then come from the solves the feed published). `--realtime` paces the flight by the
 wall clock instead, as the robot flies: the SITL sends each stream at its own instant, the
 companion wakes for what arrives and sleeps between; the CPU per step and the answer are then
-the robot's (the real-time factor says only that it kept up: 1.0x).
+the robot's (the real-time factor says only that it kept up: 1.0x). `--companion-cpus 1
+--sitl-cpus 0` pins each process, every thread of it, to those CPUs (comma-separated), to
+measure what the placement does (on the robot the FC is other hardware; here the SITL shares
+the machine).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import sys
 import tempfile
@@ -72,19 +76,22 @@ def _last_match(pattern: re.Pattern, path: Path) -> float | None:
 
 
 def bench_line(scenario: str, rate_hz: float, out_dir: Path, priority: int = 0, feed_rate_hz: float = 0.0,
-               realtime: bool = False) -> str:
+               realtime: bool = False, companion_cpus: frozenset[int] = frozenset(),
+               sitl_cpus: frozenset[int] = frozenset()) -> str:
     """Fly once at `rate_hz` into `out_dir` (both processes in SCHED_FIFO `priority`, 0: normal;
     the companion's feed at most `feed_rate_hz` per topic, 0: every step; paced by the wall clock
-    with `realtime`); the figures in one paragraph."""
+    with `realtime`; each process pinned to its CPUs, none: anywhere); the figures in one paragraph."""
     options = FlightOptions(rate_hz=rate_hz, companion_priority=priority, sitl_priority=priority,
-                            feed_rate_hz=feed_rate_hz, realtime=realtime)
+                            feed_rate_hz=feed_rate_hz, realtime=realtime, companion_cpus=companion_cpus,
+                            sitl_cpus=sitl_cpus)
     m = fly(scenario, out_dir, options, figures=False, progress=False)
     costs = loop_costs(FlightFiles(out_dir))
     period_ms, factor, n = 1e3 / rate_hz, m["realtime_factor"], m["nmpc"]
     lines = [f"{m['scenario']} at {rate_hz:g} Hz ({m['duration_s']:g} s simulated, "
              f"{'paced by the wall clock' if realtime else 'lockstep'}"
              f"{f', SCHED_FIFO {priority}' if priority else ''}"
-             f"{f', feed at most {feed_rate_hz:g} Hz a topic' if feed_rate_hz else ''}): "
+             f"{f', feed at most {feed_rate_hz:g} Hz a topic' if feed_rate_hz else ''}"
+             f"{_placement('companion', companion_cpus)}{_placement('SITL', sitl_cpus)}): "
              f"{factor:.1f}x real time; survived: {m['survived']}; "
              f"NMPC solve median {n['solve_ms_median']:.2f} ms, p99 {n['solve_ms_p99']:.1f} ms"]
     if costs is None:
@@ -107,6 +114,23 @@ def bench_line(scenario: str, rate_hz: float, out_dir: Path, priority: int = 0, 
     return "\n".join(lines)
 
 
+def _placement(who: str, cpus: frozenset[int]) -> str:
+    return f", {who} on CPU {','.join(map(str, sorted(cpus)))}" if cpus else ""
+
+
+def _cpus(option: str, text: str) -> frozenset[int]:
+    """A comma-separated list of CPUs this process may use; ValueError naming `option` if not."""
+    usable = os.sched_getaffinity(0)
+    try:
+        cpus = frozenset(int(part) for part in text.split(","))
+    except ValueError:
+        raise ValueError(f"{option} {text}: not a comma-separated list of CPU numbers") from None
+    if not cpus <= usable:
+        raise ValueError(f"{option} {text}: CPU {min(cpus - usable)} is not one this machine lets it use "
+                         f"({','.join(map(str, sorted(usable)))})")
+    return cpus
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.fly", description=__doc__.splitlines()[0])
     parser.add_argument("--scenario", default="hover-rotor-loss", help="built-in name or file (default hover-rotor-loss)")
@@ -118,6 +142,10 @@ def main(argv: list[str] | None = None) -> int:
                              "records; 20: the robot's default)")
     parser.add_argument("--realtime", action="store_true",
                         help="paced by the wall clock, as the robot flies (default: lockstep, as fast as it goes)")
+    parser.add_argument("--companion-cpus", metavar="LIST", default="",
+                        help="pin the companion, every thread, to these CPUs, e.g. 1 (default: anywhere)")
+    parser.add_argument("--sitl-cpus", metavar="LIST", default="",
+                        help="pin the SITL, every thread, to these CPUs, e.g. 0 (default: anywhere)")
     parser.add_argument("--keep", type=Path, metavar="DIR", help="keep the flights' folders in DIR (default: "
                                                                  "a temporary folder)")
     args = parser.parse_args(argv)
@@ -125,12 +153,17 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--priority must be 0..99")
     if not 0 <= args.feed_rate_hz <= 100:
         parser.error("--feed-rate-hz must be 0..100")
+    try:
+        placement = [_cpus(option, text) if text else frozenset()
+                     for option, text in (("--companion-cpus", args.companion_cpus), ("--sitl-cpus", args.sitl_cpus))]
+    except ValueError as e:
+        parser.error(str(e))
     with tempfile.TemporaryDirectory() as tmp:
         root = args.keep or Path(tmp)
         for rate in args.rate_hz or (50.0,):
             try:
                 print(bench_line(args.scenario, rate, root / f"{rate:g}hz", args.priority, args.feed_rate_hz,
-                                 args.realtime), flush=True)
+                                 args.realtime, *placement), flush=True)
             except (ConfigError, FlightError) as e:
                 print(f"python -m benchmarks.fly: error: {e}", file=sys.stderr)
                 return 2

@@ -94,6 +94,8 @@ class FlightOptions:
     link: LinkEmulation | None = None     # delay and loss between the SITL and the companion
     companion_priority: int = 0           # the companion's [control] realtime_priority (SCHED_FIFO; 0: normal)
     sitl_priority: int = 0                # the SITL's SCHED_FIFO priority (0: normal), the FC's own hardware standing in
+    companion_cpus: frozenset[int] = frozenset()   # the CPUs the companion's threads may run on (empty: any)
+    sitl_cpus: frozenset[int] = frozenset()        # the SITL's (empty: any)
     feed_rate_hz: float = 0.0             # the companion's [feed] max_rate_hz: 0 records every topic at every step
                                           # (the metrics' NMPC figures need every solve); 20: the robot's default
     fault_detector: tuple[tuple[str, float], ...] = ()   # the companion's [fault_detector] settings (name, value)
@@ -294,6 +296,8 @@ def _fly(scenario: Scenario, scenario_text: str, files: FlightFiles, options: Fl
             companion = _start(stack, start(COMPANION, args, files.companion_log, ("--ready-fd", ready_w)))
         finally:
             os.close(ready_w)                    # the companion holds the only writing end now
+        if options.companion_cpus:
+            pin(companion.pid, options.companion_cpus, "the companion")
         sitl_port = port
         if options.link is not None and options.realtime:
             impairment = Impairment(delay_ms=options.link.delay_ms, loss=options.link.loss)
@@ -319,6 +323,8 @@ def _fly(scenario: Scenario, scenario_text: str, files: FlightFiles, options: Fl
         stack.callback(os.close, start_w)      # first on the way out: a SITL still waiting reads the end, exits
         if options.sitl_priority:
             _real_time(sitl, options.sitl_priority)
+        if options.sitl_cpus:
+            pin(sitl.pid, options.sitl_cpus, "the SITL")
         _await_ready(companion, ready_r, files.companion_log)
         _say_start(start_w)
         while not _exited(sitl, POLL_S):       # at once when it exits, not at the next poll
@@ -364,20 +370,36 @@ def _real_time(proc: Process, priority: int) -> None:
 
 
 def real_time(pid: int, priority: int, who: str | None = None) -> None:
-    """Every thread of process `pid` in SCHED_FIFO at `priority`, or back to normal with 0;
-    the threads are listed again until none has appeared meanwhile (one started before its
-    starter was changed keeps the old policy). FlightError naming `who` (default: the process)."""
-    done: set[str] = set()
+    """Every thread of process `pid` in SCHED_FIFO at `priority`, or back to normal with 0.
+    FlightError naming `who` (default: the process)."""
     try:
         policy = os.SCHED_FIFO if priority else os.SCHED_OTHER
-        while todo := set(os.listdir(f"/proc/{pid}/task")) - done:
-            for tid in sorted(todo):
-                with contextlib.suppress(ProcessLookupError):       # a thread that has ended since
-                    os.sched_setscheduler(int(tid), policy, os.sched_param(priority))
-            done |= todo
+        _each_thread(pid, lambda tid: os.sched_setscheduler(tid, policy, os.sched_param(priority)))
     except (AttributeError, OSError) as e:
         raise FlightError(f"cannot give {who or f'process {pid}'} real-time priority {priority}: "
                           f"{getattr(e, 'strerror', None) or e}") from None
+
+
+def pin(pid: int, cpus: frozenset[int], who: str) -> None:
+    """Every thread of process `pid` on `cpus` (the ones it starts later inherit it): to measure
+    what the CPUs' placement does (python -m benchmarks.fly --companion-cpus/--sitl-cpus).
+    FlightError naming `who`."""
+    try:
+        _each_thread(pid, lambda tid: os.sched_setaffinity(tid, cpus))
+    except (AttributeError, OSError) as e:
+        raise FlightError(f"cannot pin {who} to CPU {','.join(map(str, sorted(cpus)))}: "
+                          f"{getattr(e, 'strerror', None) or e}") from None
+
+
+def _each_thread(pid: int, apply: Callable[[int], None]) -> None:
+    """`apply` to every thread of process `pid`, listed again until none has appeared meanwhile
+    (one started before its starter was changed keeps the old setting)."""
+    done: set[str] = set()
+    while todo := set(os.listdir(f"/proc/{pid}/task")) - done:
+        for tid in sorted(todo):
+            with contextlib.suppress(ProcessLookupError):       # a thread that has ended since
+                apply(int(tid))
+        done |= todo
 
 
 def _await_ready(proc: Process, ready_fd: int, log_path: Path) -> None:

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import os
 import re
 
 import pytest
 
-from benchmarks.fly import bench_line
+from benchmarks.fly import bench_line, main
 
 pytestmark = pytest.mark.flight
 
@@ -24,7 +25,29 @@ def test_the_loop_is_measured_in_lockstep_and_as_the_robot_flies(tmp_path, realt
     scenario.write_text(HOVER)
     line = bench_line(str(scenario), 50.0, tmp_path / "flight", realtime=realtime)
     assert ("paced by the wall clock" in line) == realtime and ("lockstep" in line) != realtime
+    assert "on CPU" not in line
     assert ("budget for 10x" in line) != realtime               # paced by the wall clock there is no budget to meet
     sitl_ms, companion_ms = (float(v) for v in re.search(r"SITL ([0-9.]+) ms.*companion ([0-9.]+) ms", line).groups())
     median_ms, p99_ms = (float(v) for v in re.search(r"median ([0-9.]+) ms, p99 ([0-9.]+) ms\)", line).groups())
     assert sitl_ms > 0.0 and companion_ms > 0.0 and 0.0 < median_ms <= p99_ms
+
+
+def test_each_process_may_be_pinned_to_its_cpus_and_the_line_says_where(tmp_path):
+    scenario = tmp_path / "short-hover.toml"
+    scenario.write_text(HOVER)
+    first, last = min(os.sched_getaffinity(0)), max(os.sched_getaffinity(0))
+    line = bench_line(str(scenario), 50.0, tmp_path / "flight", realtime=True, companion_cpus=frozenset({last}),
+                      sitl_cpus=frozenset({first}))
+    assert f"companion on CPU {last}, SITL on CPU {first})" in line and "survived: True" in line
+
+
+@pytest.mark.parametrize("option, text, said", [
+    ("--companion-cpus", "1,x", "--companion-cpus 1,x: not a comma-separated list of CPU numbers"),
+    ("--sitl-cpus", "BEYOND", "--sitl-cpus BEYOND: CPU BEYOND is not one this machine lets it use"),
+])
+def test_cpus_this_machine_does_not_have_are_refused_by_name_before_any_flight(capsys, option, text, said):
+    beyond = str(max(os.sched_getaffinity(0)) + 1)
+    with pytest.raises(SystemExit) as exit_:
+        main([option, text.replace("BEYOND", beyond)])
+    assert exit_.value.code == 2
+    assert said.replace("BEYOND", beyond) in capsys.readouterr().err

@@ -86,6 +86,45 @@ def test_a_sitl_that_started_a_thread_already_gets_the_priority_in_every_thread(
             (os.SCHED_FIFO, 45)}
 
 
+def test_pin_puts_every_thread_of_a_process_on_its_cpus_and_the_ones_it_starts_later(tmp_path):
+    """What python -m benchmarks.fly --companion-cpus/--sitl-cpus do to a flight's processes:
+    a thread started before the pin and one started after it both run on the CPU given."""
+    from sitl.flights.flight_run import pin
+
+    cpu = max(os.sched_getaffinity(0))
+    code = ("import os, sys, threading, time; threading.Thread(target=time.sleep, args=(30,), daemon=True).start(); "
+            "os.write(int(sys.argv[1]), b'up\\n'); sys.stdin.readline(); "
+            "threading.Thread(target=time.sleep, args=(30,), daemon=True).start(); "
+            "os.write(int(sys.argv[1]), b'two\\n'); time.sleep(30)")
+    read_end, write_end = os.pipe()
+    proc = subprocess.Popen([sys.executable, "-c", code, str(write_end)], stdin=subprocess.PIPE, pass_fds=(write_end,))
+    os.close(write_end)
+    try:
+        assert os.read(read_end, 16) == b"up\n"
+        pin(proc.pid, frozenset({cpu}), "the SITL")
+        proc.stdin.write(b"go\n")
+        proc.stdin.flush()
+        assert os.read(read_end, 16) == b"two\n"
+        tasks = os.listdir(f"/proc/{proc.pid}/task")
+        assert len(tasks) == 3 and {frozenset(os.sched_getaffinity(int(tid))) for tid in tasks} == {frozenset({cpu})}
+    finally:
+        proc.kill()
+        proc.wait()
+        os.close(read_end)
+
+
+def test_a_pin_that_cannot_be_had_is_one_line(tmp_path, monkeypatch):
+    from sitl.flights.flight_run import pin
+
+    def refuse(*_):
+        raise OSError(22, "Invalid argument")
+
+    monkeypatch.setattr(os, "sched_setaffinity", refuse)
+    stack, proc, _, _ = _companion(tmp_path, "import time; time.sleep(30)")
+    with stack, pytest.raises(FlightError, match="^cannot pin the companion to CPU 0,1: Invalid argument$"):
+        pin(proc.pid, frozenset({1, 0}), "the companion")
+
+
 def test_both_ends_of_a_flight_sign_with_the_flights_own_key(tmp_path):
     """As on the robot: the companion's config names the key the SITL is given (run_flight writes
     a new one into the flight's folder for every flight)."""
