@@ -202,6 +202,7 @@ class LogSettings:
 class CompanionConfig:
     rate_hz: float = DEFAULT_RATE_HZ
     realtime_priority: int = 0              # SCHED_FIFO priority of the control loop, 1..99; 0: normal (companion/realtime.py)
+    cpu: int | None = None                  # the CPU the companion, every thread, runs on (companion/realtime.py); None: any
     rate_feedback_bandwidth_rad_s: float = DEFAULT_RATE_FEEDBACK_BANDWIDTH_RAD_S   # 0: the FC flies thrust_n alone
     shortfall_cover: bool = True            # the FC covers a rotor its ESCs or gyro show falling short (M4_SETPOINT)
     nmpc: NmpcConfig = field(default_factory=lambda: NmpcConfig(control_period_s=1.0 / DEFAULT_RATE_HZ,
@@ -248,6 +249,7 @@ def parse_config(data: dict, where: str, base_dir: Path | None = None) -> Compan
     control = top.table("control")
     rate_hz = control.number("rate_hz", DEFAULT_RATE_HZ, lo=RATE_MIN_HZ, hi=RATE_MAX_HZ, why=RATE_WHY)
     realtime_priority = control.integer("realtime_priority", 0, lo=0, hi=PRIORITY_MAX)
+    cpu = control.integer("cpu", lo=0) if control.has("cpu") else None
     rate_feedback = control.number("rate_feedback_bandwidth_rad_s", DEFAULT_RATE_FEEDBACK_BANDWIDTH_RAD_S, lo=0.0,
                                    hi=RATE_FEEDBACK_BANDWIDTH_MAX_RAD_S)
     shortfall_cover = control.boolean("shortfall_cover", True)
@@ -258,6 +260,7 @@ def parse_config(data: dict, where: str, base_dir: Path | None = None) -> Compan
     config = CompanionConfig(
         rate_hz=rate_hz,
         realtime_priority=realtime_priority,
+        cpu=cpu,
         rate_feedback_bandwidth_rad_s=rate_feedback,
         shortfall_cover=shortfall_cover,
         nmpc=nmpc,

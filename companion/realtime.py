@@ -1,4 +1,4 @@
-"""Real-time scheduling for the control loop (`[control] realtime_priority`).
+"""Real-time scheduling for the control loop (`[control] realtime_priority`, `[control] cpu`).
 
 `use_realtime(priority)` puts the calling thread, the run loop, in Linux's SCHED_FIFO class
 at `priority` (1..99; 0 leaves it as it is): it then runs whenever it is ready, ahead of every
@@ -12,12 +12,23 @@ its time budget, and the kernel leaves others 5 % of each second by default
 Where the platform has no SCHED_FIFO, or the process may not use it (neither CAP_SYS_NICE nor
 an RLIMIT_RTPRIO of at least `priority`: the unit's LimitRTPRIO), it says so in one line and
 the companion flies on at normal priority.
+
+`use_cpu(cpu)`, called before any thread is started, keeps the whole process on that CPU (None:
+any): the run loop and every thread started after it (the feed's, the flight log's, the signing
+timestamps'), as the unit's CPUAffinity= does. Measured on the 2-core machine under load, in
+lockstep (docs/performance.md, "Paced by the wall clock"): the answer's p99 1.0-1.2 ms with the
+process on one CPU against 1.6-2.2 ms free; with the loop's thread alone on it, the others free,
+no better than free. The median, and paced by the wall clock both figures, did not move. A CPU
+this process may not run on is refused (ConfigError, before the NMPC is built); a platform that
+cannot pin says so in one line and the companion flies on.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+
+from m4.toml_fields import ConfigError
 
 log = logging.getLogger("m4-companion")
 
@@ -39,6 +50,24 @@ def use_realtime(priority: int) -> bool:
                     e.strerror or e, _permission_hint())
         return False
     log.info("control loop at real-time priority %d (SCHED_FIFO)", priority)
+    return True
+
+
+def use_cpu(cpu: int | None) -> bool:
+    """The calling thread, and every thread it starts from now on, on `cpu` alone (None: left as
+    it is); True when they are (one log line). ConfigError naming [control] cpu when this process
+    may not run on it."""
+    if cpu is None:
+        return False
+    if not hasattr(os, "sched_setaffinity"):
+        log.warning("CPU %d asked for, but this platform cannot pin a process: the companion runs on any", cpu)
+        return False
+    usable = os.sched_getaffinity(0)
+    if cpu not in usable:
+        raise ConfigError(f"[control] cpu {cpu}: not a CPU this process may run on "
+                          f"({', '.join(map(str, sorted(usable)))})")
+    os.sched_setaffinity(0, {cpu})
+    log.info("the companion on CPU %d", cpu)
     return True
 
 

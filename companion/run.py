@@ -100,12 +100,13 @@ def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.INFO, format="m4-companion: %(message)s", stream=sys.stderr)
     from companion.app import close_app, open_app
     from companion.core.codegen_cache import CodegenError
-    from companion.realtime import use_realtime
+    from companion.realtime import use_cpu, use_realtime
     from m4.mavlink.link import LinkError
 
     try:
         _check_ready_fd(args.ready_fd)
         config = _config(args)
+        use_cpu(config.cpu)         # before the feed's and the flight log's threads: they inherit it
         app = open_app(config)
     except (ConfigError, LinkError, CodegenError) as e:
         print(f"m4-companion: error: {e}", file=sys.stderr)

@@ -117,6 +117,8 @@ def test_relative_mission_and_airframe_files_are_found_beside_the_config(tmp_pat
     ("[control]\nrealtime_priority = 100", "realtime_priority"),
     ("[control]\nrealtime_priority = 50.0", "realtime_priority"),
     ("[control]\nrealtime_priority = true", "realtime_priority"),
+    ("[control]\ncpu = -1", "cpu must be >= 0"),
+    ("[control]\ncpu = 1.5", "cpu must be an integer"),
     ("[control]\nshortfall_cover = 1", "shortfall_cover"),
     ("[nmpc]\nhorizon = 0", "horizon"),
     ("[nmpc]\nhorizon = 2.5", "horizon"),

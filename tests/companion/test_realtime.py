@@ -32,10 +32,10 @@ def _may_use_fifo(priority: int) -> bool:
     return probe.returncode == 0
 
 
-def _start_companion(tmp_path, prelude: str = "") -> subprocess.Popen:
+def _start_companion(tmp_path, prelude: str = "", control: str = f"realtime_priority = {PRIORITY}") -> subprocess.Popen:
     config = tmp_path / "companion.toml"
     write_new_key(tmp_path / "mavlink.key")
-    config.write_text(f"[control]\nrealtime_priority = {PRIORITY}\n[link]\nsigning_key_file = \"mavlink.key\"\n"
+    config.write_text(f"[control]\n{control}\n[link]\nsigning_key_file = \"mavlink.key\"\n"
                       "[log]\nenabled = false\n")
     main = "from companion.cli import main; raise SystemExit(main(sys.argv[1:]))"
     return subprocess.Popen([sys.executable, "-c", f"import sys\n{prelude}\n{main}", "run", "--fc",
@@ -109,3 +109,28 @@ def test_priority_zero_leaves_the_scheduling_alone(monkeypatch, caplog):
         assert use_realtime(0) is False
     assert caplog.records == []
 
+
+
+def test_run_keeps_the_whole_companion_on_the_configured_cpu_and_says_so(tmp_path):
+    """The run loop and the threads beside it (here the signing timestamps' saver): the loop's
+    thread alone on the CPU did not shorten the p99 (docs/performance.md)."""
+    cpu = max(os.sched_getaffinity(0))
+    proc = _start_companion(tmp_path, control=f"cpu = {cpu}")
+    try:
+        lines = _until_ready(proc)
+        on = [os.sched_getaffinity(int(tid)) for tid in os.listdir(f"/proc/{proc.pid}/task")]
+    finally:
+        code, rest = _stop(proc)
+    assert len(on) >= 2 and all(cpus == {cpu} for cpus in on), on
+    assert any(f"the companion on CPU {cpu}" in ln for ln in lines), lines
+    assert code == 0 and "Traceback" not in rest
+
+
+def test_a_cpu_this_process_may_not_run_on_is_refused_in_one_line_before_the_build(tmp_path):
+    beyond = max(os.sched_getaffinity(0)) + 1
+    proc = _start_companion(tmp_path, control=f"cpu = {beyond}")
+    code, said = proc.wait(timeout=60), proc.stderr.read()
+    assert code == 2
+    assert said.strip().splitlines()[-1].startswith(f"m4-companion: error: [control] cpu {beyond}: not a CPU this "
+                                                   "process may run on")
+    assert "Traceback" not in said
