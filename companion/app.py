@@ -172,6 +172,9 @@ class CompanionApp:
         now = self.clock()
         since = self.flight_log.position()          # a new flight found in this poll starts with its packets
         received = self.fc.receive(now)
+        # before the answer: the flight log's writer may drain while the send gives up the GIL, and a new
+        # flight's first packets, read in this poll, must go to its own file
+        self.flight_log.observe(received.messages, since, LinkEvent.REBOOTED in received.events)
         self._received += len(received.messages)
         messages = self._profiled(received.messages)          # before LOCKED asks for the profile's streams
         for event in received.events:
@@ -194,7 +197,6 @@ class CompanionApp:
         self._watch_streams(now)
         if self._frame_ms is not None and self._due(self._frame_ms) and not self._joining(now):
             self._answer(self._frame_ms, now)
-        self.flight_log.observe(received.messages, since, LinkEvent.REBOOTED in received.events)   # not for the answer
         while self.flight_log.notices:             # a gap in the flight log (it has no link of its own)
             self.fc.statustext(mavlink.MAV_SEVERITY_WARNING, self.flight_log.notices.popleft())
         if self.fc_mission is not None and (flown := self.fc_mission.tick(now)) is not None:

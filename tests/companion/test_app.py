@@ -25,7 +25,7 @@ from m4.fault_kind import FaultKind
 from companion.fc_link import FcLink
 from companion.feed_publisher import Feed
 from companion.flight_log import FlightLog
-from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, new_mav
+from m4.mavlink import COMPANION_COMPONENT_ID, FC_COMPONENT_ID, FC_SYSTEM_ID, mavlink, mavutil, new_mav
 from support.fake_transport import FakeTransport
 from support.fc_answers import answers
 from support.full_disk import FullDisk
@@ -551,3 +551,41 @@ def test_overruns_are_sent_as_statustext_warnings_at_most_every_5_s_with_their_c
     for _, text in said[1:]:                                # 5 s of steps 50 ms apart (give or take one)
         assert re.fullmatch(r"companion: 10[01] overruns, 2[01] Hz, max 30 ms", text), text
     assert [p["overruns"] for t, p in published if t == "link"][-1] == 250
+
+
+def test_a_new_flight_starts_its_log_file_with_its_poll_though_the_writer_drains_during_the_answer(rig, tmp_path,
+                                                                                                 monkeypatch):
+    """The flight log's writer thread may drain while the answer's send gives up the GIL: the
+    arming HEARTBEAT read in the same poll must have marked the new flight by then, or its packets
+    land in the last flight's file."""
+    app, fc, link, clock = rig
+    monkeypatch.setattr(flight_log, "FLUSH_S", 3600.0)       # the writer drains only where this test says
+    app.flight_log = link.tlog = FlightLog(LogSettings(dir=tmp_path)).start()
+    send = app.fc.send_setpoint
+
+    def draining_send(*args, **kwargs):
+        app.flight_log._flush()                              # what the writer thread may do here
+        send(*args, **kwargs)
+
+    monkeypatch.setattr(app.fc, "send_setpoint", draining_send)
+    try:
+        fc.join(app)                                         # its HEARTBEAT says disarmed
+        fly(app, fc, clock, 0, 3)
+        fc.send(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, 0, mavlink.MAV_MODE_FLAG_SAFETY_ARMED,
+                                                  0, 4, 3))
+        fly(app, fc, clock, 60, 3)                           # armed, and its first frame answered in that poll
+    finally:
+        app.flight_log.close()
+    assert len(app.flight_log.files) == 2
+    assert [_heartbeats_armed(path) for path in app.flight_log.files] == [[False], [True]]
+
+
+def _heartbeats_armed(tlog) -> list[bool]:
+    """Armed or not, each HEARTBEAT from the FC in a flight log file."""
+    conn = mavutil.mavlink_connection(str(tlog), dialect="m4")
+    out = []
+    while (msg := conn.recv_match(type="HEARTBEAT")) is not None:
+        if msg.get_srcComponent() == FC_COMPONENT_ID:
+            out.append(bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED))
+    conn.close()
+    return out
