@@ -419,6 +419,18 @@ def test_what_only_the_next_step_needs_is_recorded_after_the_send():
     assert c.sent.newest.time_s == PERIOD
 
 
+def test_resume_drops_the_command_not_yet_recorded():
+    """A command whose step came before the gap is stale: resume() forgets it rather than letting
+    the next step or prepare() record it into the history."""
+    c = controller()
+    x = rom.hover_state(AF)
+    step(c, 0.0, x)                              # no prepare(): its command is not recorded yet
+    c.resume()
+    step(c, PERIOD, x)
+    c.prepare()
+    assert c.sent.newest.time_s == PERIOD
+    assert c.sent.in_force(0.0, 0.0) is None     # nothing from before the resume
+
 def test_the_frame_left_for_after_the_send_is_read_once_by_read_deferred_not_by_prepare():
     c = controller()
     x = rom.hover_state(AF)
