@@ -15,12 +15,10 @@ the companion flies on at normal priority.
 
 `use_cpu(cpu)`, called before any thread is started, keeps the whole process on that CPU (None:
 any): the run loop and every thread started after it (the feed's, the flight log's, the signing
-timestamps'), as the unit's CPUAffinity= does. Measured on the 2-core machine under load, in
-lockstep (docs/performance.md, "Paced by the wall clock"): the answer's p99 1.0-1.2 ms with the
-process on one CPU against 1.6-2.2 ms free; with the loop's thread alone on it, the others free,
-no better than free. The median, and paced by the wall clock both figures, did not move. A CPU
-this process may not run on is refused (ConfigError, before the NMPC is built); a platform that
-cannot pin says so in one line and the companion flies on.
+timestamps'), as the unit's CPUAffinity= does. What it moves, and what not, is measured in
+docs/performance.md, "Paced by the wall clock". A CPU this process may not run on is refused
+(ConfigError, before the NMPC is built); a platform that cannot pin says so in one line and the
+companion flies on.
 """
 
 from __future__ import annotations
