@@ -261,7 +261,9 @@ class Nmpc:
         self._prepared = None
         feedback = self._feedback
         grad, upper, lower, _, inputs_sum = feedback.qp(x0, x_ref, d, lo, hi)
-        if not math.isfinite(inputs_sum[0]):       # an entry of x0 or x_ref is not
+        # Not finite: an entry of x0 or x_ref is not, or finite entries' sum overflows (then labelled
+        # "invalid_input" where the solve would have said "qp_failed": only the label; the same fallback).
+        if not math.isfinite(inputs_sum[0]):
             return self._fallback(x0, lo, hi, "invalid_input", 0, t0)
         step, flag, self._duals = feedback.solver.solve(grad, upper, lower)
         if flag not in _DAQP_OK:

@@ -109,7 +109,8 @@ class RtiFeedback:
         disturbance d (6,), under the input bounds lo, hi (8,; read-only: kept while they are the
         same arrays): [gradient (N*8,), upper and lower bounds (N*8 + m,) on the step, what
         `plan` takes on from here (read where it lies), the sum of x0's and x_ref's entries (1,:
-        finite when they all are)]. The arrays are buffers that the next call overwrites."""
+        finite when they all are, and not either when they are but their sum overflows)]. The
+        arrays are buffers that the next call overwrites."""
         if self._bounds is None or self._bounds[0] is not lo or self._bounds[1] is not hi:
             self._moved.set_parameters(lo=lo, hi=hi)
             self._bounds = (lo, hi)
