@@ -202,7 +202,7 @@ class LogSettings:
 class CompanionConfig:
     rate_hz: float = DEFAULT_RATE_HZ
     realtime_priority: int = 0              # SCHED_FIFO priority of the control loop, 1..99; 0: normal (companion/realtime.py)
-    cpu: int | None = None                  # the CPU the companion, every thread, runs on (companion/realtime.py); None: any
+    cpu: int | None = None                  # the CPU all the companion runs on; None: any (companion/realtime.py)
     rate_feedback_bandwidth_rad_s: float = DEFAULT_RATE_FEEDBACK_BANDWIDTH_RAD_S   # 0: the FC flies thrust_n alone
     shortfall_cover: bool = True            # the FC covers a rotor its ESCs or gyro show falling short (M4_SETPOINT)
     nmpc: NmpcConfig = field(default_factory=lambda: NmpcConfig(control_period_s=1.0 / DEFAULT_RATE_HZ,

@@ -110,7 +110,6 @@ def test_priority_zero_leaves_the_scheduling_alone(monkeypatch, caplog):
     assert caplog.records == []
 
 
-
 def test_run_keeps_the_whole_companion_on_the_configured_cpu_and_says_so(tmp_path):
     """The run loop and the threads beside it (here the signing timestamps' saver): the loop's
     thread alone on the CPU did not shorten the p99 (docs/performance.md)."""
