@@ -220,7 +220,7 @@ class Controller:
         self._takeover = True             # the next step takes control from the FC's own controller
         self._deferred: tuple | None = None   # a frame for the detector after the send: update()'s arguments
         self._unrecorded: tuple | None = None  # the last step's command and hip goal, kept once the setpoint has left
-        self._cap_limit = (math.nan, np.full(ROTOR_COUNT, math.nan))   # the detector's limits array, by its cap
+        self._cap_limit_n = (math.nan, np.full(ROTOR_COUNT, math.nan))   # the detector's limits array, by its cap
 
     @property
     def started(self) -> bool:
@@ -351,15 +351,15 @@ class Controller:
         x_plan = self.predictor.predict(x, time_s, lead_s, self.sent, d, fault.thrust_bound_n)
         x_ref = self._reference(time_s, lead_s, c.horizon, c.dt_s)
         res = self.nmpc.solve(x_plan, x_ref, fault.thrust_bound_n, d)
-        hip_accel = res.u[rom.HIP_ACCEL].tolist()
+        hip_accel_rad_s2 = res.u[rom.HIP_ACCEL].tolist()
         x_next = res.x_pred[1] if res.ok else x_plan          # a failed solve plans no change of the rates
         confirmed = fault.state is FaultState.CONFIRMED
-        sp = self._setpoint(x_plan, res.u[rom.THRUST], hip_accel, fault.thrust_bound_n,
+        sp = self._setpoint(x_plan, res.u[rom.THRUST], hip_accel_rad_s2, fault.thrust_bound_n,
                             self.rate_feedback.feedback(x_plan, x_next, c.dt_s, fault.thrust_bound_n),
                             self.rate_feedback.cover(x_plan[rom.HIP], confirmed))
         if self.ramp.active:
             sp = replace(sp, thrust_n=self.ramp.limit(sp.thrust_n, fault.thrust_bound_n))
-        self._unrecorded = (time_s, x, x_plan, sp, hip_accel)
+        self._unrecorded = (time_s, x, x_plan, sp, hip_accel_rad_s2)
         self._solved = (time_s, lead_s, fault.thrust_bound_n, d, confirmed)
         return ControlStep(time_s=time_s, setpoint=sp, state=x_plan, fault=fault, fault_confirmed_now=confirmed_now,
                            disturbance=d, lead_s=lead_s, reference=x_ref, nmpc=res, took_over=took_over,
@@ -464,9 +464,9 @@ class Controller:
         known = [] if limit_n is None else [v for v in limit_n if v == v]    # from _thrust_telemetry: NaN or finite
         if known:
             cap = min(max(max(known), self.af.thrust_min_n), self.af.thrust_max_n)
-        if cap != self._cap_limit[0]:
-            self._cap_limit = (cap, np.full(ROTOR_COUNT, cap))
-        frame = (time_s, x, in_force_thrust_n, self._cap_limit[1], esc)
+        if cap != self._cap_limit_n[0]:
+            self._cap_limit_n = (cap, np.full(ROTOR_COUNT, cap))
+        frame = (time_s, x, in_force_thrust_n, self._cap_limit_n[1], esc)
         if self.detector.cannot_confirm(time_s, frame[3]):
             self._deferred = frame
             return self.detector.status, False
@@ -536,14 +536,15 @@ class Controller:
         x[rom.HIP], x[rom.HIP_RATE] = goal.angle_rad, goal.rate_rad_s
         return x
 
-    def _setpoint(self, x: np.ndarray, thrust_n: np.ndarray, hip_accel: list[float], thrust_bound_n,
+    def _setpoint(self, x: np.ndarray, thrust_n: np.ndarray, hip_accel_rad_s2: list[float], thrust_bound_n,
                   rate_feedback: RateFeedback | None, shortfall_cover: ShortfallCover | None) -> Setpoint:
         """Thrusts now; the hips from the goal now to the planned goal one period later (the FC's
         servo moves its goal from the angle at the rate, so the rate is the chord's); the FC's
         rate feedback and cover with them."""
         tau = self.period_s                               # four hips: Python floats, cheaper than numpy's calls
         hip, rate = x[rom.HIP].tolist(), x[rom.HIP_RATE].tolist()
-        chord = [(h + r * tau + 0.5 * a * tau**2 - h) / tau for h, r, a in zip(hip, rate, hip_accel, strict=True)]
+        chord = [(h + r * tau + 0.5 * a * tau**2 - h) / tau
+                 for h, r, a in zip(hip, rate, hip_accel_rad_s2, strict=True)]
         return safe_setpoint(self.af, thrust_n, hip, chord, thrust_bound_n, hip, rate_feedback=rate_feedback,
                              shortfall_cover=shortfall_cover)
 
@@ -552,15 +553,15 @@ class Controller:
         one period on (where the setpoint's hips lead, at the planned rate) for the next step."""
         if self._unrecorded is None:
             return
-        (time_s, x, x_plan, sp, hip_accel), self._unrecorded = self._unrecorded, None
+        (time_s, x, x_plan, sp, hip_accel_rad_s2), self._unrecorded = self._unrecorded, None
         af, tau = self.af, self.period_s
         rate_max = af.hip_rate_max_rad_s
         next_rate = [min(max(r + a * tau, -rate_max), rate_max)
-                     for r, a in zip(x_plan[rom.HIP_RATE].tolist(), hip_accel, strict=True)]
+                     for r, a in zip(x_plan[rom.HIP_RATE].tolist(), hip_accel_rad_s2, strict=True)]
         goal = [min(max(h + r * tau, af.hip_min_rad), af.hip_max_rad)
                 for h, r in zip(sp.hip_rad.tolist(), sp.hip_rate_rad_s.tolist(), strict=True)]
         self._hip_goal = HipGoal(goal, [r if math.isfinite(r) else 0.0 for r in next_rate])
-        self.sent.add(SentCommand(time_s, x, np.concatenate([sp.thrust_n, hip_accel]), sp.rate_feedback,
+        self.sent.add(SentCommand(time_s, x, np.concatenate([sp.thrust_n, hip_accel_rad_s2]), sp.rate_feedback,
                                   sp.shortfall_cover))
 
     def _cut(self, time_s, x, fault, confirmed_now, d, crash: str | None = None, crash_now: bool = False) -> ControlStep:
