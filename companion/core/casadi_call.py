@@ -56,8 +56,12 @@ class BufferedFunction:
     def evaluate(self, *args) -> list[np.ndarray]:
         """Each output's structural nonzeros in column-major order: the buffers themselves,
         overwritten by the next call."""
-        for buffer, value in zip(self._inputs, args, strict=True):
-            _write(buffer, value)
+        try:
+            for buffer, value in zip(self._inputs, args, strict=True):
+                _write(buffer, value)
+        except ValueError:
+            self._check_sizes(args)                # naming the input; nothing spent on a call that fits
+            raise
         self._evaluate()
         if self._buffer.ret() != 0:
             for arr in self._results:
@@ -73,9 +77,24 @@ class BufferedFunction:
         return self._results[self._fn.index_out(name)]
 
     def set_parameters(self, **values) -> None:
-        """Parameters' values by name (an array or float each, as for a call), for every call from now on."""
+        """Parameters' values by name (an array or float each, as for a call), for every call from now on.
+        A value of another size than its parameter's raises ValueError (a call's input of another
+        size does too, but there a single entry is spread over the whole input, as numpy copies)."""
         for name, value in values.items():
-            _write(self._args[self._parameter(name)], value)
+            buffer, flat = self._args[self._parameter(name)], _flat(value)
+            if flat.size != buffer.size:
+                raise ValueError(self._size_error("parameter", name, buffer.size, flat.size))
+            buffer[:] = flat
+
+    def _check_sizes(self, args) -> None:
+        """A ValueError naming the first of the call's inputs whose size is not its own (none: nothing)."""
+        for i, (buffer, value) in enumerate(zip(self._inputs, args)):
+            size = np.size(value)
+            if size not in (1, buffer.size):
+                raise ValueError(self._size_error("input", self._fn.name_in(i), buffer.size, size))
+
+    def _size_error(self, kind: str, name: str, takes: int, given: int) -> str:
+        return f"BufferedFunction: {kind} {name} of {self._fn.name()} takes {takes} floats, not {given}"
 
     def _parameter(self, name: str) -> int:
         i = self._parameters.get(name)
@@ -97,10 +116,14 @@ class BufferedFunction:
 
 def _write(buffer: np.ndarray, value) -> None:
     """An input's value into its buffer, in column-major order."""
+    buffer[:] = _flat(value)
+
+
+def _flat(value) -> np.ndarray:
+    """A value's entries in column-major order."""
     if isinstance(value, np.ndarray) and value.ndim < 2:
-        buffer[:] = value                          # already in order: no column-major copy first
-    else:
-        buffer[:] = np.ravel(value, order="F")
+        return value                               # already in order: no column-major copy first
+    return np.ravel(value, order="F")
 
 
 def _dense_positions(sparsity: ca.Sparsity) -> np.ndarray | None:

@@ -73,3 +73,15 @@ def test_a_parameter_is_named_or_refused_by_name():
         fn.set_parameters(p=np.eye(2))
     with pytest.raises(ValueError, match="m4_test_params has 3 inputs, not 4 parameters"):
         BufferedFunction(params_model(), parameters=4)
+
+
+def test_a_value_of_the_wrong_size_is_refused_in_one_line_naming_it_and_the_sizes():
+    fn = BufferedFunction(params_model(), parameters=2)
+    with pytest.raises(ValueError, match="^BufferedFunction: parameter p of m4_test_params takes 4 floats, not 3$"):
+        fn.set_parameters(p=np.ones(3))
+    with pytest.raises(ValueError, match="^BufferedFunction: parameter q of m4_test_params takes 1 floats, not 2$"):
+        fn.set_parameters(q=[1.0, 2.0])
+    with pytest.raises(ValueError, match="^BufferedFunction: parameter p of m4_test_params takes 4 floats, not 1$"):
+        fn.set_parameters(p=1.0)                   # not spread over the matrix
+    with pytest.raises(ValueError, match="^BufferedFunction: input x of m4_test_params takes 2 floats, not 3$"):
+        fn(np.ones(3))
