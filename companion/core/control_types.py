@@ -37,12 +37,14 @@ _PLAUSIBLE = ((rom_layout.P, 1e5), (rom_layout.EULER, 2 * np.pi), (rom_layout.V,
 @functools.cache
 def _plausible_range(hip_min_rad: float, hip_max_rad: float) -> tuple[np.ndarray, np.ndarray]:
     """(NX,) the least and the most each state entry may be: +-its limit, the hips within the
-    joint range widened by _HIP_MARGIN_RAD (every entry finite: NaN and inf fall outside)."""
+    joint range widened by _HIP_MARGIN_RAD (every entry finite: NaN and inf fall outside).
+    Read-only: the cache hands the same arrays to every caller."""
     most = np.full(rom_layout.NX, np.inf)
     for part, limit in _PLAUSIBLE:
         most[part] = limit
     least = -most
     least[rom_layout.HIP], most[rom_layout.HIP] = hip_min_rad - _HIP_MARGIN_RAD, hip_max_rad + _HIP_MARGIN_RAD
+    least.flags.writeable = most.flags.writeable = False
     return least, most
 
 

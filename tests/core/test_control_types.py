@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from companion.core.control_types import _float32_next, thrust_bound_list
+from companion.core.control_types import _float32_next, _plausible_range, thrust_bound_list
 from m4.airframe import load_airframe
 
 AF = load_airframe()
@@ -37,3 +37,11 @@ def test_the_float32_step_is_numpys_nextafter_on_float32(down):
     toward = np.float32(-np.inf if down else np.inf)
     for v in values:
         assert np.float32(_float32_next(float(v), down)).tobytes() == np.nextafter(v, toward).tobytes(), v
+
+
+def test_the_cached_plausible_range_cannot_be_changed_by_a_caller():
+    least, most = _plausible_range(AF.hip_min_rad, AF.hip_max_rad)
+    with pytest.raises(ValueError, match="read-only"):
+        least[0] = 0.0
+    with pytest.raises(ValueError, match="read-only"):
+        most[0] = 0.0
