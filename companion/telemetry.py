@@ -206,7 +206,8 @@ class TelemetryAssembler:
     def _fresh_on_fc_clock(self, newest_fc_s: float, limit_s: float) -> bool:
         """Every needed stream (and the ESC telemetry, once some came) within limit_s of the
         newest instant on the FC's clock: none is stale, whatever our clock says (as `stale` finds
-        with fewer steps: the oldest stream's newest instant decides)."""
+        with fewer steps: the oldest stream's newest instant decides). It names NEEDED's streams
+        by hand: a test leaves out each of NEEDED in turn and expects it found."""
         s = self._samples
         att, quat, pos, joints, thr = s.get(ATTITUDE), s.get(ATTITUDE_QUATERNION), s.get(LOCAL_POSITION), \
             s.get(JOINT_STATE), s.get(THRUSTER_STATUS)

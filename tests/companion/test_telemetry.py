@@ -12,7 +12,8 @@ from m4.attitude import euler_from_quat_wxyz
 from companion.core import rom
 from companion.core.com_offset import ComOffset
 from m4.mavlink import mavlink
-from companion.telemetry import ATTITUDE, ESC_TELEMETRY, JOINT_STATE, LOCAL_POSITION, TelemetryAssembler, rom_state
+from companion.telemetry import ATTITUDE, ESC_TELEMETRY, JOINT_STATE, LOCAL_POSITION, NEEDED, TelemetryAssembler, \
+    rom_state
 
 AF = load_airframe()
 COM = ComOffset(AF)
@@ -190,6 +191,18 @@ def fly_frames(asm, t0_ms, frames, without=(), now0_s=None):
         feed(asm, [m for m in frame(t_ms) if not isinstance(m, without)],
              (t_ms if now0_s is None else 1000 * now0_s + 20 * k) / 1000.0)
 
+
+@pytest.mark.parametrize("ids", NEEDED, ids=lambda ids: mavlink.mavlink_map[ids[0]].__name__)
+def test_every_needed_stream_stopped_or_never_come_is_stale_whichever_it_is(ids):
+    """`stale` first checks on the FC's clock alone whether every stream is fresh, naming NEEDED's
+    streams by hand: each of NEEDED, left out, must still be found."""
+    types = tuple(mavlink.mavlink_map[i] for i in ids)
+    stopped = TelemetryAssembler()
+    fly_frames(stopped, 0, 10)
+    fly_frames(stopped, 200, 6, without=types)
+    never = TelemetryAssembler()
+    fly_frames(never, 0, 16, without=types)
+    assert stopped.stale(LIMIT_S) == never.stale(LIMIT_S) == (ids[0],)
 
 def test_a_stream_that_stops_while_the_others_come_is_stale_until_it_comes_again():
     asm = TelemetryAssembler()
