@@ -169,10 +169,9 @@ class TelemetryAssembler:
         if fc_ms is None or self._esc is not None and fc_ms <= round(self._esc.time_s * 1000.0):
             self.counters.stale += 1          # no FC instant to stamp it with, or none newer than the last
             return False
-        voltage_v = [v / 100.0 for v in msg.voltage]
         self._esc = EscSample(time_s=fc_ms / 1000.0, rpm=_array(msg.rpm),
                               current_a=_array([a / 100.0 for a in msg.current]),
-                              voltage_v=_array([v if v > 0.0 else math.nan for v in voltage_v]))
+                              voltage_v=_array([v / 100.0 if v > 0 else math.nan for v in msg.voltage]))
         self._esc_received_s = now_s
         self.counters.accepted += 1
         return True
