@@ -73,7 +73,7 @@ from companion.loop_timing import LoopTiming
 from companion.params import CompanionParams
 from companion.flight_log import FlightLog, open_flight_log
 from companion.stream_watch import Report, StreamWatch, blocking, labels
-from companion.telemetry import (ESC_TELEMETRY, REQUESTED, THRUSTER_STATUS, TelemetryAssembler, VehicleSnapshot,
+from companion.telemetry import (ESC_TELEMETRY, READ, THRUSTER_STATUS, TelemetryAssembler, VehicleSnapshot,
                                  rom_state)
 from m4.airframe import ROTOR_COUNT
 from m4.fc_mode import FcMode
@@ -181,7 +181,7 @@ class CompanionApp:
             self._on_event(event, now)
         for msg in messages:
             msg_id = msg.get_msgId()
-            if msg_id in REQUESTED:
+            if msg_id in READ:
                 if self.telemetry.add(msg, now) and msg_id == THRUSTER_STATUS:
                     self._frame_ms = msg.time_boot_ms
             elif msg_id == mavlink.MAVLINK_MSG_ID_M4_FAULT_STATUS:
@@ -252,7 +252,7 @@ class CompanionApp:
                 log.warning("flight controller found again at %s (it was at %s); asking for telemetry every %d ms",
                             self.fc.fc_address, self.fc.previous_address, self.period_ms)
             self.fc.request_kept_state()               # first: nothing of ours goes out before it is answered
-            self.fc.request_intervals(self.config.control_period_s, self.profile.streams)
+            self._ask_for_streams()
             if self.fc_mission is not None:
                 self.fc_mission.on_locked(now)
             if not self.config.link.signing:
@@ -430,7 +430,7 @@ class CompanionApp:
     # -- stale streams -----------------------------------------------------------------------------
     def _watch_streams(self, now: float) -> None:
         news = self.streams.update(self.telemetry.stale(self.streams.limit_s), now, self.fc.fc_time_ms)
-        if ask := [i for i in news.ask if i in self.profile.streams]:
+        if ask := self.profile.asked_again(news.ask):
             self.fc.request_intervals(self.config.control_period_s, ask)
         if news.resumed:
             self._resume_after_gap()
@@ -461,7 +461,7 @@ class CompanionApp:
         log.warning("telemetry back after the FC's clock moved %d ms; control resumes", t_ms - self._last_answered_ms)
         self._resume_after_gap()
         self.fc.statustext(mavlink.MAV_SEVERITY_NOTICE, "companion: telemetry back, control resumes")
-        self.fc.request_intervals(self.config.control_period_s, self.profile.streams)
+        self._ask_for_streams()
         self._publish_link(t_ms / 1000.0)
 
     def _resume_after_gap(self) -> None:
@@ -470,6 +470,13 @@ class CompanionApp:
                 self.fc.fc_time_ms - self._last_answered_ms > RESUME_GAP_PERIODS * self.period_ms:
             self.controller.resume()
 
+    def _ask_for_streams(self) -> None:
+        """The profile's streams at the control rate, then its stops (each command acknowledged):
+        at lock-on, at the profile's change and when telemetry comes back (a rebooted FC streams
+        its defaults again)."""
+        self.fc.request_intervals(self.config.control_period_s, self.profile.streams)
+        self.fc.stop_streams(self.profile.stopped)
+
     def _on_fc_heartbeat(self, msg) -> None:
         """A HEARTBEAT naming another autopilot changes the profile and the streams asked for; the
         FC saying it shuts down (MAV_STATE_POWEROFF) makes the silence that follows the flight's end."""
@@ -477,8 +484,7 @@ class CompanionApp:
             self.profile = profile
             log.info("the flight controller runs %s: asking for its streams every %d ms", profile.name,
                      self.period_ms)
-            self.fc.stop_streams(profile.stopped)
-            self.fc.request_intervals(self.config.control_period_s, profile.streams)
+            self._ask_for_streams()
         if msg.system_status != mavlink.MAV_STATE_POWEROFF:
             self.fc_shut_down_s = None
         elif self.fc_shut_down_s is None:

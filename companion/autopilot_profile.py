@@ -2,7 +2,17 @@
 
 The FC's HEARTBEAT names its autopilot. MAV_AUTOPILOT_ARDUPILOTMEGA is stock ArduPilot with
 the M4 applet (deploy/ardupilot/scripts/m4_fc.lua, docs/ardupilot.md); anything else is the
-project's FC (MAV_AUTOPILOT_GENERIC), for which nothing changes.
+project's FC (MAV_AUTOPILOT_GENERIC).
+
+The project's FC streams at its defaults (sitl/fc/streams.py) on every link; the companion asks
+on its own link for what it reads, at the control rate: ATTITUDE, LOCAL_POSITION_NED,
+M4_JOINT_STATE, M4_THRUSTER_STATUS and ESC_TELEMETRY_1_TO_4 (companion.telemetry.REQUESTED), and
+stops ATTITUDE_QUATERNION (the same attitude: ATTITUDE is read first at a shared instant),
+GLOBAL_POSITION_INT and ACTUATOR_OUTPUT_STATUS (never read). A ground station on its own link
+keeps the defaults. A profile's stops go out after its streams' requests, at lock-on, at the
+profile's change and when telemetry comes back. When the attitude goes stale both attitude
+messages are asked for again (companion.stream_watch; the profile's `spare`), so an FC that
+sends only ATTITUDE_QUATERNION has it back five periods after lock-on stopped it, and flies.
 
 ArduPilot cannot send the M4 dialect (a script sends only messages compiled into the
 firmware). The applet sends its telemetry frame as ATTITUDE, LOCAL_POSITION_NED and
@@ -34,8 +44,13 @@ _HIP, _HIP_RATE, _THRUST_CMD, _THRUST_LIMIT = (slice(i * ROTOR_COUNT, (i + 1) * 
 class AutopilotProfile:
     name: str
     streams: tuple[int, ...]          # the message ids whose intervals the companion asks for
-    stopped: tuple[int, ...]          # the message ids the FC is asked not to stream
+    stopped: tuple[int, ...]          # the message ids the FC is asked not to stream (at lock-on too)
+    spare: tuple[int, ...]            # asked for as well when what they carry goes stale
     applet_frames: bool               # telemetry frames come as the ArduPilot applet's
+
+    def asked_again(self, stale_ids: tuple[int, ...]) -> list[int]:
+        """Of the messages companion.stream_watch asks for again, those this FC is asked for."""
+        return [i for i in stale_ids if i in self.streams or i in self.spare]
 
     def translate(self, messages: list) -> list:
         """The FC's messages as the companion reads them (the applet's frame in the M4 dialect)."""
@@ -50,9 +65,12 @@ class AutopilotProfile:
         return out
 
 
-PROJECT_FC = AutopilotProfile("the project's flight controller", REQUESTED, (), applet_frames=False)
+PROJECT_FC = AutopilotProfile("the project's flight controller", REQUESTED,
+                              (ATTITUDE_QUATERNION, mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+                               mavlink.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS), (ATTITUDE_QUATERNION,),
+                              applet_frames=False)
 ARDUPILOT = AutopilotProfile("ArduPilot with the M4 applet", (ESC_TELEMETRY,),
-                             (ATTITUDE, ATTITUDE_QUATERNION, LOCAL_POSITION), applet_frames=True)
+                             (ATTITUDE, ATTITUDE_QUATERNION, LOCAL_POSITION), (), applet_frames=True)
 
 
 def profile_of(heartbeat) -> AutopilotProfile:

@@ -10,7 +10,9 @@ than the controller flying blind. Stale ESC telemetry is not blocking: the detec
 without ESC evidence, and the controller is handed none.
 
 Each poll `update()` says what to do: the stale streams' messages to ask for again
-(MAV_CMD_SET_MESSAGE_INTERVAL; again every STALE_REREQUEST_S while stale), whether control
+(MAV_CMD_SET_MESSAGE_INTERVAL; again every STALE_REREQUEST_S while stale; a stale attitude both
+ATTITUDE and ATTITUDE_QUATERNION, though the companion asks for the first alone while it is
+fresh: an FC that sends only the quaternion is heard again), whether control
 resumes (the last blocking stream is fresh), and what to report: each change, at most every
 STALE_REPORT_MIN_S; a change within that is reported once that has passed, if it still holds,
 so the last state is always said. Pure logic.

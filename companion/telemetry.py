@@ -53,7 +53,10 @@ JOINT_STATE = mavlink.MAVLINK_MSG_ID_M4_JOINT_STATE
 THRUSTER_STATUS = mavlink.MAVLINK_MSG_ID_M4_THRUSTER_STATUS
 STREAMS = (ATTITUDE, ATTITUDE_QUATERNION, LOCAL_POSITION, JOINT_STATE, THRUSTER_STATUS)
 ESC_TELEMETRY = mavlink.MAVLINK_MSG_ID_ESC_TELEMETRY_1_TO_4
-REQUESTED = STREAMS + (ESC_TELEMETRY,)       # what the companion asks the FC to stream
+READ = STREAMS + (ESC_TELEMETRY,)            # what the companion reads of the FC's telemetry
+# What it asks the FC to stream: one attitude message, ATTITUDE (the snapshot's at a shared instant);
+# ATTITUDE_QUATERNION is asked for only when the attitude goes stale (companion.stream_watch).
+REQUESTED = tuple(i for i in READ if i != ATTITUDE_QUATERNION)
 # What the controller needs, each with the messages that carry it (the first names it).
 NEEDED = ((ATTITUDE, ATTITUDE_QUATERNION), (LOCAL_POSITION,), (JOINT_STATE,), (THRUSTER_STATUS,))
 LABELS = {ATTITUDE: "attitude", LOCAL_POSITION: "position", JOINT_STATE: "joints", THRUSTER_STATUS: "thrusters",
