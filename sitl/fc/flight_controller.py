@@ -501,10 +501,11 @@ class FlightController:
         return self.schedules[link]
 
     def telemetry(self, now_ms: int, frame: bool = False, link: int = 0) -> list[mavlink.MAVLink_message]:
-        """The streams due at `now_ms` on link `link` (with `frame`: plus the lockstep frame), in
-        order. In lockstep M4_THRUSTER_STATUS goes out only in frames: it tells the companion to
-        answer."""
-        ids = self.schedules[link].due(now_ms, FRAME if frame else ())
+        """The streams due at `now_ms` on link `link` (with `frame`: plus the link's lockstep
+        frame, less what it stopped), in order. In lockstep M4_THRUSTER_STATUS goes out only in
+        frames: it tells the companion to answer."""
+        schedule = self.schedules[link]
+        ids = schedule.due(now_ms, schedule.frame if frame else ())
         if not ids:
             return []
         if self.lockstep and not frame:

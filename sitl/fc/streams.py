@@ -3,7 +3,9 @@
 A stream with interval I ms is sent at the simulated instants that are multiples of I, so
 streams whose intervals divide one another stay aligned (at t = 20 ms ATTITUDE and
 LOCAL_POSITION_NED carry the same time_boot_ms). Messages due at one instant go out in
-`EMISSION_ORDER`, which ends with the lockstep frame in the contract's order.
+`EMISSION_ORDER`, which ends with the lockstep frame in the contract's order. A link's lockstep
+frame (`frame`) is FRAME less the streams stopped on that link, as an FC that honours the stop
+sends no more of them; M4_THRUSTER_STATUS, which marks the frame, always.
 """
 
 from __future__ import annotations
@@ -51,6 +53,10 @@ class StreamSchedule:
         self._interval_ms: dict[int, int] = dict(self._defaults)
         self._next_ms: dict[int, int] = {i: 0 for i in self._interval_ms}
         self._next_due_ms = self._earliest()      # min(_next_ms): asked at every instant, changed only here
+        self.frame = self._frame()                # this link's lockstep frame (above)
+
+    def _frame(self) -> tuple[int, ...]:
+        return tuple(i for i in FRAME if i in self._interval_ms or i == FRAME[-1])
 
     def set_interval_us(self, msg_id: int, interval_us: float, now_ms: int) -> None:
         """MAV_CMD_SET_MESSAGE_INTERVAL semantics: -1 stops, 0 restores the default, else the
@@ -61,6 +67,7 @@ class StreamSchedule:
             self._interval_ms.pop(msg_id, None)
             self._next_ms.pop(msg_id, None)
             self._next_due_ms = self._earliest()
+            self.frame = self._frame()
             return
         if interval_us == 0:
             if msg_id not in self._defaults:
@@ -72,6 +79,7 @@ class StreamSchedule:
         self._interval_ms[msg_id] = interval
         self._next_ms[msg_id] = (now_ms // interval + 1) * interval
         self._next_due_ms = self._earliest()
+        self.frame = self._frame()
 
     def interval_ms(self, msg_id: int) -> int | None:
         """The stream's interval in force (None: not sent)."""

@@ -125,6 +125,20 @@ def test_set_message_interval_changes_and_stops_a_stream():
         assert _command(companion, m.MAV_CMD_SET_MESSAGE_INTERVAL, 9999, 10_000).result == m.MAV_RESULT_DENIED
 
 
+def test_in_lockstep_a_stream_of_the_frame_stopped_on_its_link_leaves_the_frame_but_the_thruster_status():
+    """As an FC that honours the stop: the companion's stopped ATTITUDE_QUATERNION no longer comes
+    in its frames; M4_THRUSTER_STATUS, which marks a frame to answer, comes whatever is asked."""
+    quat, status = m.MAVLINK_MSG_ID_ATTITUDE_QUATERNION, m.MAVLINK_MSG_ID_M4_THRUSTER_STATUS
+    with _fc() as companion:
+        for msg_id in (quat, status):
+            ack = _command(companion, m.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, -1)
+            assert ack.result == m.MAV_RESULT_ACCEPTED
+        t1 = max(getattr(x, "time_boot_ms", 0) for x in companion.received[:companion.received.index(ack)]) + 50
+        assert companion.wait_for("M4_THRUSTER_STATUS", lambda s: s.time_boot_ms > t1 + 500)
+        assert not [q for q in companion.of_type("ATTITUDE_QUATERNION") if q.time_boot_ms > t1]
+        assert [a for a in companion.of_type("ATTITUDE") if a.time_boot_ms > t1]
+
+
 def test_request_message_sends_autopilot_version_and_home_position():
     home = Home()
     with _fc() as companion:
