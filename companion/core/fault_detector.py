@@ -513,7 +513,7 @@ class FaultDetector:
         gives_thrust = self._kind is FaultKind.DAMAGE and self._effectiveness >= _LOST_SHARE
         if (later is FaultKind.MOTOR or later is FaultKind.PROPELLER and not gives_thrust) and self._kind is not later:
             self._kind, self._effectiveness, self._estimate_n = later, 1.0, self._af.thrust_min_n
-        delivered, expected = evidence.delivered_n[i], evidence.expected_n[i]
+        delivered = evidence.delivered_n[i]
         if self._kind is FaultKind.DAMAGE:
             self._refine_damage(evidence, dt, reading)
             return
