@@ -165,6 +165,9 @@ def mission_progress(msg: mavlink.MAVLink_m4_fault_status_message) -> MissionPro
     return MissionProgress(msg.mission_time_ms / 1000.0, plan)
 
 
+_NO_EVENTS: frozenset[LinkEvent] = frozenset()
+
+
 class FcLink:
     def __init__(self, link: FcTransport, fc_system_id: int = FC_SYSTEM_ID, fc_component_id: int = FC_COMPONENT_ID,
                  heartbeat_before_lock: bool = False, telemetry_timeout_s: float = DEFAULT_TELEMETRY_TIMEOUT_S):
@@ -221,11 +224,7 @@ class FcLink:
                 elif msg_id == mavlink.MAVLINK_MSG_ID_TIMESYNC:
                     self._on_timesync(msg, now_s)
                 elif msg_id in STREAMS:
-                    time_ms = int(msg.time_boot_ms)
-                    if self.connected and self.fc_time_ms is not None and time_ms >= self.fc_time_ms:
-                        self.fc_time_ms, self.last_telemetry_s = time_ms, now_s     # flowing: nothing to tell
-                    else:
-                        events |= self._on_telemetry(time_ms, now_s)
+                    events |= self._on_telemetry(int(msg.time_boot_ms), now_s)
                 out.append(msg)
         if self.connected and now_s >= self.loss_deadline_s():
             self.connected = False
@@ -255,7 +254,10 @@ class FcLink:
         self.previous_address, self.fc_address = self.fc_address, sender
         self.link.lock_peer(sender)
 
-    def _on_telemetry(self, time_ms: int, now_s: float) -> set[LinkEvent]:
+    def _on_telemetry(self, time_ms: int, now_s: float) -> frozenset[LinkEvent] | set[LinkEvent]:
+        if self.connected and self.fc_time_ms is not None and time_ms >= self.fc_time_ms:
+            self.fc_time_ms, self.last_telemetry_s = time_ms, now_s     # flowing (every frame): nothing to tell
+            return _NO_EVENTS
         events = set()
         if not self.connected:
             self.connected = True
