@@ -110,8 +110,8 @@ def safe_setpoint(af: Airframe, thrust_n, hip_rad, hip_rate_rad_s, thrust_bound_
     with the FC's rate feedback and cover as they are (each checked where it is made).
 
     Its twelve values are checked as Python floats (the step answers with them: a dozen float
-    comparisons cost less than numpy's calls on arrays of four), each clamp a comparison, as
-    numpy's minimum and maximum (which keep the first of two equal values) would clamp it: the
+    comparisons cost less than numpy's calls on arrays of four), each clamp a comparison that
+    keeps a value equal to its bound (a -0.0 stays -0.0, as Python's min and max kept it): the
     airframe's bounds are ordered (m4.airframe) and thrust_bound_list's lie within them."""
     r = ROTOR_COUNT
     thrust, hip, rate = (np.asarray(v, dtype=float).reshape(r).tolist() for v in (thrust_n, hip_rad, hip_rate_rad_s))
