@@ -18,8 +18,9 @@ is returned as measured.
 
 from __future__ import annotations
 
+import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
@@ -36,6 +37,7 @@ _SUBSTEPS = 2
 _MAX_PIECE_S = 0.01                 # longer stretches are split (RK4 accuracy, the motors' lag)
 _TIME_EPS_S = 1e-6
 HISTORY_S = 1.0                     # commands kept: longer leads are not predicted through
+PIECES_PER_CALL = 32                # a lead of up to 32 pieces (0.3 s at 50 and 100 Hz) in one call
 
 
 @dataclass(frozen=True)
@@ -47,6 +49,10 @@ class SentCommand:
     input: np.ndarray               # (8,) thrust_n as sent, hip_accel_rad_s2 as planned
     feedback: RateFeedback | None = None   # the rate feedback sent with it
     cover: ShortfallCover | None = None    # the shortfall cover sent with it
+    fc_law: np.ndarray = field(init=False, repr=False, compare=False)   # its numbers as the prediction's pieces take them
+
+    def __post_init__(self):
+        object.__setattr__(self, "fc_law", _fc_law(self))      # once, after the send: not in the answer
 
     @property
     def thrust_n(self) -> np.ndarray:
@@ -82,23 +88,38 @@ class CommandHistory:
                 return command
         return None
 
-    def acting_from(self, t0_s: float, t1_s: float, lead_s: float) -> list[float]:
-        """The instants in (t0_s, t1_s) at which another of our commands takes over."""
-        return [c.time_s + lead_s for c in self._commands if t0_s + _TIME_EPS_S < c.time_s + lead_s < t1_s - _TIME_EPS_S]
+    def in_flight(self, t0_s: float, t1_s: float, lead_s: float) -> list[tuple[float, SentCommand]]:
+        """The commands the FC flies from t0_s to t1_s, oldest first, each with the instant it
+        acts from: the one in force at t0_s (from t0_s), then each that takes over in (t0_s,
+        t1_s); empty when none of ours is in force at t0_s. Read from the newest back to the
+        one in force: a lead's worth of commands, not the whole history."""
+        flown = []
+        for command in reversed(self._commands):
+            start_s = command.time_s + lead_s
+            if start_s <= t0_s + _TIME_EPS_S:
+                flown.append((t0_s, command))
+                return flown[::-1]
+            if start_s < t1_s - _TIME_EPS_S:
+                flown.append((start_s, command))
+        return []
 
 
 class Predictor:
     """Forward prediction with the ROM dynamics `f` (rom.RomFunctions.f: x, u, d -> xdot) for
-    commands sent every period_s (the rate feedback's planned rates are held after it); codegen:
-    its flow compiled to C (cached, companion.core.codegen_cache), else CasADi's VM, on
-    preallocated buffers either way (a piece of a lead costs one call, not a DM round trip)."""
+    commands sent every period_s (the rate feedback's planned rates are held after it). The
+    pieces of a lead are flown by one CasADi function, up to `pieces_per_call` at a call (a
+    longer lead takes more calls, the state and the thrusts carried over): the FC's command
+    on the predicted rates, the motors' lag and the ROM's RK4 for every piece, none of it in
+    Python. codegen: compiled to C (cached, companion.core.codegen_cache), else CasADi's VM;
+    on preallocated buffers either way."""
 
-    def __init__(self, af: Airframe, f: ca.Function, period_s: float, codegen: bool = False):
+    def __init__(self, af: Airframe, f: ca.Function, period_s: float, codegen: bool = False,
+                 pieces_per_call: int = PIECES_PER_CALL):
         self._af = af
-        self._period_s = period_s
-        x, u, d, dt = ca.SX.sym("x", NX), ca.SX.sym("u", NU), ca.SX.sym("d", ND), ca.SX.sym("dt")
-        flow = ca.Function("m4_rom_flow", [x, u, d, dt], [rom.rk4(f, x, u, d, dt, _SUBSTEPS)])
-        self._flow = BufferedFunction(compiled(flow) if codegen else flow)
+        flow = _flow(af, f, period_s, pieces_per_call)
+        self._flow = BufferedFunction(compiled(flow) if codegen else flow, parameters=1)
+        self._pieces = self._flow.buffer("pieces").reshape(pieces_per_call, _PIECE_ROWS)   # a row a piece (a column of the
+        self._pieces[:] = _IDLE_PIECE                                                       # function's column-major input)
 
     def predict(self, x, time_s: float, lead_s: float, history: CommandHistory, disturbance,
                 thrust_bound_n, thrust_now_n=None) -> np.ndarray:
@@ -108,42 +129,85 @@ class Predictor:
         force); x itself when lead_s is 0, no command of ours is in force yet, or the
         prediction is not finite."""
         x = np.asarray(x, dtype=float).reshape(NX)
-        if not lead_s > 0 or history.in_force(time_s, lead_s) is None:
-            return x.copy()
         end_s = time_s + lead_s
+        flown = history.in_flight(time_s, end_s, lead_s) if lead_s > 0 else []
+        if not flown:
+            return x.copy()
         bound = thrust_bounds(self._af, thrust_bound_n)
-        edges = [time_s, *history.acting_from(time_s, end_s, lead_s), end_s]
-        thrust = np.minimum(history.in_force(time_s, lead_s).thrust_n, bound)
+        thrust = np.minimum(flown[0][1].thrust_n, bound)
         if thrust_now_n is not None:
             measured = np.asarray(thrust_now_n, dtype=float).reshape(ROTOR_COUNT)
             thrust = np.where(np.isfinite(measured), measured, thrust)
         tau = self._af.motor_time_constant_s
-        xk = x.copy()
-        for a, b in zip(edges[:-1], edges[1:]):
-            sent = history.in_force(a, lead_s)
-            pieces = max(1, int(np.ceil((b - a) / _MAX_PIECE_S - 1e-9)))
+        timing, laws = [], []             # a piece's (length, its command in force since, decay, average); its command
+        for (a, sent), b in zip(flown, [*(start_s for start_s, _ in flown[1:]), end_s]):
+            pieces = max(1, math.ceil((b - a) / _MAX_PIECE_S - 1e-9))
             h = (b - a) / pieces
-            decay = np.exp(-h / tau) if tau > 0 else 0.0
+            decay = math.exp(-h / tau) if tau > 0 else 0.0
             average = 1.0 - (tau / h) * (1.0 - decay) if tau > 0 else 1.0     # share of the step done on average
-            for k in range(pieces):
-                command = self._command(sent, xk, a + k * h - (sent.time_s + lead_s), bound)
-                u = np.concatenate([thrust + (command - thrust) * average, np.zeros(ROTOR_COUNT)])   # hips: on their goal
-                xk = self._flow(xk, u, disturbance, h)[0].ravel()
-                thrust = command + (thrust - command) * decay
+            start_s = sent.time_s + lead_s
+            timing += [(h, a + k * h - start_s, decay, average) for k in range(pieces)]
+            laws += [sent.fc_law] * pieces
+        xk, rows = x, self._pieces
+        for first in range(0, len(laws), len(rows)):
+            n = min(len(rows), len(laws) - first)
+            rows[:n, :_LAW] = timing[first:first + n]
+            rows[:n, _LAW:] = laws[first:first + n]
+            rows[n:] = _IDLE_PIECE
+            xk, thrust = (r.copy() for r in self._flow.evaluate(xk, thrust, disturbance, bound))
         if not np.isfinite(xk).all():
             return x.copy()
         xk[rom.HIP], xk[rom.HIP_RATE] = x[rom.HIP], x[rom.HIP_RATE]
         return xk
 
-    def _command(self, sent: SentCommand, x, acting_s: float, bound) -> np.ndarray:
-        """What the FC commands acting_s after `sent` took effect, the robot at state x: the
-        thrusts sent plus their rate feedback and the cover for what the bounds hold back,
-        within the bounds."""
-        af = self._af
-        thrust = sent.thrust_n
-        if sent.feedback is not None:
-            thrust = thrust + sent.feedback.thrust_change_n(x[rom.RATES], acting_s, self._period_s)
-        thrust = thrust.clip(af.thrust_min_n, af.thrust_max_n)
-        if sent.cover is not None:
-            thrust = thrust + sent.cover.thrust_change_n(np.maximum(thrust - bound, 0.0))
-        return thrust.clip(af.thrust_min_n, bound)
+
+# A piece's column: its length, how long its command has been in force at its start, the
+# motors' decay over it and the share of the step they make on average, then its command's
+# numbers (SentCommand.fc_law).
+_LAW = 4
+_PIECE_ROWS = _LAW + 4 + 3 + 3 + 12 + 16
+_IDLE_PIECE = np.zeros(_PIECE_ROWS)
+_IDLE_PIECE[2] = 1.0                # no time: the state and the motors stay (no division by its length)
+
+
+def _fc_law(command: SentCommand) -> np.ndarray:
+    """The command's numbers as a piece takes them: its thrusts, its rate feedback's planned
+    rates, their change and its gain (column-major), its cover's gain (column-major); zeros
+    for a feedback or a cover it does not have."""
+    fb, cover = command.feedback, command.cover
+    return np.concatenate([
+        command.thrust_n,
+        *((fb.rates_ref_frd_rad_s, fb.rates_ref_change_frd_rad_s2, fb.gain_n_per_rad_s.ravel(order="F"))
+          if fb is not None else (np.zeros(3), np.zeros(3), np.zeros(12))),
+        cover.gain.ravel(order="F") if cover is not None else np.zeros(16)])
+
+
+def _flow(af: Airframe, f: ca.Function, period_s: float, pieces: int) -> ca.Function:
+    """(x, thrust, d, bound; pieces: one column a piece) -> (x, thrust) after the pieces.
+    A piece: the FC's command (m4.setpoint: the thrusts sent plus the rate feedback on the
+    state's rates, within the rotors' range, plus the cover for what the bounds hold back,
+    within the bounds), the motors' first-order lag towards it, the ROM's RK4 under their
+    average thrust, the hips on their goal."""
+    x, thrust = ca.SX.sym("x", NX), ca.SX.sym("thrust", ROTOR_COUNT)
+    d, bound, piece = ca.SX.sym("d", ND), ca.SX.sym("bound", ROTOR_COUNT), ca.SX.sym("piece", _PIECE_ROWS)
+    h, in_force_s, decay, average = (piece[i] for i in range(_LAW))
+    sent, ref, ref_change = piece[_LAW:_LAW + 4], piece[_LAW + 4:_LAW + 7], piece[_LAW + 7:_LAW + 10]
+    gain = ca.reshape(piece[_LAW + 10:_LAW + 22], ROTOR_COUNT, 3)
+    cover = ca.reshape(piece[_LAW + 22:], ROTOR_COUNT, ROTOR_COUNT)
+    rates_ref = ref + ref_change * ca.fmin(ca.fmax(in_force_s, 0.0), period_s)
+    command = ca.fmin(ca.fmax(sent + ca.mtimes(gain, rates_ref - x[rom.RATES]), af.thrust_min_n), af.thrust_max_n)
+    command = command + ca.mtimes(cover, ca.fmax(command - bound, 0.0))
+    command = ca.fmin(ca.fmax(command, af.thrust_min_n), bound)
+    u = ca.vertcat(thrust + (command - thrust) * average, ca.DM.zeros(ROTOR_COUNT))
+    fly = ca.Function("m4_prediction_piece", [x, thrust, piece, d, bound],
+                      [rom.rk4(f, x, u, d, h, _SUBSTEPS), command + (thrust - command) * decay])
+    stay = ca.Function("m4_prediction_idle", [x, thrust, piece, d, bound], [x, thrust])
+    either = ca.Function.conditional("m4_prediction_step", [stay], fly)       # an idle piece costs a branch
+    X, T = ca.MX.sym("x", NX), ca.MX.sym("thrust", ROTOR_COUNT)
+    D, B, PIECE = ca.MX.sym("d", ND), ca.MX.sym("bound", ROTOR_COUNT), ca.MX.sym("piece", _PIECE_ROWS)
+    step = ca.Function("m4_prediction_next", [X, T, PIECE, D, B], either(PIECE[0] > 0, X, T, PIECE, D, B))
+    chained = step.mapaccum("m4_prediction_pieces", pieces, 2)
+    PIECES = ca.MX.sym("pieces", _PIECE_ROWS, pieces)
+    xs, thrusts = chained(X, T, PIECES, ca.repmat(D, 1, pieces), ca.repmat(B, 1, pieces))
+    return ca.Function(f"m4_prediction_{pieces}", [X, T, D, B, PIECES], [xs[:, -1], thrusts[:, -1]],
+                       ["x", "thrust", "d", "bound", "pieces"], ["x_end", "thrust_end"])

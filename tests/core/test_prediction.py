@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -28,7 +31,10 @@ def test_the_command_in_force_is_the_newest_one_that_has_reached_the_fc():
     assert history.in_force(0.08, 0.0).time_s == pytest.approx(0.08)
     assert history.in_force(0.08, 0.05).time_s == pytest.approx(0.02)      # 0.02 + 0.05 <= 0.08 < 0.04 + 0.05
     assert history.in_force(0.04, 0.05) is None                              # none of ours arrived yet
-    assert history.acting_from(0.08, 0.13, 0.05) == pytest.approx([0.09, 0.11])
+    flown = history.in_flight(0.08, 0.13, 0.05)                             # in force at 0.08, then two take over
+    assert [start for start, _ in flown] == pytest.approx([0.08, 0.09, 0.11])
+    assert [c.time_s for _, c in flown] == pytest.approx([0.02, 0.04, 0.06])
+    assert history.in_flight(0.04, 0.1, 0.05) == []
 
 
 def test_commands_older_than_the_history_are_forgotten():
@@ -131,3 +137,68 @@ def test_the_fcs_cover_for_a_rotor_asked_beyond_its_bound_is_predicted():
         rates[name] = np.linalg.norm(predicted[rom.RATES][:2])
     assert rates["without"] > 0.5
     assert rates["with"] < 0.05
+
+
+def loop_prediction(x, time_s, lead_s, commands, d, bound_n, thrust_now_n=None):
+    """The prediction as a Python loop over its pieces (the route before it was compiled, main
+    061eb30): each piece's command from m4.setpoint's own RateFeedback and ShortfallCover,
+    one RK4 flow (two substeps) a piece, the motors' lag between."""
+    def in_force(t_s):
+        return [c for c in commands if c.time_s + lead_s <= t_s + 1e-6][-1]
+
+    sym = [ca.SX.sym(name, n) for name, n in (("x", rom.NX), ("u", rom.NU), ("d", rom.ND), ("dt", 1))]
+    flow = ca.Function("flow", sym, [rom.rk4(F, *sym[:3], sym[3], 2)])
+    end_s, tau = time_s + lead_s, AF.motor_time_constant_s
+    edges = [time_s, *[c.time_s + lead_s for c in commands if time_s + 1e-6 < c.time_s + lead_s < end_s - 1e-6], end_s]
+    thrust = np.minimum(in_force(time_s).thrust_n, bound_n)
+    if thrust_now_n is not None:
+        thrust = np.where(np.isfinite(thrust_now_n), thrust_now_n, thrust)
+    xk = np.array(x, dtype=float)
+    for a, b in zip(edges[:-1], edges[1:]):
+        sent = in_force(a)
+        pieces = max(1, math.ceil((b - a) / 0.01 - 1e-9))
+        h = (b - a) / pieces
+        decay = math.exp(-h / tau)
+        for k in range(pieces):
+            command = sent.thrust_n
+            if sent.feedback is not None:
+                command = command + sent.feedback.thrust_change_n(xk[rom.RATES], a + k * h - sent.time_s - lead_s, PERIOD)
+            command = command.clip(AF.thrust_min_n, AF.thrust_max_n)
+            if sent.cover is not None:
+                command = command + sent.cover.thrust_change_n(np.maximum(command - bound_n, 0.0))
+            command = command.clip(AF.thrust_min_n, bound_n)
+            u = np.r_[thrust + (command - thrust) * (1.0 - tau / h * (1.0 - decay)), np.zeros(4)]
+            xk = np.asarray(flow(xk, u, d, h)).ravel()
+            thrust = command + (thrust - command) * decay
+    xk[rom.HIP], xk[rom.HIP_RATE] = x[rom.HIP], x[rom.HIP_RATE]
+    return xk
+
+
+@pytest.mark.parametrize("codegen", [False, True])
+def test_the_pieces_flown_in_one_call_predict_what_a_loop_over_them_does(codegen):
+    """Commands with and without rate feedback and cover, a rotor bounded below its commands,
+    leads that change from step to step and put the commands' arrivals inside the 10 ms
+    pieces, one piece to a lead of more pieces than a call flies (three calls): the same
+    state as the loop, to rounding."""
+    rng = np.random.default_rng(21)
+    x = rom.hover_state(AF)
+    x[rom.V], x[rom.RATES], x[rom.EULER] = [0.4, -0.2, 0.3], [0.6, -0.4, 0.2], [0.05, -0.03, 0.2]
+    gain = RateFeedbackDesign(AF, 20.0).gain(x[rom.HIP], NO_FAULT)
+    cover = RateFeedbackDesign(AF, 0.0, shortfall_cover=True).cover(x[rom.HIP], False)
+    commands = [SentCommand(k * PERIOD, x, np.r_[AF.hover_thrust_per_rotor_n + rng.normal(0.0, 1.5, 4), np.zeros(4)],
+                            RateFeedback(rng.normal(0.0, 0.3, 3), rng.normal(0.0, 2.0, 3), gain) if k % 3 else None,
+                            cover if k % 4 else None)
+                for k in range(40)]
+    history = CommandHistory()
+    for c in commands:
+        history.add(c)
+    predictor = Predictor(AF, F, PERIOD, codegen=codegen, pieces_per_call=8)
+    d = rng.normal(0.0, 0.5, rom.ND)
+    bound = np.array([AF.thrust_max_n, AF.thrust_max_n, 6.0, AF.thrust_max_n])      # rotor 3 short of its commands
+    now = commands[-1].time_s + 0.0031
+    for lead, thrust_now in ((0.0437, None), (0.1, [9.0, np.nan, 5.0, 11.0]), (0.004, None), (0.0952, None),
+                             (0.2503, np.full(4, AF.hover_thrust_per_rotor_n))):
+        expected = loop_prediction(x, now, lead, commands, d, bound, thrust_now)
+        predicted = predictor.predict(x, now, lead, history, d, bound, thrust_now)
+        np.testing.assert_allclose(predicted, expected, rtol=0.0, atol=1e-12, err_msg=f"lead {lead}")
+        assert np.abs(expected - x).max() > 1e-3              # the lead moved the state: not the measured one back
