@@ -118,8 +118,8 @@ class Predictor:
         self._af = af
         flow = _flow(af, f, period_s, pieces_per_call)
         self._flow = BufferedFunction(compiled(flow) if codegen else flow, parameters=1)
-        self._pieces = self._flow.buffer("pieces").reshape(pieces_per_call, _PIECE_ROWS)   # a row a piece (a column of the
-        self._pieces[:] = _IDLE_PIECE                                                       # function's column-major input)
+        # a row a piece here: a column of the function's input, which is column-major
+        self._pieces = self._flow.buffer("pieces").reshape(pieces_per_call, _PIECE_ROWS)
 
     def predict(self, x, time_s: float, lead_s: float, history: CommandHistory, disturbance,
                 thrust_bound_n, thrust_now_n=None) -> np.ndarray:
@@ -153,7 +153,7 @@ class Predictor:
             n = min(len(rows), len(laws) - first)
             rows[:n, :_LAW] = timing[first:first + n]
             rows[:n, _LAW:] = laws[first:first + n]
-            rows[n:] = _IDLE_PIECE
+            rows[n:] = 0.0                # no length: idle
             xk, thrust = (r.copy() for r in self._flow.evaluate(xk, thrust, disturbance, bound))
         if not np.isfinite(xk).all():
             return x.copy()
@@ -166,8 +166,6 @@ class Predictor:
 # numbers (SentCommand.fc_law).
 _LAW = 4
 _PIECE_ROWS = _LAW + 4 + 3 + 3 + 12 + 16
-_IDLE_PIECE = np.zeros(_PIECE_ROWS)
-_IDLE_PIECE[2] = 1.0                # no time: the state and the motors stay (no division by its length)
 
 
 def _fc_law(command: SentCommand) -> np.ndarray:

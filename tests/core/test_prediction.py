@@ -178,15 +178,15 @@ def loop_prediction(x, time_s, lead_s, commands, d, bound_n, thrust_now_n=None):
 def test_the_pieces_flown_in_one_call_predict_what_a_loop_over_them_does(codegen):
     """Commands with and without rate feedback and cover, a rotor bounded below its commands,
     leads that change from step to step and put the commands' arrivals inside the 10 ms
-    pieces, one piece to a lead of more pieces than a call flies (three calls): the same
-    state as the loop, to rounding."""
+    pieces, one piece to a lead of more pieces than a call flies (three calls), a command in
+    force longer than its period: the same state as the loop, to rounding."""
     rng = np.random.default_rng(21)
     x = rom.hover_state(AF)
     x[rom.V], x[rom.RATES], x[rom.EULER] = [0.4, -0.2, 0.3], [0.6, -0.4, 0.2], [0.05, -0.03, 0.2]
     gain = RateFeedbackDesign(AF, 20.0).gain(x[rom.HIP], NO_FAULT)
     cover = RateFeedbackDesign(AF, 0.0, shortfall_cover=True).cover(x[rom.HIP], False)
     commands = [SentCommand(k * PERIOD, x, np.r_[AF.hover_thrust_per_rotor_n + rng.normal(0.0, 1.5, 4), np.zeros(4)],
-                            RateFeedback(rng.normal(0.0, 0.3, 3), rng.normal(0.0, 2.0, 3), gain) if k % 3 else None,
+                            RateFeedback(rng.normal(0.0, 0.3, 3), rng.normal(0.0, 2.0, 3), gain) if k % 3 != 1 else None,
                             cover if k % 4 else None)
                 for k in range(40)]
     history = CommandHistory()
@@ -195,10 +195,12 @@ def test_the_pieces_flown_in_one_call_predict_what_a_loop_over_them_does(codegen
     predictor = Predictor(AF, F, PERIOD, codegen=codegen, pieces_per_call=8)
     d = rng.normal(0.0, 0.5, rom.ND)
     bound = np.array([AF.thrust_max_n, AF.thrust_max_n, 6.0, AF.thrust_max_n])      # rotor 3 short of its commands
-    now = commands[-1].time_s + 0.0031
-    for lead, thrust_now in ((0.0437, None), (0.1, [9.0, np.nan, 5.0, 11.0]), (0.004, None), (0.0952, None),
-                             (0.2503, np.full(4, AF.hover_thrust_per_rotor_n))):
+    newest = commands[-1].time_s
+    for now, lead, thrust_now in ((newest + 0.0031, 0.0437, None), (newest + 0.0031, 0.1, [9.0, np.nan, 5.0, 11.0]),
+                                  (newest + 0.0031, 0.004, None), (newest + 0.0031, 0.0952, None),
+                                  (newest + 0.0031, 0.2503, np.full(4, AF.hover_thrust_per_rotor_n)),
+                                  (newest + 0.045, 0.06, None)):     # the newest in force beyond its period
         expected = loop_prediction(x, now, lead, commands, d, bound, thrust_now)
         predicted = predictor.predict(x, now, lead, history, d, bound, thrust_now)
-        np.testing.assert_allclose(predicted, expected, rtol=0.0, atol=1e-12, err_msg=f"lead {lead}")
+        np.testing.assert_allclose(predicted, expected, rtol=0.0, atol=1e-12, err_msg=f"at {now} s, lead {lead} s")
         assert np.abs(expected - x).max() > 1e-3              # the lead moved the state: not the measured one back
