@@ -12,7 +12,7 @@ from companion.core import rom
 from companion.core.prediction import HISTORY_S, CommandHistory, Predictor, SentCommand
 from companion.core.rate_feedback import RateFeedbackDesign
 from m4.airframe import load_airframe
-from m4.setpoint import RateFeedback
+from m4.setpoint import RateFeedback, ShortfallCover
 
 AF = load_airframe()
 PERIOD = 0.02
@@ -184,7 +184,7 @@ def test_the_pieces_flown_in_one_call_predict_what_a_loop_over_them_does(codegen
     x = rom.hover_state(AF)
     x[rom.V], x[rom.RATES], x[rom.EULER] = [0.4, -0.2, 0.3], [0.6, -0.4, 0.2], [0.05, -0.03, 0.2]
     gain = RateFeedbackDesign(AF, 20.0).gain(x[rom.HIP], NO_FAULT)
-    cover = RateFeedbackDesign(AF, 0.0, shortfall_cover=True).cover(x[rom.HIP], False)
+    cover = ShortfallCover(rng.normal(0.0, 0.5, (4, 4)))                 # any gain the setpoint can carry
     commands = [SentCommand(k * PERIOD, x, np.r_[AF.hover_thrust_per_rotor_n + rng.normal(0.0, 1.5, 4), np.zeros(4)],
                             RateFeedback(rng.normal(0.0, 0.3, 3), rng.normal(0.0, 2.0, 3), gain) if k % 3 != 1 else None,
                             cover if k % 4 else None)
