@@ -1,7 +1,7 @@
 """Speed of the whole loop (plant and companion, lockstep): simulated seconds per wall second.
 
     python -m benchmarks.fly [--scenario NAME] [--rate-hz HZ]... [--priority P] [--feed-rate-hz HZ] [--realtime]
-                             [--companion-cpus LIST] [--sitl-cpus LIST] [--keep DIR]
+                             [--companion-cpus LIST] [--sitl-cpus LIST] [--link-delay-ms MS] [--keep DIR]
 
 flies the scenario once per control rate (default 50 Hz) without figures and prints, per rate:
 - the real-time factor of the whole loop (wall clock: noisy on a shared machine);
@@ -26,7 +26,8 @@ companion wakes for what arrives and sleeps between; the CPU per step and the an
 the robot's (the real-time factor says only that it kept up: 1.0x). `--companion-cpus 1
 --sitl-cpus 0` pins each process, every thread of it, to those CPUs (comma-separated), to
 measure what the placement does (on the robot the FC is other hardware; here the SITL shares
-the machine).
+the machine). `--link-delay-ms 50` puts 50 ms each way between the two (as `m4-sitl fly`'s
+option): the companion then predicts the state through the setpoints in flight, as on the robot.
 """
 
 from __future__ import annotations
@@ -40,8 +41,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from m4.toml_fields import ConfigError
+from sitl.cli_args import link_delay_ms
 from sitl.flights.flight_run import FlightError, FlightFiles, FlightOptions
 from sitl.flights.fly import fly
+from sitl.links.emulation import LinkEmulation
 
 TARGET_FACTOR = 10.0
 _SITL_CPU = re.compile(r"CPU ([0-9.]+) s \(")
@@ -77,13 +80,14 @@ def _last_match(pattern: re.Pattern, path: Path) -> float | None:
 
 def bench_line(scenario: str, rate_hz: float, out_dir: Path, priority: int = 0, feed_rate_hz: float = 0.0,
                realtime: bool = False, companion_cpus: frozenset[int] = frozenset(),
-               sitl_cpus: frozenset[int] = frozenset()) -> str:
+               sitl_cpus: frozenset[int] = frozenset(), link_delay_ms: float = 0.0) -> str:
     """Fly once at `rate_hz` into `out_dir` (both processes in SCHED_FIFO `priority`, 0: normal;
     the companion's feed at most `feed_rate_hz` per topic, 0: every step; paced by the wall clock
-    with `realtime`; each process pinned to its CPUs, none: anywhere); the figures in one paragraph."""
+    with `realtime`; each process pinned to its CPUs, none: anywhere; `link_delay_ms` each way
+    between them); the figures in one paragraph."""
     options = FlightOptions(rate_hz=rate_hz, companion_priority=priority, sitl_priority=priority,
                             feed_rate_hz=feed_rate_hz, realtime=realtime, companion_cpus=companion_cpus,
-                            sitl_cpus=sitl_cpus)
+                            sitl_cpus=sitl_cpus, link=LinkEmulation(delay_ms=link_delay_ms) if link_delay_ms else None)
     m = fly(scenario, out_dir, options, figures=False, progress=False)
     costs = loop_costs(FlightFiles(out_dir))
     period_ms, factor, n = 1e3 / rate_hz, m["realtime_factor"], m["nmpc"]
@@ -91,7 +95,8 @@ def bench_line(scenario: str, rate_hz: float, out_dir: Path, priority: int = 0, 
              f"{'paced by the wall clock' if realtime else 'lockstep'}"
              f"{f', SCHED_FIFO {priority}' if priority else ''}"
              f"{f', feed at most {feed_rate_hz:g} Hz a topic' if feed_rate_hz else ''}"
-             f"{_placement('companion', companion_cpus)}{_placement('SITL', sitl_cpus)}): "
+             f"{_placement('companion', companion_cpus)}{_placement('SITL', sitl_cpus)}"
+             f"{f', link delay {link_delay_ms:g} ms each way' if link_delay_ms else ''}): "
              f"{factor:.1f}x real time; survived: {m['survived']}; "
              f"NMPC solve median {n['solve_ms_median']:.2f} ms, p99 {n['solve_ms_p99']:.1f} ms"]
     if costs is None:
@@ -146,6 +151,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="pin the companion, every thread, to these CPUs, e.g. 1 (default: anywhere)")
     parser.add_argument("--sitl-cpus", metavar="LIST", default="",
                         help="pin the SITL, every thread, to these CPUs, e.g. 0 (default: anywhere)")
+    parser.add_argument("--link-delay-ms", type=link_delay_ms, default=0.0, metavar="MS",
+                        help="delay on the companion's link each way, as m4-sitl fly's (default 0)")
     parser.add_argument("--keep", type=Path, metavar="DIR", help="keep the flights' folders in DIR (default: "
                                                                  "a temporary folder)")
     args = parser.parse_args(argv)
@@ -163,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
         for rate in args.rate_hz or (50.0,):
             try:
                 print(bench_line(args.scenario, rate, root / f"{rate:g}hz", args.priority, args.feed_rate_hz,
-                                 args.realtime, *placement), flush=True)
+                                 args.realtime, *placement, args.link_delay_ms), flush=True)
             except (ConfigError, FlightError) as e:
                 print(f"python -m benchmarks.fly: error: {e}", file=sys.stderr)
                 return 2
