@@ -29,7 +29,7 @@ from companion.core import rom
 from companion.core.casadi_call import BufferedFunction
 from companion.core.codegen_cache import compiled
 from companion.core.control_types import thrust_bounds
-from companion.core.rom import ND, NU, NX
+from companion.core.rom import ND, NX
 from m4.airframe import ROTOR_COUNT, Airframe
 from m4.setpoint import RateFeedback, ShortfallCover
 

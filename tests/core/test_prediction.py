@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import casadi as ca
@@ -154,7 +155,7 @@ def loop_prediction(x, time_s, lead_s, commands, d, bound_n, thrust_now_n=None):
     if thrust_now_n is not None:
         thrust = np.where(np.isfinite(thrust_now_n), thrust_now_n, thrust)
     xk = np.array(x, dtype=float)
-    for a, b in zip(edges[:-1], edges[1:]):
+    for a, b in itertools.pairwise(edges):
         sent = in_force(a)
         pieces = max(1, math.ceil((b - a) / 0.01 - 1e-9))
         h = (b - a) / pieces
