@@ -188,7 +188,7 @@ def _flow(af: Airframe, f: ca.Function, period_s: float, pieces: int) -> ca.Func
     average thrust, the hips on their goal."""
     x, thrust = ca.SX.sym("x", NX), ca.SX.sym("thrust", ROTOR_COUNT)
     d, bound, piece = ca.SX.sym("d", ND), ca.SX.sym("bound", ROTOR_COUNT), ca.SX.sym("piece", _PIECE_ROWS)
-    h, in_force_s, decay, average = (piece[i] for i in range(_LAW))
+    length_s, in_force_s, decay, average = (piece[i] for i in range(_LAW))
     sent, ref, ref_change = piece[_LAW:_LAW + 4], piece[_LAW + 4:_LAW + 7], piece[_LAW + 7:_LAW + 10]
     gain = ca.reshape(piece[_LAW + 10:_LAW + 22], ROTOR_COUNT, 3)
     cover = ca.reshape(piece[_LAW + 22:], ROTOR_COUNT, ROTOR_COUNT)
@@ -198,14 +198,15 @@ def _flow(af: Airframe, f: ca.Function, period_s: float, pieces: int) -> ca.Func
     command = ca.fmin(ca.fmax(command, af.thrust_min_n), bound)
     u = ca.vertcat(thrust + (command - thrust) * average, ca.DM.zeros(ROTOR_COUNT))
     fly = ca.Function("m4_prediction_piece", [x, thrust, piece, d, bound],
-                      [rom.rk4(f, x, u, d, h, _SUBSTEPS), command + (thrust - command) * decay])
+                      [rom.rk4(f, x, u, d, length_s, _SUBSTEPS), command + (thrust - command) * decay])
     stay = ca.Function("m4_prediction_idle", [x, thrust, piece, d, bound], [x, thrust])
     either = ca.Function.conditional("m4_prediction_step", [stay], fly)       # an idle piece costs a branch
-    X, T = ca.MX.sym("x", NX), ca.MX.sym("thrust", ROTOR_COUNT)
-    D, B, PIECE = ca.MX.sym("d", ND), ca.MX.sym("bound", ROTOR_COUNT), ca.MX.sym("piece", _PIECE_ROWS)
-    step = ca.Function("m4_prediction_next", [X, T, PIECE, D, B], either(PIECE[0] > 0, X, T, PIECE, D, B))
+    x_in, thrust_in, d_in = ca.MX.sym("x", NX), ca.MX.sym("thrust", ROTOR_COUNT), ca.MX.sym("d", ND)
+    bound_in, piece_in = ca.MX.sym("bound", ROTOR_COUNT), ca.MX.sym("piece", _PIECE_ROWS)
+    step = ca.Function("m4_prediction_next", [x_in, thrust_in, piece_in, d_in, bound_in],
+                       either(piece_in[0] > 0, x_in, thrust_in, piece_in, d_in, bound_in))
     chained = step.mapaccum("m4_prediction_pieces", pieces, 2)
-    PIECES = ca.MX.sym("pieces", _PIECE_ROWS, pieces)
-    xs, thrusts = chained(X, T, PIECES, ca.repmat(D, 1, pieces), ca.repmat(B, 1, pieces))
-    return ca.Function(f"m4_prediction_{pieces}", [X, T, D, B, PIECES], [xs[:, -1], thrusts[:, -1]],
-                       ["x", "thrust", "d", "bound", "pieces"], ["x_end", "thrust_end"])
+    pieces_in = ca.MX.sym("pieces", _PIECE_ROWS, pieces)
+    xs, thrusts = chained(x_in, thrust_in, pieces_in, ca.repmat(d_in, 1, pieces), ca.repmat(bound_in, 1, pieces))
+    return ca.Function(f"m4_prediction_{pieces}", [x_in, thrust_in, d_in, bound_in, pieces_in],
+                       [xs[:, -1], thrusts[:, -1]], ["x", "thrust", "d", "bound", "pieces"], ["x_end", "thrust_end"])
