@@ -37,15 +37,25 @@ def _compiler() -> str:
 
 def compiled(fn: ca.Function) -> ca.Function:
     """The same function as `fn`, loaded from a cached compiled library (built if missing)."""
+    return ca.external(fn.name(), str(compiled_library(fn.name(), [fn])))
+
+
+def compiled_library(name: str, fns: list[ca.Function], sources: tuple[Path, ...] = (),
+                     flags: tuple[str, ...] = ()) -> Path:
+    """The cached shared library (built if missing) of the C CasADi generates for `fns`, with the
+    C files `sources` of ours and the compiler's `flags` (include folders, macros, libraries to
+    link: after the sources). Its key hashes all of them too."""
     cc = _compiler()
     with tempfile.TemporaryDirectory(prefix="m4-codegen-") as tmp:
-        src_name = f"{fn.name()}.c"
+        src_name = f"{name}.c"
         gen = ca.CodeGenerator(src_name, {"with_header": False})
-        gen.add(fn)
+        for fn in fns:
+            gen.add(fn)
         gen.generate(tmp + os.sep)
-        source = Path(tmp, src_name).read_bytes()
-        key = hashlib.sha256(source + " ".join((cc, *COMPILER_FLAGS, ca.__version__)).encode()).hexdigest()[:16]
-        lib = cache_dir() / f"{fn.name()}_{key}.so"
+        paths = [Path(tmp, src_name), *sources]
+        code = b"".join(path.read_bytes() for path in paths)
+        key = hashlib.sha256(code + " ".join((cc, *COMPILER_FLAGS, *flags, ca.__version__)).encode()).hexdigest()[:16]
+        lib = cache_dir() / f"{name}_{key}.so"
         if not lib.exists():
             try:
                 lib.parent.mkdir(parents=True, exist_ok=True)
@@ -54,13 +64,13 @@ def compiled(fn: ca.Function) -> ca.Function:
                                    f"set {CACHE_ENV} to a writable one") from None
             partial = lib.with_suffix(f".{os.getpid()}.tmp")
             try:
-                result = subprocess.run([cc, *COMPILER_FLAGS, "-o", str(partial), str(Path(tmp, src_name)), "-lm"],
+                result = subprocess.run([cc, *COMPILER_FLAGS, "-o", str(partial), *map(str, paths), *flags, "-lm"],
                                         capture_output=True, text=True, check=False)
             except OSError as e:
                 raise CodegenError(f"cannot run the C compiler {cc} ({e.strerror}): install gcc, or set "
                                    f"[nmpc] codegen = false") from None
             if result.returncode != 0:
                 partial.unlink(missing_ok=True)
-                raise CodegenError(f"compiling {fn.name()} failed: {result.stderr.strip()[:2000]}")
+                raise CodegenError(f"compiling {name} failed: {result.stderr.strip()[:2000]}")
             os.replace(partial, lib)
-    return ca.external(fn.name(), str(lib))
+    return lib
