@@ -56,17 +56,26 @@ class BufferedFunction:
     def evaluate(self, *args) -> list[np.ndarray]:
         """Each output's structural nonzeros in column-major order: the buffers themselves,
         overwritten by the next call."""
+        self.set_inputs(*args)
+        self._evaluate()
+        if self._buffer.ret() != 0:
+            for arr in self._results:
+                arr.fill(np.nan)
+        return self._results
+
+    def set_inputs(self, *args) -> None:
+        """The inputs of the next evaluation, as for a call, into their buffers."""
         try:
             for buffer, value in zip(self._inputs, args, strict=True):
                 _write(buffer, value)
         except ValueError:
             self._check_sizes(args)                # naming the input; nothing spent on a call that fits
             raise
-        self._evaluate()
-        if self._buffer.ret() != 0:
-            for arr in self._results:
-                arr.fill(np.nan)
-        return self._results
+
+    def buffers(self) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """(every input's buffer, every output's), in the function's order: for compiled code
+        that evaluates the function itself on them."""
+        return self._args, self._results
 
     def buffer(self, name: str) -> np.ndarray:
         """The buffer of the parameter `name` (its entries in column-major order)."""

@@ -85,3 +85,11 @@ def test_a_value_of_the_wrong_size_is_refused_in_one_line_naming_it_and_the_size
         fn.set_parameters(p=1.0)                   # not spread over the matrix
     with pytest.raises(ValueError, match="^BufferedFunction: input x of m4_test_params takes 2 floats, not 3$"):
         fn(np.ones(3))
+
+
+def test_the_inputs_are_written_where_compiled_code_reads_them_and_the_results_lie_where_it_writes():
+    fn = BufferedFunction(model())
+    inputs, results = fn.buffers()
+    fn.set_inputs(np.array([0.3, -1.2, 2.5]), 0.7)
+    assert np.array_equal(inputs[0], [0.3, -1.2, 2.5]) and np.array_equal(inputs[1], [0.7])
+    assert all(got is kept for got, kept in zip(fn.evaluate(inputs[0].copy(), 0.7), results, strict=True))
