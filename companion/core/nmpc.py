@@ -49,6 +49,7 @@ from companion.core.feedback_qp import NO_BOUND
 from companion.core.nmpc_config import NmpcConfig
 from companion.core.nmpc_targets import hover_targets
 from companion.core.rti import PreparedQp, RtiFeedback, prepare_qp
+from companion.core.rti_compiled import INVALID_INPUT
 from companion.core.rom import ND, NU, NX
 
 _MERIT_PENALTY = 1e4         # per unit of state-constraint violation, in the line search
@@ -125,7 +126,7 @@ class Nmpc:
         if config.scheme == "rti":
             self._rti_rollout = Linearisation(build(linearisation(self.rom.step, n, disturbance_jacobian=True)), n)
             self._advance = BufferedFunction(build(rom.rk4_step(self.rom.f, tau, config.rk4_substeps)))
-            self._feedback = RtiFeedback(targets, n, self._qp_rows, self._sense, _DAQP_ITER_LIMIT, build)
+            self._feedback = RtiFeedback(targets, n, self._qp_rows, self._sense, _DAQP_ITER_LIMIT, config.codegen)
         self._guess: np.ndarray | None = None
         self._duals: np.ndarray | None = None
         # The warm start: the previous plan shifted by warm_start_shift stages, interpolated
@@ -260,15 +261,15 @@ class Nmpc:
                     return self._fallback(x0, lo, hi, "qp_failed", 1, t0)
         self._prepared = None
         feedback = self._feedback
-        grad, upper, lower, _, inputs_sum = feedback.qp(x0, x_ref, d, lo, hi)
-        # Not finite: an entry of x0 or x_ref is not, or finite entries' sum overflows (then labelled
+        flag = feedback.solve(x0, x_ref, d, lo, hi)
+        # Invalid: an entry of x0 or x_ref is not finite, or finite entries' sum overflows (then labelled
         # "invalid_input" where the solve would have said "qp_failed": only the label; the same fallback).
-        if not math.isfinite(inputs_sum[0]):
+        if flag == INVALID_INPUT:
             return self._fallback(x0, lo, hi, "invalid_input", 0, t0)
-        step, flag, self._duals = feedback.solver.solve(grad, upper, lower)
+        self._duals = feedback.duals
         if flag not in _DAQP_OK:
             return self._fallback(x0, lo, hi, "qp_failed", 1, t0)
-        us, xs, cost = feedback.plan(step)
+        us, xs, cost = feedback.planned()
         if not math.isfinite(cost):               # a step, state or input that is not finite makes it so
             return self._fallback(x0, lo, hi, "qp_failed", 1, t0)
         self._guess = us.copy()

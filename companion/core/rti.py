@@ -11,16 +11,18 @@ gradient by the change of the targets: the QP the preparation would have built a
 arrived state, to first order (initial-value embedding). It solves it with DAQP and takes
 the full step.
 
-The feedback is three calls (`RtiFeedback`): one compiled function from the arrived state,
-reference, disturbance and input bounds to the QP's gradient and bounds (the targets inside
-it); the DAQP workspace the preparation loaded; one compiled function from the step to the
-plan (inputs, predicted states) and its cost. What the preparation fixed is written into the
-two functions' parameter buffers at the preparation, not at the feedback.
+The feedback (`RtiFeedback`) is two CasADi functions and a DAQP workspace: `moved`, from the
+arrived state, reference, disturbance and input bounds to the QP's gradient and bounds (the
+targets inside it); DAQP's solve on the workspace the preparation loaded; `plan`, from the
+step to the plan (inputs, predicted states) and its cost. Compiled (`[nmpc] codegen`, the
+default), the three are ONE call into C (companion.core.rti_compiled); else three calls from
+Python (DAQP's Python binding, companion.core.feedback_qp). What the preparation fixed is
+written into the two functions' parameter buffers at the preparation, not at the feedback.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import math
 from dataclasses import dataclass
 from math import pi
 
@@ -28,9 +30,11 @@ import casadi as ca
 import numpy as np
 
 from companion.core.casadi_call import BufferedFunction
+from companion.core.codegen_cache import compiled
 from companion.core.condensing import Linearisation, QpRows, TrackingCost, sensitivities_and_parameters
 from companion.core.feedback_qp import NO_BOUND, FeedbackQp
 from companion.core.rom import EULER, ND, NU, NX
+from companion.core.rti_compiled import INVALID_INPUT, CompiledFeedback, feedback_library
 
 _YAW = EULER.stop - 1
 
@@ -71,14 +75,21 @@ def prepare_qp(rollout: Linearisation, cost: TrackingCost, rows: QpRows, x0: np.
 
 class RtiFeedback:
     """The feedback phase of the real-time iteration over `horizon` stages with the QP's rows
-    `rows`: `load` a prepared QP (off the critical path), then `qp` at the arrived state, DAQP's
-    `solve`, and `plan` from its step. build: how the two CasADi functions are made ready
-    (compiled to C, or as they are)."""
+    `rows`: `load` a prepared QP (off the critical path), then `solve` at the arrived state and
+    read the `planned` inputs and states. codegen: the two CasADi functions and DAQP compiled
+    to C, one call (when the library can be built; else the functions compiled, DAQP from
+    Python), or all three from Python."""
 
     def __init__(self, targets: ca.Function, horizon: int, rows: QpRows, sense: np.ndarray, iter_limit: int,
-                 build: Callable[[ca.Function], ca.Function]):
+                 codegen: bool):
         self.horizon = horizon
         moved, plan = feedback_functions(targets, horizon, rows)
+        library = feedback_library(moved, plan, codegen)
+        if library is not None:
+            def build(fn: ca.Function) -> ca.Function:
+                return ca.external(fn.name(), str(library))       # the library's own, for `qp` and `plan`
+        else:
+            build = compiled if codegen else (lambda fn: fn)
         self._moved = BufferedFunction(build(moved), parameters=moved.n_in() - _MOVED_INPUTS)
         self._plan = BufferedFunction(build(plan), parameters=plan.n_in() - 1,       # all but the step
                                       shared={"gamma": self._moved.buffer("gamma"),   # one Gamma: 32 kB at N = 5
@@ -86,7 +97,9 @@ class RtiFeedback:
         self._moved.set_parameters(rows_lo=rows.lo, rows_hi=rows.hi)
         self._bounds: tuple[np.ndarray, np.ndarray] | None = None    # the input bounds in the parameters
         self._cost: TrackingCost | None = None                        # the cost whose weights are in them
-        self.solver = FeedbackQp(horizon * NU, sense, iter_limit)
+        self.solver = FeedbackQp(horizon * NU, sense, iter_limit) if library is None else \
+            CompiledFeedback(library, self._moved, self._plan, horizon * NU, sense, iter_limit)
+        self.duals = np.zeros(sense.size)          # the last solve's
 
     def load(self, prep: PreparedQp, warm: bool) -> None:
         """The next feedback's QP: prep's Hessian and rows into DAQP (warm: from the last solve's
@@ -103,25 +116,50 @@ class RtiFeedback:
             self._plan.set_parameters(state_w=cost.state_w.ravel(), input_w=np.tile(cost.input_w, self.horizon))
             self._cost = cost
 
-    def qp(self, x0: np.ndarray, x_ref: np.ndarray, d: np.ndarray, lo: np.ndarray,
-           hi: np.ndarray) -> list[np.ndarray]:
+    def solve(self, x0: np.ndarray, x_ref: np.ndarray, d: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> int:
         """The loaded QP moved to the initial state x0 (20,), reference x_ref (N+1, 20) and
         disturbance d (6,), under the input bounds lo, hi (8,; read-only: kept while they are the
-        same arrays): [gradient (N*8,), upper and lower bounds (N*8 + m,) on the step, what
-        `plan` takes on from here (read where it lies), the sum of x0's and x_ref's entries (1,:
-        finite when they all are, and not either when they are but their sum overflows)]. The
-        arrays are buffers that the next call overwrites."""
-        if self._bounds is None or self._bounds[0] is not lo or self._bounds[1] is not hi:
-            self._moved.set_parameters(lo=lo, hi=hi)
-            self._bounds = (lo, hi)
+        same arrays), solved, and its plan (`planned`) when DAQP's exitflag is > 0: INVALID_INPUT
+        when an entry of x0 or x_ref is not finite (or finite entries' sum overflows), else
+        DAQP's exitflag (negative: the load, the solve or, compiled, the plan's evaluation failed)."""
+        if isinstance(self.solver, CompiledFeedback):
+            self._set_bounds(lo, hi)
+            self._moved.set_inputs(x0, x_ref.ravel(), d)
+            flag = self.solver.feedback()
+            self.duals = self.solver.duals
+            return flag
+        grad, upper, lower, _, inputs_sum = self.qp(x0, x_ref, d, lo, hi)
+        if not math.isfinite(inputs_sum[0]):
+            return INVALID_INPUT
+        step, flag, self.duals = self.solver.solve(grad, upper, lower)
+        if flag > 0:
+            self._plan.evaluate(step)
+        return flag
+
+    def qp(self, x0: np.ndarray, x_ref: np.ndarray, d: np.ndarray, lo: np.ndarray,
+           hi: np.ndarray) -> list[np.ndarray]:
+        """The loaded QP moved as `solve` moves it: [gradient (N*8,), upper and lower bounds (N*8 + m,)
+        on the step, what `plan` takes on from here (read where it lies), the sum of x0's and
+        x_ref's entries (1,)]. The arrays are buffers that the next call overwrites."""
+        self._set_bounds(lo, hi)
         return self._moved.evaluate(x0, x_ref.ravel(), d)
 
     def plan(self, step: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        """(inputs (N, 8), predicted states (N+1, 20), the cost of both) after the step (N*8,)
-        from the QP the last `qp` moved: the inputs within its input bounds, the states moved by
-        Gamma (fresh arrays). The cost is not finite when a state is not."""
-        us, xs, cost = self._plan.evaluate(step)
+        """`planned` after the step (N*8,) from the QP the last `qp` moved."""
+        self._plan.evaluate(step)
+        return self.planned()
+
+    def planned(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """(inputs (N, 8), predicted states (N+1, 20), the cost of both) of the last plan: the
+        inputs within the QP's input bounds, the states moved by Gamma step (fresh arrays). The
+        cost is not finite when a state is not."""
+        us, xs, cost = self._plan.buffers()[1]
         return us.reshape(self.horizon, NU).copy(), xs.reshape(self.horizon + 1, NX).copy(), float(cost[0])
+
+    def _set_bounds(self, lo: np.ndarray, hi: np.ndarray) -> None:
+        if self._bounds is None or self._bounds[0] is not lo or self._bounds[1] is not hi:
+            self._moved.set_parameters(lo=lo, hi=hi)
+            self._bounds = (lo, hi)
 
 
 _MOVED_INPUTS = 3                 # x0, x_ref, d; then the parameters

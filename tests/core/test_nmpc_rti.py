@@ -1,11 +1,13 @@
 """The real-time iteration: its feedback is the QP built at the arrived state, to first order;
 it reaches the SQP's optimum on a held problem; whatever comes in, a bounded command."""
 
+from unittest import mock
+
 import numpy as np
 import pytest
 
 from m4.airframe import load_airframe
-from companion.core import rom
+from companion.core import rom, rti_compiled
 from companion.core.nmpc import Nmpc
 from companion.core.nmpc_config import NmpcConfig
 
@@ -109,13 +111,15 @@ def test_the_plan_takes_the_step_within_the_bounds_and_costs_what_the_cost_says(
     assert cost == pytest.approx(rti.cost.value(xs, us, *rti.targets(x0, x_ref, d)), rel=1e-12)
 
 
-def test_a_step_that_is_not_finite_falls_back_to_a_bounded_command(rti, monkeypatch):
-    prepared(rti, moving_state(), WIND)
-    solve = rti._feedback.solver.solve
-    monkeypatch.setattr(rti._feedback.solver, "solve",
+def test_a_step_that_is_not_finite_falls_back_to_a_bounded_command(monkeypatch):
+    with mock.patch.object(rti_compiled, "daqp_c_library", lambda: None):    # the Python route's DAQP
+        python_route = Nmpc(AF, NmpcConfig(control_period_s=PERIOD_S, scheme="rti"))
+    prepared(python_route, moving_state(), WIND)
+    solve = python_route._feedback.solver.solve
+    monkeypatch.setattr(python_route._feedback.solver, "solve",
                         lambda *qp: (np.full(N * rom.NU, np.nan), *solve(*qp)[1:]))
-    res = rti.solve(moving_state(), hover_ref(), FULL, WIND)
-    lo, hi = rti.input_bounds(FULL)
+    res = python_route.solve(moving_state(), hover_ref(), FULL, WIND)
+    lo, hi = python_route.input_bounds(FULL)
     assert res.status == "qp_failed" and res.fallback
     assert np.all(np.isfinite(res.u)) and np.all(res.u >= lo) and np.all(res.u <= hi)
 
@@ -189,18 +193,19 @@ def test_a_yaw_that_wrapped_past_south_since_the_preparation_is_a_small_turn(rti
     assert command(-np.pi + 0.005) == pytest.approx(command(np.pi + 0.005), abs=1e-6)
 
 
-def test_the_uncompiled_feedback_computes_what_the_compiled_one_does(rti):
+def test_the_uncompiled_feedback_computes_what_the_compiled_one_does():
     vm = Nmpc(AF, NmpcConfig(control_period_s=PERIOD_S, scheme="rti", codegen=False))
-    step = rom.rk4_step(rti.rom.f, PERIOD_S)
-    rti.reset()
+    with mock.patch.object(rti_compiled, "daqp_c_library", lambda: None):    # the same DAQP: the binding
+        compiled = Nmpc(AF, NmpcConfig(control_period_s=PERIOD_S, scheme="rti"))
+    step = rom.rk4_step(compiled.rom.f, PERIOD_S)
     x = moving_state()
     for _ in range(5):
-        a, b = rti.solve(x, hover_ref(), ROTOR_4_OFF, WIND), vm.solve(x, hover_ref(), ROTOR_4_OFF, WIND)
+        a, b = compiled.solve(x, hover_ref(), ROTOR_4_OFF, WIND), vm.solve(x, hover_ref(), ROTOR_4_OFF, WIND)
         assert b.status == a.status and b.u == pytest.approx(a.u, abs=1e-9) and b.cost == pytest.approx(a.cost)
         x = np.asarray(step(x, a.u, WIND)).ravel()
-        rti.prepare(hover_ref(), ROTOR_4_OFF, WIND)
+        compiled.prepare(hover_ref(), ROTOR_4_OFF, WIND)
         vm.prepare(hover_ref(), ROTOR_4_OFF, WIND)
-        compiled_qp, vm_qp = moved(rti, x, hover_ref(), WIND), moved(vm, x, hover_ref(), WIND)
+        compiled_qp, vm_qp = moved(compiled, x, hover_ref(), WIND), moved(vm, x, hover_ref(), WIND)
         for a, b in zip(compiled_qp, vm_qp, strict=True):
             assert a == pytest.approx(b, rel=1e-12, abs=1e-12)
 

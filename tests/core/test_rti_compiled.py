@@ -1,0 +1,150 @@
+"""The RTI's feedback as one compiled call (moved, CasADi's DAQP, plan in C): it plans what the
+Python route (DAQP's binding) plans; without its library the Python route flies, and says so."""
+
+import logging
+from unittest import mock
+
+import numpy as np
+import pytest
+
+from m4.airframe import load_airframe
+from companion.core import rom, rti_compiled
+from companion.core.codegen_cache import CodegenError
+from companion.core.feedback_qp import FeedbackQp
+from companion.core.nmpc import Nmpc
+from companion.core.nmpc_config import NmpcConfig
+from companion.core.rti_compiled import CompiledFeedback
+
+AF = load_airframe()
+N = 5
+PERIOD_S = 0.02
+FULL = np.full(4, AF.thrust_max_n)
+ROTOR_4_OFF = np.array([AF.thrust_max_n] * 3 + [0.0])
+WIND = np.array([2.0, -1.0, 1.0, 0.02, -0.02, 0.0])
+
+
+def rti_nmpc() -> Nmpc:
+    return Nmpc(AF, NmpcConfig(control_period_s=PERIOD_S, scheme="rti"))
+
+
+def python_route() -> Nmpc:
+    with mock.patch.object(rti_compiled, "daqp_c_library", lambda: None):
+        return rti_nmpc()
+
+
+@pytest.fixture(scope="module")
+def routes():
+    compiled, python = rti_nmpc(), python_route()
+    assert isinstance(compiled._feedback.solver, CompiledFeedback)
+    assert isinstance(python._feedback.solver, FeedbackQp)
+    return compiled, python
+
+
+def hover_ref():
+    return np.tile(rom.hover_state(AF), (N + 1, 1))
+
+
+def fly_both(routes, bounds, kick_every=4):
+    """Both routes on the same closed loop on the model (the compiled route's commands flown),
+    the thrust bound of each step from `bounds`: the largest difference of their plans (N) and states."""
+    compiled, python = routes
+    step = rom.rk4_step(compiled.rom.f, PERIOD_S)
+    for nmpc in routes:
+        nmpc.reset()
+    x, du, dx = rom.hover_state(AF), 0.0, 0.0
+    for k, bound in enumerate(bounds):
+        if k % kick_every == 0:
+            x[rom.V] += (0.3, -0.2, 0.2)
+            x[rom.RATES] += (0.4, -0.3, 0.1)
+        a, b = compiled.solve(x, hover_ref(), bound, WIND), python.solve(x, hover_ref(), bound, WIND)
+        assert (a.status, a.ok) == (b.status, b.ok)
+        du, dx = max(du, np.abs(a.u_pred - b.u_pred).max()), max(dx, np.abs(a.x_pred - b.x_pred).max())
+        for nmpc in routes:
+            nmpc.prepare(hover_ref(), bound, WIND)
+        x = np.asarray(step(x, a.u, WIND)).ravel()
+    return du, dx
+
+
+def test_it_plans_what_the_python_route_plans_to_rounding_while_no_row_binds(routes):
+    du, dx = fly_both(routes, [FULL] * 12, kick_every=100)
+    assert du < 1e-9 and dx < 1e-9
+
+
+def test_through_a_rotor_loss_and_back_it_plans_what_the_python_route_plans(routes):
+    # The lost rotor's thrust bounds are equal: an equality for DAQP, activated when they become
+    # equal and released when they part again. The rows that bind then are soft: the two DAQPs
+    # weigh them alike but for the binding's per-row weights (rti_feedback.c), hence 1e-2 N.
+    du, dx = fly_both(routes, [FULL] * 4 + [ROTOR_4_OFF] * 8 + [FULL] * 8)
+    assert du < 1e-2 and dx < 1e-3
+
+
+def test_a_hessian_daqp_cannot_factorise_falls_back_and_the_next_preparation_flies_again(routes):
+    compiled, python = routes
+    x = rom.hover_state(AF)
+    for nmpc in routes:
+        nmpc.reset()
+        nmpc.solve(x, hover_ref(), FULL, WIND)
+        nmpc.prepare(hover_ref(), FULL, WIND)
+        prep = nmpc._prepared
+        nmpc._feedback.solver.load(-prep.hess, prep.rows, warm=True)     # not positive definite
+        res = nmpc.solve(x, hover_ref(), FULL, WIND)
+        lo, hi = nmpc.input_bounds(FULL)
+        assert res.status == "qp_failed" and res.fallback
+        assert np.all(np.isfinite(res.u)) and np.all(res.u >= lo) and np.all(res.u <= hi)
+        assert nmpc.solve(x, hover_ref(), FULL, WIND).status == "rti_unprepared"   # set up anew
+        nmpc.prepare(hover_ref(), FULL, WIND)
+    a, b = compiled.solve(x, hover_ref(), FULL, WIND), python.solve(x, hover_ref(), FULL, WIND)
+    assert a.status == b.status == "rti" and a.u == pytest.approx(b.u, abs=1e-9)
+
+
+def test_an_input_that_is_not_finite_is_named_invalid(routes):
+    compiled, _ = routes
+    x = rom.hover_state(AF)
+    compiled.reset()
+    compiled.solve(x, hover_ref(), FULL, WIND)
+    compiled.prepare(hover_ref(), FULL, WIND)
+    x[rom.V.start] = np.nan
+    res = compiled.solve(x, hover_ref(), FULL, WIND)
+    assert res.status == "invalid_input" and np.all(np.isfinite(res.u))
+
+
+@pytest.mark.parametrize("name, shape", [("hess", (N * rom.NU - 1, N * rom.NU)), ("rows", (3, N * rom.NU))])
+def test_a_hessian_or_rows_of_another_shape_is_refused_by_name(routes, name, shape):
+    solver = routes[0]._feedback.solver
+    good = {"hess": np.eye(N * rom.NU), "rows": np.zeros((routes[0]._qp_rows.count, N * rom.NU))}
+    good[name] = np.zeros(shape)
+    with pytest.raises(ValueError, match=rf"^CompiledFeedback: {name} must have shape \(\d+, \d+\), got \(\d+, \d+\)$"):
+        solver.load(good["hess"], good["rows"], warm=False)
+
+
+@pytest.fixture
+def fresh_notices(caplog):
+    rti_compiled._say_once.cache_clear()
+    caplog.set_level(logging.WARNING, logger=rti_compiled.__name__)
+    yield caplog
+    rti_compiled._say_once.cache_clear()
+
+
+def test_without_casadis_daqp_the_python_route_flies_and_says_so_once(fresh_notices):
+    first, second = python_route(), python_route()
+    assert isinstance(first._feedback.solver, FeedbackQp) and isinstance(second._feedback.solver, FeedbackQp)
+    casadi_dir = rti_compiled.Path(rti_compiled.ca.__file__).parent
+    assert [r.getMessage() for r in fresh_notices.records] == [
+        f"the RTI feedback calls DAQP from Python: CasADi's wheel has no DAQP C headers and libdaqpstat.a under {casadi_dir}"]
+
+
+def test_a_feedback_library_the_compiler_cannot_build_leaves_the_python_route_flying(fresh_notices):
+    def fail(*args, **kwargs):
+        raise CodegenError("compiling m4_rti_feedback failed: no daqp")
+
+    with mock.patch.object(rti_compiled, "compiled_library", fail):
+        nmpc = rti_nmpc()
+    assert isinstance(nmpc._feedback.solver, FeedbackQp)
+    assert [r.getMessage() for r in fresh_notices.records] == [
+        "the RTI feedback calls DAQP from Python: compiling m4_rti_feedback failed: no daqp"]
+
+
+def test_with_codegen_off_the_python_route_flies_and_says_so(fresh_notices):
+    assert rti_compiled.feedback_library(None, None, codegen=False) is None
+    assert [r.getMessage() for r in fresh_notices.records] == [
+        "the RTI feedback calls DAQP from Python: [nmpc] codegen = false"]
