@@ -5,7 +5,9 @@ seconds) and stores the shared library under the cache directory; every later st
 it at once. The key is a hash of the generated source, the compiler command and CasADi's
 version, so a change of model, horizon or step makes a new library and never reuses a stale
 one. Writes are atomic (compile to a temporary name, then rename), so two processes
-starting together cannot load a half-written file.
+starting together cannot load a half-written file. `compiled_library` builds, the same way,
+one library of several generated functions with C sources of ours and compiler flags (the
+RTI's one-call feedback, with DAQP's library); its key hashes them too.
 """
 
 from __future__ import annotations

@@ -1,5 +1,8 @@
 """The real-time iteration's QP in one DAQP workspace: factorised at the preparation, solved at the feedback.
 
+The feedback's Python route, through DAQP's binding: it flies where the compiled one
+(companion.core.rti_compiled, the same workspace in C) cannot be built.
+
 `daqp.solve` sets a QP up from scratch at every call: it factorises the Hessian and scales
 every constraint row by the factor (the Hessian's Cholesky factor R, the rows A R^-1) for the
 NMPC's 40 inputs and 46 rows, before its few active-set iterations. In a real-time iteration

@@ -8,9 +8,11 @@ feedback's three steps) and DAQP's C library are compiled into one library, cach
 companion.core.codegen_cache caches every compiled function, and called through ctypes on
 the functions' numpy buffers: one call at the preparation (`load`: the Hessian and the rows
 factorised into the workspace, as daqp.Model.update does), one at the feedback. The QP is
-the same, solved by the same active-set method from the same active set; DAQP's C library
-is the one CasADi's wheel ships (its headers and libdaqpstat.a), an older DAQP than the
-daqp wheel's, and its solutions are the binding's to rounding.
+the same, solved by the same active-set method from the same active set. DAQP's C library
+is the one CasADi's wheel ships (its headers and libdaqpstat.a), older than the daqp
+wheel's: its solutions are the binding's to rounding while no soft row binds, and within
+0.03 N along benchmarks.rti's flight when one does (they weigh soft rows differently:
+rti_feedback.c).
 
 When the library cannot be built (no DAQP headers or library in CasADi's wheel, the
 compiler fails on it) or `[nmpc] codegen = false`, the Python route flies, and a log line
