@@ -7,20 +7,13 @@ from unittest import mock
 import numpy as np
 import pytest
 
-from m4.airframe import load_airframe
 from companion.core import rom, rti_compiled
 from companion.core.codegen_cache import CodegenError
 from companion.core.feedback_qp import FeedbackQp
 from companion.core.nmpc import Nmpc
 from companion.core.nmpc_config import NmpcConfig
 from companion.core.rti_compiled import CompiledFeedback
-
-AF = load_airframe()
-N = 5
-PERIOD_S = 0.02
-FULL = np.full(4, AF.thrust_max_n)
-ROTOR_4_OFF = np.array([AF.thrust_max_n] * 3 + [0.0])
-WIND = np.array([2.0, -1.0, 1.0, 0.02, -0.02, 0.0])
+from tests.core.test_nmpc_rti import AF, FULL, N, PERIOD_S, ROTOR_4_OFF, WIND, hover_ref
 
 
 def rti_nmpc() -> Nmpc:
@@ -38,10 +31,6 @@ def routes():
     assert isinstance(compiled._feedback.solver, CompiledFeedback)
     assert isinstance(python._feedback.solver, FeedbackQp)
     return compiled, python
-
-
-def hover_ref():
-    return np.tile(rom.hover_state(AF), (N + 1, 1))
 
 
 def fly_both(routes, bounds, kick_every=4):
