@@ -129,8 +129,7 @@ def check_signature(mav: mavlink.MAVLink, msgbuf: bytearray, src_system: int, sr
     is newer than the last of its stream (link id, system, component), or, for a new stream,
     at most NEW_STREAM_BEHIND_S behind our own timestamp."""
     s = mav.signing
-    if not hmac.compare_digest(signature(s.keyed, memoryview(msgbuf)[:-SIGNATURE_BYTES]),
-                               bytes(msgbuf[-SIGNATURE_BYTES:])):
+    if not hmac.compare_digest(signature(s.keyed, memoryview(msgbuf)[:-SIGNATURE_BYTES]), msgbuf[-SIGNATURE_BYTES:]):
         log.info("signature mismatch: packet dropped")
         return False
     timestamp = int.from_bytes(msgbuf[-12:-6], "little")         # 48 bits
@@ -141,7 +140,8 @@ def check_signature(mav: mavlink.MAVLink, msgbuf: bytearray, src_system: int, sr
         log.info("signed packet with an old timestamp (a replay?): dropped")
         return False
     s.stream_timestamps[stream] = timestamp
-    s.timestamp = max(s.timestamp, timestamp)
+    if timestamp > s._timestamp:        # our own at least the newest accepted (the clock is added when read)
+        s._timestamp = timestamp
     return True
 
 
