@@ -30,6 +30,7 @@ _CRC_LEN = 2
 _MAGIC = mavlink.PROTOCOL_MARKER_V2
 _SIGNED = mavlink.MAVLINK_IFLAG_SIGNED
 _SIGNATURE_LEN = mavlink.MAVLINK_SIGNATURE_BLOCK_LEN
+_SIGNED_TAIL = _CRC_LEN + _SIGNATURE_LEN
 _SIGNATURE_REFUSED = "Invalid signature"      # pymavlink's BAD_DATA reason
 
 
@@ -68,14 +69,22 @@ class _Plan:
                 for at, count in self.fields]
         return [a.rstrip(b"\x00") if isinstance(a, bytes) else a for a in args]
 
-    def message(self, frame: bytearray, start: int, end: int):
-        """The message object pymavlink's constructor builds from the payload frame[start:end]."""
+    def message(self, frame: bytearray, crc_at: int):
+        """What pymavlink's `MAVLink.decode` returns for this whole frame (its CRC at `crc_at`),
+        unsigned; its signature (if any) the caller's to judge and mark."""
+        _, length, incompat_flags, compat_flags, seq, system, component, id_low, id_high = _HEADER.unpack_from(frame)
         if self.constants is None:
-            return self.message_class(*self.arguments(frame, start, end))
-        attributes = self.constants.copy()
-        attributes.update(zip(self.fieldnames, self.arguments(frame, start, end)))
-        msg = object.__new__(self.message_class)
-        msg.__dict__ = attributes
+            msg = self.message_class(*self.arguments(frame, _HEADER_LEN, crc_at))
+        else:
+            attributes = self.constants.copy()
+            attributes.update(zip(self.fieldnames, self.arguments(frame, _HEADER_LEN, crc_at)))
+            msg = object.__new__(self.message_class)
+            msg.__dict__ = attributes
+        msg._msgbuf = frame
+        msg._payload = frame[6:crc_at]              # sic: pymavlink's slice
+        msg._crc = _CRC.unpack_from(frame, crc_at)[0]
+        msg._header = mavlink.MAVLink_header(id_low | id_high << 16, incompat_flags, compat_flags, length, seq, system,
+                                             component)
         return msg
 
 
@@ -112,12 +121,12 @@ def read_datagram(mav: mavlink.MAVLink, data: bytes) -> list:
     mav.total_bytes_received += len(data)
     mav.total_packets_received += len(frames)
     if mav.signing.secret_key is None:
-        return [_decode(frame, plan, _CRC_LEN) for frame, plan in frames]
-    return _decode_signed(mav, frames)
+        return [plan.message(bytearray(data[start:end]), end - start - _CRC_LEN) for start, end, plan in frames]
+    return _decode_signed(mav, data, frames)
 
 
-def _plain_frames(mav: mavlink.MAVLink, data: bytes) -> list[tuple[bytearray, _Plan]] | None:
-    """Each frame of `data` with its plan; None when any of it is not the plain case."""
+def _plain_frames(mav: mavlink.MAVLink, data: bytes) -> list[tuple[int, int, _Plan]] | None:
+    """Each frame of `data`, (start, end, plan); None when any of it is not the plain case."""
     if mav.buf_len() != 0 or mav.callback is not None:
         return None
     flags = 0 if mav.signing.secret_key is None else _SIGNED       # the one flag every frame must carry
@@ -132,7 +141,7 @@ def _plain_frames(mav: mavlink.MAVLink, data: bytes) -> list[tuple[bytearray, _P
         if crc_at + tail > end or plan is None or \
                 _CRC.unpack_from(data, crc_at)[0] != _crc(data[start + 1:crc_at], plan):
             return None
-        frames.append((bytearray(data[start:crc_at + tail]), plan))
+        frames.append((start, crc_at + tail, plan))
         start = crc_at + tail
     return frames
 
@@ -142,27 +151,14 @@ def _crc(covered: bytes, plan: _Plan) -> int:
     return mavlink.mcrf4xx(plan.crc_extra, mavlink.mcrf4xx(covered, 0xFFFF))
 
 
-def _decode(frame: bytearray, plan: _Plan, tail: int):
-    """What pymavlink's `MAVLink.decode` returns for this frame (`tail`: its CRC and signature's
-    length), its signature (if any) accepted."""
-    _, length, incompat_flags, compat_flags, seq, system, component, id_low, id_high = _HEADER.unpack_from(frame)
-    crc_at = len(frame) - tail
-    msg = plan.message(frame, _HEADER_LEN, crc_at)
-    msg._msgbuf = frame
-    msg._payload = frame[6:crc_at]              # sic: pymavlink's slice
-    msg._crc = _CRC.unpack_from(frame, crc_at)[0]
-    msg._header = mavlink.MAVLink_header(id_low | id_high << 16, incompat_flags, compat_flags, length, seq, system,
-                                         component)
-    return msg
-
-
-def _decode_signed(mav: mavlink.MAVLink, frames: list[tuple[bytearray, _Plan]]) -> list:
+def _decode_signed(mav: mavlink.MAVLink, data: bytes, frames: list[tuple[int, int, _Plan]]) -> list:
     """pymavlink's decode of signed frames on a link with a key: each signature checked, then the
     unsigned allow-list for a frame it refuses, the counters moved; BAD_DATA for a refused one."""
     check, out, good = mav.check_signature, [], 0
-    for frame, plan in frames:
+    for start, end, plan in frames:
+        frame = bytearray(data[start:end])
         if check(frame, frame[5], frame[6]):
-            msg = _decode(frame, plan, _CRC_LEN + _SIGNATURE_LEN)
+            msg = plan.message(frame, end - start - _SIGNED_TAIL)
             msg._signed = True
             msg._link_id = frame[-_SIGNATURE_LEN]
             good += 1
@@ -182,7 +178,7 @@ def _refused(mav: mavlink.MAVLink, frame: bytearray, plan: _Plan):
     allowed = signing.allow_unsigned_callback is not None and signing.allow_unsigned_callback(mav, plan.message_class.id)
     if allowed:
         signing.unsigned_count += 1
-        return _decode(frame, plan, _CRC_LEN + _SIGNATURE_LEN)
+        return plan.message(frame, len(frame) - _SIGNED_TAIL)
     if signing.allow_unsigned_callback is not None:
         signing.reject_count += 1
     mav.total_receive_errors += 1
