@@ -240,12 +240,16 @@ class UdpLink(MavlinkLink):
 
 def parse_bytes(mav: mavlink.MAVLink, data: bytes, tlog: TlogWriter | None) -> tuple[list, list]:
     """(good messages, BAD_DATA of each rejected or garbled packet) in `data`; everything to the tlog."""
-    out, bad = [], []
-    msgs = read_datagram(mav, data)
-    if tlog is not None and msgs:        # the datagram's packets at one time, as sent (TlogWriter.record_all)
-        tlog.record_all([msg.get_msgbuf() if msg.get_type() != "BAD_DATA" else bytes(msg.data) for msg in msgs])
-    for msg in msgs:
-        (bad if msg.get_type() == "BAD_DATA" else out).append(msg)
+    out, bad, packets = [], [], []
+    for msg in read_datagram(mav, data):
+        if msg.get_type() == "BAD_DATA":
+            bad.append(msg)
+            packets.append(bytes(msg.data))
+        else:
+            out.append(msg)
+            packets.append(msg.get_msgbuf())
+    if tlog is not None and packets:        # the datagram's packets at one time, as sent (TlogWriter.record_all)
+        tlog.record_all(packets)
     return out, bad
 
 
