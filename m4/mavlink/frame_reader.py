@@ -69,22 +69,26 @@ class _Plan:
                 for at, count in self.fields]
         return [a.rstrip(b"\x00") if isinstance(a, bytes) else a for a in args]
 
-    def message(self, frame: bytearray, crc_at: int):
+    def message(self, frame: bytearray, crc_at: int, signed: bool = False):
         """What pymavlink's `MAVLink.decode` returns for this whole frame (its CRC at `crc_at`),
-        unsigned; its signature (if any) the caller's to judge and mark."""
+        marked signed (with its link id) when its signature was accepted."""
         _, length, incompat_flags, compat_flags, seq, system, component, id_low, id_high = _HEADER.unpack_from(frame)
         if self.constants is None:
             msg = self.message_class(*self.arguments(frame, _HEADER_LEN, crc_at))
+            attributes = msg.__dict__
         else:
             attributes = self.constants.copy()
             attributes.update(zip(self.fieldnames, self.arguments(frame, _HEADER_LEN, crc_at)))
             msg = object.__new__(self.message_class)
             msg.__dict__ = attributes
-        msg._msgbuf = frame
-        msg._payload = frame[6:crc_at]              # sic: pymavlink's slice
-        msg._crc = _CRC.unpack_from(frame, crc_at)[0]
-        msg._header = mavlink.MAVLink_header(id_low | id_high << 16, incompat_flags, compat_flags, length, seq, system,
-                                             component)
+        attributes["_msgbuf"] = frame
+        attributes["_payload"] = frame[6:crc_at]              # sic: pymavlink's slice
+        attributes["_crc"] = _CRC.unpack_from(frame, crc_at)[0]
+        attributes["_header"] = mavlink.MAVLink_header(id_low | id_high << 16, incompat_flags, compat_flags, length,
+                                                       seq, system, component)
+        if signed:
+            attributes["_signed"] = True
+            attributes["_link_id"] = frame[-_SIGNATURE_LEN]
         return msg
 
 
@@ -158,9 +162,7 @@ def _decode_signed(mav: mavlink.MAVLink, data: bytes, frames: list[tuple[int, in
     for start, end, plan in frames:
         frame = bytearray(data[start:end])
         if check(frame, frame[5], frame[6]):
-            msg = plan.message(frame, end - start - _SIGNED_TAIL)
-            msg._signed = True
-            msg._link_id = frame[-_SIGNATURE_LEN]
+            msg = plan.message(frame, end - start - _SIGNED_TAIL, signed=True)
             good += 1
         else:
             msg = _refused(mav, frame, plan)
