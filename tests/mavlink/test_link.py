@@ -9,7 +9,8 @@ import pytest
 
 from m4.mavlink import mavlink, mavutil
 from m4.mavlink.link import DATAGRAM_PAYLOAD_MAX, LinkError, UdpLink, parse_url, wait_readable
-from m4.mavlink.tlog import TlogWriter
+from m4.mavlink.tlog import TLOG_TIME, TlogWriter
+from tests.support.packets import packed
 
 
 @pytest.mark.parametrize("url", ["", "udp:127.0.0.1:5", "udpin:127.0.0.1", "udpin:127.0.0.1:x",
@@ -80,6 +81,24 @@ def test_a_datagrams_packets_go_to_the_tlog_at_one_time(tmp_path, monkeypatch):
         msgs.append(msg)
     assert [m.time_boot_ms for m in msgs] == [0, 1, 2]
     assert len({m._timestamp for m in msgs}) == 1
+
+
+def test_every_packet_received_goes_to_the_tlog_refused_ones_too(tmp_path):
+    """A datagram's packets are recorded as they arrived, in order: the good ones and the ones
+    signing refused (a tlog is where a refused packet is looked at afterwards)."""
+    key, attitude = bytes(range(32)), mavlink.MAVLink_attitude_message(20, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0)
+    good, forged = packed([attitude], key=key)[0], packed([attitude], key=bytes(32))[0]
+    path = tmp_path / "received.tlog"
+    with TlogWriter(path) as tlog, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+        link = UdpLink("udpin:127.0.0.1:0", 1, 191, tlog=tlog, key=key)
+        tx.sendto(good + forged, ("127.0.0.1", link.local_port))
+        assert [m.get_type() for m in _receive(link, 1)] == ["ATTITUDE"] and link.bad_packets == 1
+        link.close()
+    data, records = path.read_bytes(), []
+    while data:
+        records.append(data[TLOG_TIME.size:TLOG_TIME.size + len(good)])
+        data = data[TLOG_TIME.size + len(good):]
+    assert records == [good, forged]
 
 
 def test_send_all_packs_messages_into_datagrams_below_the_mtu():
