@@ -140,8 +140,7 @@ def check_signature(mav: mavlink.MAVLink, msgbuf: bytearray, src_system: int, sr
         log.info("signed packet with an old timestamp (a replay?): dropped")
         return False
     s.stream_timestamps[stream] = timestamp
-    if timestamp > s._timestamp:        # our own at least the newest accepted (the clock is added when read)
-        s._timestamp = timestamp
+    s._timestamp = max(s._timestamp, timestamp)      # our own at least the newest accepted (the getter adds the clock)
     return True
 
 
