@@ -172,8 +172,7 @@ class CompanionApp:
         now = self.clock()
         since = self.flight_log.position()          # a new flight found in this poll starts with its packets
         received = self.fc.receive(now)
-        # before the answer: the flight log's writer may drain while the send gives up the GIL, and a new
-        # flight's first packets, read in this poll, must go to its own file
+        # before the answer and the poll's pack: a new flight's first packets, read in this poll, go to its own file
         self.flight_log.observe(received.messages, since, LinkEvent.REBOOTED in received.events)
         self._received += len(received.messages)
         messages = self._profiled(received.messages)          # before LOCKED asks for the profile's streams
@@ -202,6 +201,7 @@ class CompanionApp:
         if self.fc_mission is not None and (flown := self.fc_mission.tick(now)) is not None:
             self._new_mission = flown.mission
         self.fc.tick(now)
+        self.flight_log.pack()                     # the poll's records made here, after the send: not by the writer
 
     def _retune(self, config: CompanionConfig) -> None:
         """A parameter was set (companion/params.py): the settable ones are read from here each step,

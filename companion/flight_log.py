@@ -25,11 +25,15 @@ or with the next one when the writer has already passed it. A file larger than `
 is continued in a new one (`...-HHMMSS-2.tlog`). When a file is closed, the oldest logs of the folder go
 until all of them fit in `max_total_mb` (the file being written is never removed).
 
-Timing: the control loop only appends to a queue (a deque: no lock, no I/O, no packing); a
-thread of its own, every `FLUSH_S`, stamps each packet as it crossed the link (never decoded
-nor packed again), packs the decisions with precompiled structs (m4/mavlink/frame_packer.py:
-pymavlink's packing, ten times slower, held the interpreter's lock long enough to delay
-control steps by milliseconds) and writes the batch in one call a file. If the folder
+Timing: while it reads and answers, the control loop only appends to a queue (a deque: no
+lock, no I/O, no packing). At the end of each poll, its setpoint sent, it makes what it queued
+into tlog records (`pack()`): each packet stamped as it crossed the link (never decoded nor
+packed again), the decisions packed with precompiled structs (m4/mavlink/frame_packer.py:
+pymavlink's packing is ten times slower). A thread of its own, every `FLUSH_S`, writes those
+records in one call a file, and does nothing else that holds the interpreter's lock for long:
+the loop's compiled calls (CasADi, DAQP) give the lock up, and a writer that packed its batch
+itself took it there for 1-2 ms in the middle of an answer (25 control steps a batch in
+lockstep at 10x real time): most of the answer's slowest 1 % (docs/performance.md). If the folder
 cannot be written at start the companion says so and flies without a log (a flight without a
 log beats no flight).
 
@@ -58,7 +62,7 @@ from m4.mavlink.tlog import TLOG_TIME
 
 log = logging.getLogger("m4-companion")
 
-FLUSH_S = 0.05                    # a batch: ~2.5 control steps, ~0.1-0.3 ms of the writer holding the GIL
+FLUSH_S = 0.05                    # a batch: ~2.5 control steps in real time, ~25 in lockstep
 RETRY_S = 1.0                     # a paused log tries a new file this often
 PATTERN = "flight-*.tlog"
 _FLOAT32_MAX = 3.4028234663852886e38
@@ -85,8 +89,9 @@ class FlightLog:
         self._clock_ns = clock_ns
         self._queue: collections.deque = collections.deque()
         self._appended = 0                            # queue entries ever appended (the control loop's count)
-        self._taken = 0                               # ... and taken off (the writer's)
+        self._taken = 0                               # ... and packed (the control loop's too)
         self._flights: collections.deque[int] = collections.deque()   # entry numbers at which a new flight starts
+        self._packed: collections.deque[list[bytes] | None] = collections.deque()  # records for the writer; None: a new flight
         self._armed: bool | None = None
         self._file = None
         self._size = 0
@@ -94,7 +99,7 @@ class FlightLog:
         self._stop = threading.Event()
         self._decision_frames = FramePacker(mavlink.MAVLink_named_value_float_message, FC_SYSTEM_ID,
                                             COMPANION_COMPONENT_ID)
-        self._seq = 0                                 # of the decision frames (the writer thread's)
+        self._seq = 0                                 # of the decision frames
         self._thread: threading.Thread | None = None
 
     @classmethod
@@ -117,7 +122,7 @@ class FlightLog:
         self._thread.start()
         return self
 
-    # -- the control loop's side: appends only -----------------------------------------------
+    # -- the control loop's side: appends, and packs after its send ----------------------------
     def position(self) -> int:
         """The number the next entry will have: where a flight found in the coming poll starts."""
         return self._appended
@@ -161,6 +166,37 @@ class FlightLog:
         self._queue.append((self._clock_ns() // 1000, Decision(int(time_ms), tuple(values))))
         self._appended += 1
 
+    def pack(self) -> None:
+        """What was queued since the last call made into tlog records for the writer, on the
+        caller's thread (the control loop's, once its setpoint has left); a new flight's first
+        entry starts a new batch."""
+        records: list[bytes] = []
+        while self._queue:
+            if self._flights and self._taken >= self._flights[0]:
+                self._flights.popleft()
+                if records:
+                    self._packed.append(records)
+                    records = []
+                self._packed.append(None)
+                continue
+            entry = self._queue.popleft()
+            self._taken += 1
+            records += self._records(*entry)
+        if records:
+            self._packed.append(records)
+
+    def _records(self, time_us: int, payload) -> list[bytes]:
+        """The tlog records of one queue entry: a packet as it crossed the link, or a decision's
+        NAMED_VALUE_FLOATs."""
+        stamp = TLOG_TIME.pack(time_us & ~0x3)
+        if not isinstance(payload, Decision):
+            return [stamp + payload]
+        records = []
+        for name, value in payload.values:
+            records.append(stamp + self._decision_frames.pack(self._seq, payload.time_ms, _float32(value), name))
+            self._seq += 1
+        return records
+
     # -- the writer thread -------------------------------------------------------------------
     def _run(self) -> None:
         while not self._stop.wait(FLUSH_S):
@@ -174,15 +210,14 @@ class FlightLog:
                 self._drain()
             except OSError as e:
                 self._pause(e)
-        elif self._queue and time.monotonic() - self._tried_s >= RETRY_S:
+        elif self._packed and time.monotonic() - self._tried_s >= RETRY_S:
             self._resume()
         else:
             self._drop_queued()
 
     def _drop_queued(self) -> None:
-        while self._queue:
-            self._queue.popleft()
-            self._taken += 1
+        while self._packed:
+            self._packed.popleft()
 
     def _pause(self, error: OSError) -> None:
         reason = error.strerror or str(error)
@@ -197,8 +232,8 @@ class FlightLog:
     def _resume(self) -> None:
         """A new file for what is queued now; the gap ends when it is written."""
         self._tried_s = time.monotonic()
-        while self._flights and self._flights[0] <= self._taken:     # the new file starts them anyway
-            self._flights.popleft()
+        while self._packed and self._packed[0] is None:     # the new file starts them anyway
+            self._packed.popleft()
         try:
             self._open()
             self._drain()
@@ -228,33 +263,25 @@ class FlightLog:
             pass
 
     def _drain(self) -> None:
-        """Write what is queued, one write a file."""
+        """Write what was packed, one write a file; a batch that fits the file goes whole, record
+        by record only where the file fills."""
         chunk: list[bytes] = []                       # tlog records for the current file
-        while self._queue:
-            if self._flights and self._taken >= self._flights[0]:
-                self._flights.popleft()
+        while self._packed:
+            records = self._packed.popleft()
+            if records is None:
                 chunk = self._next_file(chunk)
                 continue
-            entry = self._queue.popleft()
-            self._taken += 1
-            for record in self._records(*entry):
+            size = sum(map(len, records))
+            if self._size + size < self._max_file_bytes:
+                chunk += records
+                self._size += size
+                continue
+            for record in records:
                 if self._size >= self._max_file_bytes:
                     chunk = self._next_file(chunk)
                 chunk.append(record)
                 self._size += len(record)
         self._write(chunk)
-
-    def _records(self, time_us: int, payload) -> list[bytes]:
-        """The tlog records of one queue entry: a packet as it crossed the link, or a decision's
-        NAMED_VALUE_FLOATs."""
-        stamp = TLOG_TIME.pack(time_us & ~0x3)
-        if not isinstance(payload, Decision):
-            return [stamp + payload]
-        records = []
-        for name, value in payload.values:
-            records.append(stamp + self._decision_frames.pack(self._seq, payload.time_ms, _float32(value), name))
-            self._seq += 1
-        return records
 
     def _write(self, chunk: list[bytes]) -> None:
         if chunk:
@@ -296,7 +323,9 @@ class FlightLog:
             old.unlink()
 
     def close(self) -> None:
-        """Write everything queued and close the file; a failure is said, never raised."""
+        """Write everything queued and close the file; a failure is said, never raised. Called
+        by the control loop's thread (it packs what is left)."""
+        self.pack()
         thread, self._thread = self._thread, None
         if thread is not None:
             self._stop.set()

@@ -7,6 +7,7 @@ from __future__ import annotations
 import logging
 import os
 import re
+import threading
 import time
 from types import SimpleNamespace
 
@@ -69,6 +70,12 @@ def _poll(flight_log, packets, msgs, fc_rebooted=False):
     flight_log.observe(msgs, since, fc_rebooted)
 
 
+def _sent(flight_log, packet):
+    """A packet recorded as the link sends it, then packed as the loop does at the end of its poll."""
+    flight_log.record(packet)
+    flight_log.pack()
+
+
 def _frame_packet(t_ms):
     return _packets_of(mavlink.MAVLink_attitude_message(t_ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))[0]
 
@@ -116,6 +123,35 @@ def test_packets_and_decisions_land_in_one_tlog_per_flight(tmp_path):
     assert all(m.get_srcComponent() == COMPANION_COMPONENT_ID for m in first if m.get_type() == "NAMED_VALUE_FLOAT")
     assert second[0].get_type() == "HEARTBEAT"
     assert "nmpc_ms" not in {m.name for m in second if m.get_type() == "NAMED_VALUE_FLOAT"}    # no solve ran
+
+
+class _StampsBy:
+    """The tlog stamp's struct, saying which threads packed with it."""
+
+    def __init__(self, struct):
+        self._struct, self.threads = struct, set()
+
+    def pack(self, *values):
+        self.threads.add(threading.current_thread().name)
+        return self._struct.pack(*values)
+
+
+def test_the_records_are_made_by_the_loop_after_its_send_and_the_writer_only_writes_them(tmp_path, monkeypatch,
+                                                                                         wait_until):
+    """The loop's compiled calls give the interpreter's lock up, and a writer that made its batch's
+    records held it there for 1-2 ms, in the middle of an answer: the loop makes them (pack, at
+    the end of its poll), the writer thread only writes."""
+    stamps = _StampsBy(flight_log_module.TLOG_TIME)
+    monkeypatch.setattr(flight_log_module, "TLOG_TIME", stamps)
+    flight_log = FlightLog(LogSettings(dir=tmp_path)).start()
+    for k in range(5):
+        _poll(flight_log, [_frame_packet(20 * k)], [])
+        flight_log.decision(20 * k, _step(), latency_s=0.001)
+        flight_log.pack()
+    assert wait_until(lambda: flight_log.records == 5 * (1 + 16))      # written before the close
+    flight_log.close()
+    assert stamps.threads == {threading.current_thread().name}
+    assert [m.time_boot_ms for m in _read(flight_log.files[0]) if m.get_type() == "ATTITUDE"] == [0, 20, 40, 60, 80]
 
 
 def test_a_datagram_sent_through_a_link_is_logged_at_one_time(tmp_path):
@@ -203,17 +239,17 @@ def test_a_full_disk_pauses_the_log_which_goes_on_in_a_new_file_when_space_retur
     monkeypatch.setattr(flight_log_module, "RETRY_S", 0.1)
     flight_log = FlightLog(LogSettings(dir=tmp_path)).start()
     with caplog.at_level(logging.WARNING, logger="m4-companion"):
-        flight_log.record(_text("before"))
+        _sent(flight_log, _text("before"))
         assert wait_until(lambda: flight_log.records == 1)
         disk.full = True
-        assert wait_until(lambda: flight_log.record(_text("during")) or flight_log.paused)
+        assert wait_until(lambda: _sent(flight_log, _text("during")) or flight_log.paused)
         for _ in range(10):                                 # several tries at a new file fail meanwhile
-            flight_log.record(_text("during"))
+            _sent(flight_log, _text("during"))
             time.sleep(0.05)
         assert flight_log.paused
-        assert wait_until(lambda: not flight_log._queue)    # the writer dropped them (a loaded machine runs it late)
+        assert wait_until(lambda: not flight_log._packed)   # the writer dropped them (a loaded machine runs it late)
         disk.full = False
-        assert wait_until(lambda: flight_log.record(_text("after")) or not flight_log.paused)
+        assert wait_until(lambda: _sent(flight_log, _text("after")) or not flight_log.paused)
         flight_log.close()
     assert len(flight_log.files) == 2 and sorted(tmp_path.glob("flight-*.tlog")) == sorted(flight_log.files)
     assert _texts(flight_log.files[0]) == ["before"]
@@ -229,10 +265,10 @@ def test_a_disk_full_at_the_end_of_a_flight_is_said_and_closing_the_log_does_not
                                                                                        caplog, wait_until):
     disk = FullDisk(tmp_path, monkeypatch)
     flight_log = FlightLog(LogSettings(dir=tmp_path)).start()
-    flight_log.record(_text("before"))
+    _sent(flight_log, _text("before"))
     assert wait_until(lambda: flight_log.records == 1)
     disk.full = True
-    flight_log.record(_text("last"))
+    _sent(flight_log, _text("last"))
     with caplog.at_level(logging.WARNING, logger="m4-companion"):
         flight_log.close()
     assert "No space left on device" in caplog.text and _texts(flight_log.files[0]) == ["before"]

@@ -186,6 +186,7 @@ def test_a_disk_full_when_the_flight_ends_neither_changes_the_exit_code_nor_hide
 
     def flight(app):                                          # the link's packets go to the log, then the disk fills
         app.fc.statustext(6, "companion: flying")
+        app.flight_log.pack()                                 # as at the end of each poll
         while app.flight_log.records == 0:
             time.sleep(0.01)
         disk.full = True
