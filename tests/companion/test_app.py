@@ -4,6 +4,7 @@ control) without an exception and without a bad setpoint leaving."""
 
 from __future__ import annotations
 
+import gc
 import logging
 
 import math
@@ -121,6 +122,29 @@ def fly(app, fc, clock, t0_ms: int, frames: int, period_ms: int = 20, without: t
         app.poll()
         fc.answer()
         clock.now += period_ms / 1000.0
+
+
+def test_no_garbage_collection_runs_between_a_frames_read_and_its_setpoint(rig, monkeypatch):
+    """A collection of a young generation (0.1-1.3 ms in flight) in the middle of an answer
+    delayed its setpoint by as much: a collection due in a poll runs after it."""
+    app, fc, link, clock = rig
+    fc.join(app)
+    events = []
+    receive, send = app.fc.receive, app.fc.send_setpoint
+    monkeypatch.setattr(app.fc, "receive", lambda *a: events.append("read") or receive(*a))
+    monkeypatch.setattr(app.fc, "send_setpoint", lambda *a, **k: events.append("sent") or send(*a, **k))
+    collected = lambda phase, info: events.append("collected") if phase == "start" else None
+    threshold = gc.get_threshold()
+    gc.callbacks.append(collected)
+    gc.set_threshold(1)                      # a collection due at nearly every allocation
+    try:
+        fly(app, fc, clock, 0, 3)
+    finally:
+        gc.set_threshold(*threshold)
+        gc.callbacks.remove(collected)
+    assert events.count("sent") == 3 and "collected" in events
+    order = re.sub("c+", "c", "".join({"read": "r", "sent": "s", "collected": "c"}[e] for e in events))
+    assert re.fullmatch("c?(rsc)+", order), order      # read, sent, collected: each poll in turn
 
 
 def test_each_frame_is_answered_with_its_instant_and_the_control_period(rig):
