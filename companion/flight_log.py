@@ -29,13 +29,14 @@ Timing: while it reads and answers, the control loop only appends to a queue (a 
 lock, no I/O, no packing). At the end of each poll, its setpoint sent, it makes what it queued
 into tlog records (`pack()`): each packet stamped as it crossed the link (never decoded nor
 packed again), the decisions packed with precompiled structs (m4/mavlink/frame_packer.py:
-pymavlink's packing is ten times slower). A thread of its own, every `FLUSH_S`, writes those
-records in one call a file, and does nothing else that holds the interpreter's lock for long:
-the loop's compiled calls (CasADi, DAQP) give the lock up, and a writer that packed its batch
-itself took it there for 1-2 ms in the middle of an answer (25 control steps a batch in
-lockstep at 10x real time): most of the answer's slowest 1 % (docs/performance.md). If the folder
-cannot be written at start the companion says so and flies without a log (a flight without a
-log beats no flight).
+pymavlink's packing is ten times slower). Then, at most every `FLUSH_S`, it wakes a thread of
+its own, which writes those records in one call a file: the writer takes the interpreter's
+lock as the loop goes to wait for its next frame. The loop's compiled calls (CasADi's, DAQP's)
+give the lock up, and a writer on a timer of its own that packed its batch itself took it
+there for 1-2 ms in the middle of an answer (25 control steps a batch in lockstep at 10x real
+time): most of the answer's slowest 1 % (docs/performance.md). While the loop packs nothing,
+the writer writes every `IDLE_FLUSH_S` on its own. If the folder cannot be written at start
+the companion says so and flies without a log (a flight without a log beats no flight).
 
 A write error later (a full disk: ENOSPC) pauses the log: what comes meanwhile is dropped,
 and every RETRY_S the writer tries again in a new file (one file per gap), so the log resumes
@@ -63,6 +64,7 @@ from m4.mavlink.tlog import TLOG_TIME
 log = logging.getLogger("m4-companion")
 
 FLUSH_S = 0.05                    # a batch: ~2.5 control steps in real time, ~25 in lockstep
+IDLE_FLUSH_S = 2 * FLUSH_S        # the writer on its own, when the loop has not woken it
 RETRY_S = 1.0                     # a paused log tries a new file this often
 PATTERN = "flight-*.tlog"
 _FLOAT32_MAX = 3.4028234663852886e38
@@ -97,6 +99,8 @@ class FlightLog:
         self._size = 0
         self._max_file_bytes = settings.max_file_mb * 1e6
         self._stop = threading.Event()
+        self._wake = threading.Event()                # set by the loop's pack: records to write
+        self._wake_due_s = 0.0                        # monotonic time from which pack wakes the writer again
         self._decision_frames = FramePacker(mavlink.MAVLink_named_value_float_message, FC_SYSTEM_ID,
                                             COMPANION_COMPONENT_ID)
         self._seq = 0                                 # of the decision frames
@@ -168,8 +172,8 @@ class FlightLog:
 
     def pack(self) -> None:
         """What was queued since the last call made into tlog records for the writer, on the
-        caller's thread (the control loop's, once its setpoint has left); a new flight's first
-        entry starts a new batch."""
+        caller's thread (the control loop's, at the end of its poll); a new flight's first entry
+        starts a new batch. The writer is woken to write them at most every FLUSH_S."""
         records: list[bytes] = []
         while self._queue:
             if self._flights and self._taken >= self._flights[0]:
@@ -184,6 +188,9 @@ class FlightLog:
             records += self._records(*entry)
         if records:
             self._packed.append(records)
+        if self._packed and (now_s := time.monotonic()) >= self._wake_due_s:
+            self._wake_due_s = now_s + FLUSH_S
+            self._wake.set()
 
     def _records(self, time_us: int, payload) -> list[bytes]:
         """The tlog records of one queue entry: a packet as it crossed the link, or a decision's
@@ -199,7 +206,9 @@ class FlightLog:
 
     # -- the writer thread -------------------------------------------------------------------
     def _run(self) -> None:
-        while not self._stop.wait(FLUSH_S):
+        while not self._stop.is_set():
+            self._wake.wait(IDLE_FLUSH_S)
+            self._wake.clear()
             self._flush()
         self._flush()
 
@@ -329,6 +338,7 @@ class FlightLog:
         thread, self._thread = self._thread, None
         if thread is not None:
             self._stop.set()
+            self._wake.set()
             thread.join()
         try:
             self._close_file()

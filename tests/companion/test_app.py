@@ -584,6 +584,7 @@ def test_a_new_flight_starts_its_log_file_with_its_poll_though_the_writer_drains
     land in the last flight's file."""
     app, fc, link, clock = rig
     monkeypatch.setattr(flight_log, "FLUSH_S", 3600.0)       # the writer drains only where this test says
+    monkeypatch.setattr(flight_log, "IDLE_FLUSH_S", 3600.0)
     app.flight_log = link.tlog = FlightLog(LogSettings(dir=tmp_path)).start()
     send = app.fc.send_setpoint
 

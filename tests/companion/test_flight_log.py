@@ -140,7 +140,7 @@ def test_the_records_are_made_by_the_loop_after_its_send_and_the_writer_only_wri
                                                                                          wait_until):
     """The loop's compiled calls give the interpreter's lock up, and a writer that made its batch's
     records held it there for 1-2 ms, in the middle of an answer: the loop makes them (pack, at
-    the end of its poll), the writer thread only writes."""
+    the end of its poll) and wakes the writer thread, which only writes."""
     stamps = _StampsBy(flight_log_module.TLOG_TIME)
     monkeypatch.setattr(flight_log_module, "TLOG_TIME", stamps)
     flight_log = FlightLog(LogSettings(dir=tmp_path)).start()
@@ -152,6 +152,22 @@ def test_the_records_are_made_by_the_loop_after_its_send_and_the_writer_only_wri
     flight_log.close()
     assert stamps.threads == {threading.current_thread().name}
     assert [m.time_boot_ms for m in _read(flight_log.files[0]) if m.get_type() == "ATTITUDE"] == [0, 20, 40, 60, 80]
+
+
+def test_the_loops_pack_wakes_the_writer_as_the_loop_goes_to_wait_not_a_timer_of_its_own(tmp_path, monkeypatch,
+                                                                                        wait_until):
+    """A writer on a timer of its own woke in the middle of answers (in real time 11 of 400),
+    each delayed by its taking the interpreter's lock."""
+    monkeypatch.setattr(flight_log_module, "FLUSH_S", 60.0)
+    monkeypatch.setattr(flight_log_module, "IDLE_FLUSH_S", 60.0)
+    flight_log = FlightLog(LogSettings(dir=tmp_path)).start()
+    _sent(flight_log, _frame_packet(0))
+    assert wait_until(lambda: flight_log.records == 1)
+    _sent(flight_log, _frame_packet(20))                 # within FLUSH_S of the last wake: written later
+    time.sleep(0.1)
+    assert flight_log.records == 1
+    flight_log.close()
+    assert [m.time_boot_ms for m in _read(flight_log.files[0])] == [0, 20]
 
 
 def test_a_datagram_sent_through_a_link_is_logged_at_one_time(tmp_path):
