@@ -26,6 +26,7 @@ matplotlib and tqdm), naming the extra to install.
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import signal
 import sys
@@ -110,6 +111,7 @@ def _serve(args) -> int:
     if args.start_fd is not None and not _told_to_start(args.start_fd):
         server.close()
         return 0
+    gc.freeze()     # what was built to serve (plant, FC, dialect, links) is never garbage: no full collection walks it
     return _run_until_stopped(server, ServeError)
 
 
