@@ -12,8 +12,8 @@
  * m4_rti_feedback (the state arrived): moved (the QP's gradient and bounds straight into
  * DAQP's problem) -> daqp_solve (the step straight into plan's argument) -> plan. Returns
  * M4_RTI_INVALID_INPUT when the sum of x0's and x_ref's entries is not finite (or moved
- * failed), the last load's flag when it failed, else DAQP's exitflag; the plan is evaluated
- * only when that is > 0 (M4_RTI_PLAN_FAILED when its evaluation fails).
+ * failed), the last load's flag when it failed (-1 before any load), else DAQP's exitflag;
+ * the plan is evaluated only when that is > 0 (M4_RTI_PLAN_FAILED when its evaluation fails).
  */
 
 #include <math.h>
@@ -59,7 +59,7 @@ typedef struct {
     DAQPResult res;
     int iter_limit;
     int set_up;
-    int load_flag;                   /* the last load's: < 0 failed */
+    int load_flag;                   /* the last load's: < 0 failed (-1 before the first) */
     call moved, plan;
     casadi_int* iw;
     double* w;
@@ -115,6 +115,7 @@ m4_rti* m4_rti_new(int n, int m, int iter_limit, double* hess, double* rows, int
         m4_rti_free(f);
         return NULL;
     }
+    f->load_flag = -1;               /* nothing loaded: the workspace is not set up */
     f->iter_limit = iter_limit;
     f->qp.n = n;
     f->qp.m = m;

@@ -86,6 +86,12 @@ def test_a_hessian_daqp_cannot_factorise_falls_back_and_the_next_preparation_fli
     assert a.status == b.status == "rti" and a.u == pytest.approx(b.u, abs=1e-9)
 
 
+def test_a_feedback_before_any_load_is_refused_with_a_negative_flag():
+    solver = rti_nmpc()._feedback.solver                # built, nothing loaded into DAQP yet
+    assert isinstance(solver, CompiledFeedback)
+    assert solver.feedback() == -1                      # as the Python route's FeedbackQp before a load
+
+
 def test_an_input_that_is_not_finite_is_named_invalid(routes):
     compiled, _ = routes
     x = rom.hover_state(AF)
