@@ -173,7 +173,8 @@ int m4_rti_feedback(m4_rti* f) {
         return M4_RTI_INVALID_INPUT;
     if (f->load_flag < 0) return f->load_flag;
     release_equalities(f);
-    update_ldp(UPDATE_v | UPDATE_d, &f->work);  /* marks the bounds now equal as equalities (active) */
+    flag = update_ldp(UPDATE_v | UPDATE_d, &f->work);   /* marks the bounds now equal as equalities (active) */
+    if (flag < 0) return flag;
     reset_daqp_workspace(&f->work);             /* and the working set from the marks: the last solve's */
     flag = activate_constraints(&f->work);      /* active set and the equalities, factorised anew */
     if (flag < 0) return flag;

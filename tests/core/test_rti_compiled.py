@@ -92,6 +92,18 @@ def test_a_feedback_before_any_load_is_refused_with_a_negative_flag():
     assert solver.feedback() == -1                      # as the Python route's FeedbackQp before a load
 
 
+def test_crossed_input_bounds_are_infeasible_before_the_solve(routes):
+    compiled, _ = routes
+    x = rom.hover_state(AF)
+    compiled.reset()
+    compiled.solve(x, hover_ref(), FULL, WIND)
+    compiled.prepare(hover_ref(), FULL, WIND)
+    lo, hi = compiled.input_bounds(FULL)
+    lo = lo.copy()
+    lo[0] = hi[0] + 1.0
+    assert compiled._feedback.solve(x, hover_ref(), WIND, lo, hi) == -1     # DAQP's EXIT_INFEASIBLE
+
+
 def test_an_input_that_is_not_finite_is_named_invalid(routes):
     compiled, _ = routes
     x = rom.hover_state(AF)
