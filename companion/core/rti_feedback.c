@@ -167,6 +167,19 @@ static void release_equalities(m4_rti* f) {
     }
 }
 
+/* The working set from the equalities alone: activate_constraints left the constraints after the
+ * singular one inactive, equalities too. */
+static void cold_start(m4_rti* f) {
+    int i;
+    for (i = 0; i < f->qp.m; ++i) {
+        if (f->work.sense[i] & IMMUTABLE)
+            f->work.sense[i] |= ACTIVE;
+        else
+            f->work.sense[i] &= ~ACTIVE;
+    }
+    reset_daqp_workspace(&f->work);
+}
+
 int m4_rti_feedback(m4_rti* f) {
     int flag;
     if (M4_RTI_MOVED(f->moved.arg, f->moved.res, f->iw, f->w, 0) != 0 || !isfinite(*f->moved.res[4]))
@@ -177,6 +190,10 @@ int m4_rti_feedback(m4_rti* f) {
     if (flag < 0) return flag;
     reset_daqp_workspace(&f->work);             /* and the working set from the marks: the last solve's */
     flag = activate_constraints(&f->work);      /* active set and the equalities, factorised anew */
+    if (flag == EXIT_OVERDETERMINED_INITIAL) {   /* that set and new equalities singular (a rotor lost) */
+        cold_start(f);
+        flag = activate_constraints(&f->work);
+    }
     if (flag < 0) return flag;
     daqp_solve(&f->res, &f->work);
     if (f->res.exitflag > 0 && M4_RTI_PLAN(f->plan.arg, f->plan.res, f->iw, f->w, 0) != 0)

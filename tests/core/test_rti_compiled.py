@@ -67,6 +67,25 @@ def test_through_a_rotor_loss_and_back_it_plans_what_the_python_route_plans(rout
     assert du < 1e-2 and dx < 1e-3
 
 
+def test_equalities_that_make_the_last_active_set_singular_start_the_solve_from_themselves(routes):
+    # The last solve leaves rows active; then every input's bounds are equal: 40 equalities, which
+    # with those rows are more than 40 constraints on 40 unknowns (DAQP: EXIT_OVERDETERMINED_INITIAL).
+    x = rom.hover_state(AF)
+    x[rom.V] += (2.4, -2.3, 1.2)
+    x[rom.RATES] += (3.6, -2.4, 1.1)
+    active = []
+    for nmpc in routes:
+        nmpc.reset()
+        nmpc.solve(x, hover_ref(), ROTOR_4_OFF, WIND)
+        nmpc.prepare(hover_ref(), ROTOR_4_OFF, WIND)
+        assert np.count_nonzero(nmpc._duals[N * rom.NU:]) > 0          # rows active
+        lo, hi = nmpc.input_bounds(FULL)
+        held = (lo + hi) / 2
+        assert nmpc._feedback.solve(x, hover_ref(), WIND, held, held) == 2     # soft rows violated
+        active.append(np.flatnonzero(nmpc._feedback.duals))
+    assert np.array_equal(active[0], active[1]) and active[0].size > N * rom.NU
+
+
 def test_a_hessian_daqp_cannot_factorise_falls_back_and_the_next_preparation_flies_again(routes):
     compiled, python = routes
     x = rom.hover_state(AF)
