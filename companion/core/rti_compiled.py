@@ -6,7 +6,7 @@ feedback's time) and the compiled `plan` function. Here the C of both functions 
 code generator), a small C source of ours (rti_feedback.c: a DAQP workspace and the
 feedback's three steps) and DAQP's C library are compiled into one library, cached as
 companion.core.codegen_cache caches every compiled function, and called through ctypes on
-the functions' numpy buffers: one call at the preparation (`load`: the Hessian and the rows
+the functions' numpy buffers, holding the GIL: one call at the preparation (`load`: the Hessian and the rows
 factorised into the workspace, as daqp.Model.update does), one at the feedback. The QP is
 the same, solved by the same active-set method from the same active set. DAQP's C library
 is the one CasADi's wheel ships (its headers and libdaqpstat.a), older than the daqp
@@ -83,7 +83,9 @@ class CompiledFeedback:
 
     def __init__(self, library: Path, moved: BufferedFunction, plan: BufferedFunction, variables: int,
                  sense: np.ndarray, iter_limit: int):
-        lib = ctypes.CDLL(str(library))
+        # PyDLL: the calls keep the GIL (27 us); CDLL's give it up, and another thread taking it
+        # mid-answer held the answer up to a switch interval (5 ms).
+        lib = ctypes.PyDLL(str(library))
         lib.m4_rti_new.restype = ctypes.c_void_p
         lib.m4_rti_new.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_int, _DOUBLES, _DOUBLES,
                                    ctypes.POINTER(ctypes.c_int), _DOUBLES, _POINTERS, _POINTERS, _POINTERS, _POINTERS]

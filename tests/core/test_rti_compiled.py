@@ -2,6 +2,8 @@
 Python route (DAQP's binding) plans; without its library the Python route flies, and says so."""
 
 import logging
+import sys
+import threading
 from unittest import mock
 
 import numpy as np
@@ -132,6 +134,31 @@ def test_an_input_that_is_not_finite_is_named_invalid(routes):
     x[rom.V.start] = np.nan
     res = compiled.solve(x, hover_ref(), FULL, WIND)
     assert res.status == "invalid_input" and np.all(np.isfinite(res.u))
+
+
+def test_the_compiled_feedback_keeps_the_gil_through_its_call(routes):
+    # A thread waiting for the GIL takes it whenever a call gives it up (ctypes.CDLL's calls do:
+    # the answer then waits for it back up to a switch interval). With the interval far longer
+    # than the test, the waiting thread runs only if a call gives the GIL up.
+    compiled, _ = routes
+    x = rom.hover_state(AF)
+    compiled.reset()
+    compiled.solve(x, hover_ref(), FULL, WIND)
+    compiled.prepare(hover_ref(), FULL, WIND)
+    solver, ran, waiting = compiled._feedback.solver, [], threading.Lock()
+    waiting.acquire()
+    thread = threading.Thread(target=lambda: (waiting.acquire(), ran.append(True)))
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(100.0)
+    try:
+        thread.start()
+        waiting.release()                 # the thread now waits for the GIL alone
+        for _ in range(1000):
+            solver.feedback()
+        assert not ran
+    finally:
+        sys.setswitchinterval(interval)
+        thread.join()
 
 
 @pytest.mark.parametrize("name, shape", [("hess", (N * rom.NU - 1, N * rom.NU)), ("rows", (3, N * rom.NU))])
