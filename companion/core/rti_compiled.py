@@ -14,9 +14,9 @@ wheel's: its solutions are the binding's to rounding while no soft row binds, an
 0.03 N along benchmarks.rti's flight when one does (they weigh soft rows differently:
 rti_feedback.c).
 
-When the library cannot be built (no DAQP headers or library in CasADi's wheel, the
-compiler fails on it) or `[nmpc] codegen = false`, the Python route flies, and a log line
-says so once.
+When the library cannot be built or loaded (no DAQP headers or library in CasADi's wheel,
+rti_feedback.c missing, the compiler fails on it, the loader refuses it) or `[nmpc] codegen =
+false`, the Python route flies, and a log line says so once.
 """
 
 from __future__ import annotations
@@ -35,6 +35,8 @@ from companion.core.codegen_cache import CodegenError, compiled_library
 
 SOURCE = Path(__file__).with_name("rti_feedback.c")
 INVALID_INPUT = -100            # rti_feedback.c's M4_RTI_INVALID_INPUT
+# DAQP's symbols stay inside our library: another DAQP in the process (the daqp wheel's) keeps its own.
+_HIDE_ARCHIVES = "-Wl,--exclude-libs,ALL"
 
 _log = logging.getLogger(__name__)
 
@@ -59,12 +61,14 @@ def feedback_library(moved: ca.Function, plan: ca.Function, codegen: bool) -> Pa
         return None
     include, archive = daqp
     try:
-        return compiled_library(f"m4_rti_feedback_{moved.name()}", [moved, plan], (SOURCE,),
-                                (f"-I{include}", f"-DM4_RTI_MOVED={moved.name()}", f"-DM4_RTI_PLAN={plan.name()}",
-                                 str(archive)))
-    except CodegenError as e:
+        library = compiled_library(f"m4_rti_feedback_{moved.name()}", [moved, plan], (SOURCE,),
+                                   (f"-I{include}", f"-DM4_RTI_MOVED={moved.name()}", f"-DM4_RTI_PLAN={plan.name()}",
+                                    str(archive), _HIDE_ARCHIVES))
+        ctypes.PyDLL(str(library))                  # one that does not load is no route either
+    except (CodegenError, OSError) as e:            # OSError: our C source missing, the library not loading
         _say_once(f"the RTI feedback calls DAQP from Python: {e}")
         return None
+    return library
 
 
 @functools.cache

@@ -2,6 +2,7 @@
 Python route (DAQP's binding) plans; without its library the Python route flies, and says so."""
 
 import logging
+import subprocess
 import sys
 import threading
 from unittest import mock
@@ -10,12 +11,12 @@ import numpy as np
 import pytest
 
 from companion.core import rom, rti_compiled
-from companion.core.codegen_cache import CodegenError
+from companion.core.codegen_cache import CodegenError, compiled_library
 from companion.core.feedback_qp import FeedbackQp
 from companion.core.nmpc import Nmpc
 from companion.core.nmpc_config import NmpcConfig
 from companion.core.rti_compiled import CompiledFeedback
-from tests.core.test_nmpc_rti import AF, FULL, N, PERIOD_S, ROTOR_4_OFF, WIND, hover_ref
+from tests.core.test_nmpc_rti import AF, FULL, PERIOD_S, ROTOR_4_OFF, WIND, N, hover_ref
 
 
 def rti_nmpc() -> Nmpc:
@@ -195,6 +196,36 @@ def test_a_feedback_library_the_compiler_cannot_build_leaves_the_python_route_fl
     assert isinstance(nmpc._feedback.solver, FeedbackQp)
     assert [r.getMessage() for r in fresh_notices.records] == [
         "the RTI feedback calls DAQP from Python: compiling m4_rti_feedback failed: no daqp"]
+
+
+def test_without_our_c_source_the_python_route_flies_and_says_so(fresh_notices, tmp_path):
+    missing = tmp_path / "rti_feedback.c"
+    with mock.patch.object(rti_compiled, "SOURCE", missing):
+        nmpc = rti_nmpc()
+    assert isinstance(nmpc._feedback.solver, FeedbackQp)
+    assert [r.getMessage() for r in fresh_notices.records] == [
+        f"the RTI feedback calls DAQP from Python: [Errno 2] No such file or directory: '{missing}'"]
+
+
+def test_a_feedback_library_that_does_not_load_leaves_the_python_route_flying(fresh_notices, tmp_path):
+    broken = tmp_path / "m4_rti_feedback.so"
+    broken.write_bytes(b"not a shared library")
+    with mock.patch.object(rti_compiled, "compiled_library", lambda *args: broken):
+        nmpc = rti_nmpc()
+    assert isinstance(nmpc._feedback.solver, FeedbackQp)
+    [notice] = [r.getMessage() for r in fresh_notices.records]
+    assert notice.startswith(f"the RTI feedback calls DAQP from Python: {broken}: ") and "\n" not in notice
+
+
+def test_daqps_symbols_stay_inside_the_feedback_library():
+    built = []
+    with mock.patch.object(rti_compiled, "compiled_library", lambda *args: built.append(compiled_library(*args))
+                           or built[-1]):
+        rti_nmpc()
+    [library] = built
+    exported = subprocess.run(["nm", "-D", "--defined-only", str(library)], capture_output=True, text=True,
+                              check=True).stdout
+    assert "m4_rti_feedback" in exported and "daqp_solve" not in exported and "setup_daqp" not in exported
 
 
 def test_with_codegen_off_the_python_route_flies_and_says_so(fresh_notices):
