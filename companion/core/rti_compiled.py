@@ -15,8 +15,9 @@ wheel's: its solutions are the binding's to rounding while no soft row binds, an
 rti_feedback.c).
 
 When the library cannot be built or loaded (no DAQP headers or library in CasADi's wheel,
-rti_feedback.c missing, the compiler fails on it, the loader refuses it) or `[nmpc] codegen =
-false`, the Python route flies, and a log line says so once.
+rti_feedback.c missing, the compiler fails on it, the loader refuses it), CasADi is not a
+version rti_feedback.c was checked on (CHECKED_CASADI) or `[nmpc] codegen = false`, the
+Python route flies, and a log line says so once.
 """
 
 from __future__ import annotations
@@ -35,6 +36,11 @@ from companion.core.codegen_cache import CodegenError, compiled_library
 
 SOURCE = Path(__file__).with_name("rti_feedback.c")
 INVALID_INPUT = -100            # rti_feedback.c's M4_RTI_INVALID_INPUT
+# The CasADi versions whose DAQP rti_feedback.c was checked on (the x86_64 and aarch64 wheels):
+# it reaches into DAQP's internals (the workspace's constraint marks, update_ldp's marking of
+# equalities, reset_daqp_workspace and activate_constraints, a build without SOFT_WEIGHTS),
+# which another version may change under a library that still builds.
+CHECKED_CASADI = frozenset({"3.8.2"})
 # DAQP's symbols stay inside our library: another DAQP in the process (the daqp wheel's) keeps its own.
 _HIDE_ARCHIVES = "-Wl,--exclude-libs,ALL"
 
@@ -53,6 +59,10 @@ def feedback_library(moved: ca.Function, plan: ca.Function, codegen: bool) -> Pa
     (companion.core.rti.feedback_functions); None (said once) when it is not to be had."""
     if not codegen:
         _say_once("the RTI feedback calls DAQP from Python: [nmpc] codegen = false")
+        return None
+    if ca.__version__ not in CHECKED_CASADI:
+        _say_once(f"the RTI feedback calls DAQP from Python: rti_feedback.c was checked on the DAQP of CasADi "
+                  f"{', '.join(sorted(CHECKED_CASADI))}, not of CasADi {ca.__version__}")
         return None
     daqp = daqp_c_library()
     if daqp is None:

@@ -16,7 +16,11 @@ from companion.core.feedback_qp import FeedbackQp
 from companion.core.nmpc import Nmpc
 from companion.core.nmpc_config import NmpcConfig
 from companion.core.rti_compiled import CompiledFeedback
-from tests.core.test_nmpc_rti import AF, FULL, PERIOD_S, ROTOR_4_OFF, WIND, N, hover_ref
+from tests.core.test_nmpc_rti import AF, FULL, N, PERIOD_S, ROTOR_4_OFF, WIND, hover_ref
+
+NOT_CHECKED = (f"the compiled route flies on CasADi {', '.join(sorted(rti_compiled.CHECKED_CASADI))} only, "
+               f"not {rti_compiled.ca.__version__}")
+compiled_route = pytest.mark.skipif(rti_compiled.ca.__version__ not in rti_compiled.CHECKED_CASADI, reason=NOT_CHECKED)
 
 
 def rti_nmpc() -> Nmpc:
@@ -30,6 +34,8 @@ def python_route() -> Nmpc:
 
 @pytest.fixture(scope="module")
 def routes():
+    if rti_compiled.ca.__version__ not in rti_compiled.CHECKED_CASADI:
+        pytest.skip(NOT_CHECKED)
     compiled, python = rti_nmpc(), python_route()
     assert isinstance(compiled._feedback.solver, CompiledFeedback)
     assert isinstance(python._feedback.solver, FeedbackQp)
@@ -108,6 +114,7 @@ def test_a_hessian_daqp_cannot_factorise_falls_back_and_the_next_preparation_fli
     assert a.status == b.status == "rti" and a.u == pytest.approx(b.u, abs=1e-9)
 
 
+@compiled_route
 def test_a_feedback_before_any_load_is_refused_with_a_negative_flag():
     solver = rti_nmpc()._feedback.solver                # built, nothing loaded into DAQP yet
     assert isinstance(solver, CompiledFeedback)
@@ -179,6 +186,7 @@ def fresh_notices(caplog):
     rti_compiled._say_once.cache_clear()
 
 
+@compiled_route
 def test_without_casadis_daqp_the_python_route_flies_and_says_so_once(fresh_notices):
     first, second = python_route(), python_route()
     assert isinstance(first._feedback.solver, FeedbackQp) and isinstance(second._feedback.solver, FeedbackQp)
@@ -187,6 +195,7 @@ def test_without_casadis_daqp_the_python_route_flies_and_says_so_once(fresh_noti
         f"the RTI feedback calls DAQP from Python: CasADi's wheel has no DAQP C headers and libdaqpstat.a under {casadi_dir}"]
 
 
+@compiled_route
 def test_a_feedback_library_the_compiler_cannot_build_leaves_the_python_route_flying(fresh_notices):
     def fail(*args, **kwargs):
         raise CodegenError("compiling m4_rti_feedback failed: no daqp")
@@ -198,6 +207,7 @@ def test_a_feedback_library_the_compiler_cannot_build_leaves_the_python_route_fl
         "the RTI feedback calls DAQP from Python: compiling m4_rti_feedback failed: no daqp"]
 
 
+@compiled_route
 def test_without_our_c_source_the_python_route_flies_and_says_so(fresh_notices, tmp_path):
     missing = tmp_path / "rti_feedback.c"
     with mock.patch.object(rti_compiled, "SOURCE", missing):
@@ -207,6 +217,7 @@ def test_without_our_c_source_the_python_route_flies_and_says_so(fresh_notices, 
         f"the RTI feedback calls DAQP from Python: [Errno 2] No such file or directory: '{missing}'"]
 
 
+@compiled_route
 def test_a_feedback_library_that_does_not_load_leaves_the_python_route_flying(fresh_notices, tmp_path):
     broken = tmp_path / "m4_rti_feedback.so"
     broken.write_bytes(b"not a shared library")
@@ -217,6 +228,7 @@ def test_a_feedback_library_that_does_not_load_leaves_the_python_route_flying(fr
     assert notice.startswith(f"the RTI feedback calls DAQP from Python: {broken}: ") and "\n" not in notice
 
 
+@compiled_route
 def test_daqps_symbols_stay_inside_the_feedback_library():
     built = []
     with mock.patch.object(rti_compiled, "compiled_library", lambda *args: built.append(compiled_library(*args))
@@ -226,6 +238,15 @@ def test_daqps_symbols_stay_inside_the_feedback_library():
     exported = subprocess.run(["nm", "-D", "--defined-only", str(library)], capture_output=True, text=True,
                               check=True).stdout
     assert "m4_rti_feedback" in exported and "daqp_solve" not in exported and "setup_daqp" not in exported
+
+
+def test_on_a_casadi_rti_feedback_c_was_not_checked_on_the_python_route_flies_and_says_so(fresh_notices):
+    with mock.patch.object(rti_compiled.ca, "__version__", "3.9.0"):
+        nmpc = rti_nmpc()
+    assert isinstance(nmpc._feedback.solver, FeedbackQp)
+    assert [r.getMessage() for r in fresh_notices.records] == [
+        ("the RTI feedback calls DAQP from Python: rti_feedback.c was checked on the DAQP of CasADi 3.8.2, "
+         "not of CasADi 3.9.0")]
 
 
 def test_with_codegen_off_the_python_route_flies_and_says_so(fresh_notices):
