@@ -100,6 +100,7 @@ class RtiFeedback:
         self.solver = FeedbackQp(horizon * NU, sense, iter_limit) if library is None else \
             CompiledFeedback(library, self._moved, self._plan, horizon * NU, sense, iter_limit)
         self.duals = np.zeros(sense.size)          # the last solve's
+        self.solve = self._python_solve if library is None else self._compiled_solve
 
     def load(self, prep: PreparedQp, warm: bool) -> None:
         """The next feedback's QP: prep's Hessian and rows into DAQP (warm: from the last solve's
@@ -116,18 +117,23 @@ class RtiFeedback:
             self._plan.set_parameters(state_w=cost.state_w.ravel(), input_w=np.tile(cost.input_w, self.horizon))
             self._cost = cost
 
-    def solve(self, x0: np.ndarray, x_ref: np.ndarray, d: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> int:
-        """The loaded QP moved to the initial state x0 (20,), reference x_ref (N+1, 20) and
-        disturbance d (6,), under the input bounds lo, hi (8,; read-only: kept while they are the
-        same arrays), solved, and its plan (`planned`) when DAQP's exitflag is > 0: INVALID_INPUT
-        when an entry of x0 or x_ref is not finite (or finite entries' sum overflows), else
-        DAQP's exitflag (negative: the load, the solve or, compiled, the plan's evaluation failed)."""
-        if isinstance(self.solver, CompiledFeedback):
-            self._set_bounds(lo, hi)
-            self._moved.set_inputs(x0, x_ref.ravel(), d)
-            flag = self.solver.feedback()
-            self.duals = self.solver.duals
-            return flag
+    def _compiled_solve(self, x0: np.ndarray, x_ref: np.ndarray, d: np.ndarray, lo: np.ndarray,
+                        hi: np.ndarray) -> int:
+        """`solve` (the route chosen once, at construction): the loaded QP moved to the initial
+        state x0 (20,), reference x_ref (N+1, 20) and disturbance d (6,), under the input bounds
+        lo, hi (8,; read-only: kept while they are the same arrays), solved, and its plan
+        (`planned`) when DAQP's exitflag is > 0: INVALID_INPUT when an entry of x0 or x_ref is not
+        finite (or finite entries' sum overflows), else DAQP's exitflag (negative: the load, the
+        solve or, compiled, the plan's evaluation failed). One call into C."""
+        self._set_bounds(lo, hi)
+        self._moved.set_inputs(x0, x_ref.ravel(), d)
+        flag = self.solver.feedback()
+        self.duals = self.solver.duals
+        return flag
+
+    def _python_solve(self, x0: np.ndarray, x_ref: np.ndarray, d: np.ndarray, lo: np.ndarray,
+                      hi: np.ndarray) -> int:
+        """`solve` as `_compiled_solve` says, in three calls from Python."""
         grad, upper, lower, _, inputs_sum = self.qp(x0, x_ref, d, lo, hi)
         if not math.isfinite(inputs_sum[0]):
             return INVALID_INPUT
@@ -143,11 +149,6 @@ class RtiFeedback:
         x_ref's entries (1,)]. The arrays are buffers that the next call overwrites."""
         self._set_bounds(lo, hi)
         return self._moved.evaluate(x0, x_ref.ravel(), d)
-
-    def plan(self, step: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        """`planned` after the step (N*8,) from the QP the last `qp` moved."""
-        self._plan.evaluate(step)
-        return self.planned()
 
     def planned(self) -> tuple[np.ndarray, np.ndarray, float]:
         """(inputs (N, 8), predicted states (N+1, 20), the cost of both) of the last plan: the

@@ -47,7 +47,14 @@ def moved(rti, x0, x_ref, d, bound=FULL):
     """The prepared QP's feedback at (x0, x_ref, d): (gradient, upper, lower, states (N+1, 20)):
     the states as the plan of a zero step gives them."""
     grad, upper, lower = (a.copy() for a in rti._feedback.qp(x0, x_ref, d, *rti.input_bounds(bound))[:3])
-    return grad, upper, lower, rti._feedback.plan(np.zeros(N * rom.NU))[1]
+    return grad, upper, lower, plan(rti, np.zeros(N * rom.NU))[1]
+
+
+def plan(rti, step):
+    """(inputs, states, cost) after the step (N*8,) from the QP the last `moved` moved: the
+    feedback's own `plan` evaluated as its Python route evaluates it, then `planned`."""
+    rti._feedback._plan.evaluate(step)
+    return rti._feedback.planned()
 
 
 def offset(rng, scale):
@@ -103,7 +110,7 @@ def test_the_plan_takes_the_step_within_the_bounds_and_costs_what_the_cost_says(
     x0, x_ref, d = prep.x0 + 0.01, hover_ref(), prep.d
     step = np.random.default_rng(3).normal(scale=2.0, size=N * rom.NU)
     states = moved(rti, x0, x_ref, d, ROTOR_4_OFF)[3]
-    us, xs, cost = rti._feedback.plan(step)
+    us, xs, cost = plan(rti, step)
     lo, hi = rti.input_bounds(ROTOR_4_OFF)
     assert np.array_equal(us, np.clip(prep.us + step.reshape(N, rom.NU), lo, hi))
     assert xs[1:] == pytest.approx(states[1:] + (prep.gamma @ step).reshape(N, rom.NX), rel=1e-12, abs=1e-12)
@@ -220,7 +227,7 @@ def test_the_feedback_takes_the_weights_of_the_cost_it_was_prepared_for(rti):
         grad, _, _, states = moved(rti, x0, hover_ref(), prep.d)
         ref, u_ref = rti.targets(x0, hover_ref(), prep.d)
         assert grad == pytest.approx(rti.cost.gauss_newton(prep.gamma, states, prep.us, ref, u_ref)[1], rel=1e-9)
-        us, xs, cost = rti._feedback.plan(np.zeros(N * rom.NU))
+        us, xs, cost = plan(rti, np.zeros(N * rom.NU))
         assert cost == pytest.approx(rti.cost.value(xs, us, ref, u_ref), rel=1e-12)
     finally:
         rti.reset()
