@@ -32,6 +32,15 @@ def python_route() -> Nmpc:
         return rti_nmpc()
 
 
+def prepared_at_hover(nmpc: Nmpc) -> np.ndarray:
+    """The hover state, after a solve there from a reset and the preparation of the next."""
+    x = rom.hover_state(AF)
+    nmpc.reset()
+    nmpc.solve(x, hover_ref(), FULL, WIND)
+    nmpc.prepare(hover_ref(), FULL, WIND)
+    return x
+
+
 @pytest.fixture(scope="module")
 def routes():
     if rti_compiled.ca.__version__ not in rti_compiled.CHECKED_CASADI:
@@ -123,10 +132,7 @@ def test_a_feedback_before_any_load_is_refused_with_a_negative_flag():
 
 def test_crossed_input_bounds_are_infeasible_before_the_solve(routes):
     compiled, _ = routes
-    x = rom.hover_state(AF)
-    compiled.reset()
-    compiled.solve(x, hover_ref(), FULL, WIND)
-    compiled.prepare(hover_ref(), FULL, WIND)
+    x = prepared_at_hover(compiled)
     lo, hi = compiled.input_bounds(FULL)
     lo = lo.copy()
     lo[0] = hi[0] + 1.0
@@ -137,10 +143,7 @@ def test_crossed_input_bounds_are_infeasible_before_the_solve(routes):
 
 def test_a_step_that_is_not_finite_falls_back_to_a_bounded_command(routes):
     compiled, _ = routes
-    x = rom.hover_state(AF)
-    compiled.reset()
-    compiled.solve(x, hover_ref(), FULL, WIND)
-    compiled.prepare(hover_ref(), FULL, WIND)
+    x = prepared_at_hover(compiled)
     grad = compiled._prepared.grad.copy()
     grad[3] = np.nan                     # DAQP's step then is not finite, its exitflag 1
     compiled._feedback._moved.set_parameters(grad_p=grad)
@@ -152,10 +155,7 @@ def test_a_step_that_is_not_finite_falls_back_to_a_bounded_command(routes):
 
 def test_an_input_that_is_not_finite_is_named_invalid(routes):
     compiled, _ = routes
-    x = rom.hover_state(AF)
-    compiled.reset()
-    compiled.solve(x, hover_ref(), FULL, WIND)
-    compiled.prepare(hover_ref(), FULL, WIND)
+    x = prepared_at_hover(compiled)
     x[rom.V.start] = np.nan
     res = compiled.solve(x, hover_ref(), FULL, WIND)
     assert res.status == "invalid_input" and np.all(np.isfinite(res.u))
@@ -166,10 +166,7 @@ def test_the_compiled_feedback_keeps_the_gil_through_its_call(routes):
     # the answer then waits for it back up to a switch interval). With the interval far longer
     # than the test, the waiting thread runs only if a call gives the GIL up.
     compiled, _ = routes
-    x = rom.hover_state(AF)
-    compiled.reset()
-    compiled.solve(x, hover_ref(), FULL, WIND)
-    compiled.prepare(hover_ref(), FULL, WIND)
+    prepared_at_hover(compiled)
     solver, ran, waiting = compiled._feedback.solver, [], threading.Lock()
     waiting.acquire()
     thread = threading.Thread(target=lambda: (waiting.acquire(), ran.append(True)))
