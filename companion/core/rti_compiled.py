@@ -6,13 +6,13 @@ feedback's time) and the compiled `plan` function. Here the C of both functions 
 code generator), a small C source of ours (rti_feedback.c: a DAQP workspace and the
 feedback's three steps) and DAQP's C library are compiled into one library, cached as
 companion.core.codegen_cache caches every compiled function, and called through ctypes on
-the functions' numpy buffers, holding the GIL: one call at the preparation (`load`: the Hessian and the rows
-factorised into the workspace, as daqp.Model.update does), one at the feedback. The QP is
-the same, solved by the same active-set method from the same active set. DAQP's C library
-is the one CasADi's wheel ships (its headers and libdaqpstat.a), older than the daqp
-wheel's: its solutions are the binding's to rounding while no soft row binds, and within
-0.03 N along benchmarks.rti's flight when one does (they weigh soft rows differently:
-rti_feedback.c).
+the functions' numpy buffers, holding the GIL: one call at the preparation (`load`: the
+Hessian and the rows factorised into the workspace, as daqp.Model.update does), one at the
+feedback. The QP is the same, solved by the same active-set method from the same active
+set. DAQP's C library is the one CasADi's wheel ships (its headers and libdaqpstat.a), older
+than the daqp wheel's: its solutions are the binding's to rounding while no soft row binds,
+and within 0.03 N along benchmarks.rti's flight when one does (they weigh soft rows
+differently: rti_feedback.c).
 
 When the library cannot be built or loaded (no DAQP headers or library in CasADi's wheel,
 rti_feedback.c missing, the compiler fails on it, the loader refuses it), CasADi is not a

@@ -31,10 +31,9 @@ typedef long long casadi_int;       /* CasADi's default */
  * (built with SOFT_WEIGHTS) divides its rho_soft (1e-6) by the square of DAQP's scaling of each
  * row (1.35 to 298 for the NMPC's rows along benchmarks.rti's flight: docs/performance.md), so
  * its soft rows are all but hard; this DAQP has one weight for every row, and only one all but
- * hard keeps its plans the wheel's. Along
- * benchmarks.rti's flight the plans differ by up to 11 N with 1e-6, 0.3 N with 1e-8, and 0.03 N
- * at one step with 1e-12 or 1e-16 (the wheel's least hard rows); the built-in flights' truth
- * by 1.2e-7 m at most with 1e-12. */
+ * hard keeps its plans the wheel's. Along benchmarks.rti's flight the plans differ by up to 11 N
+ * with 1e-6, 0.3 N with 1e-8, and 0.03 N at one step with 1e-12 or 1e-16 (the wheel's least
+ * hard rows); the built-in flights' truth by 1.2e-7 m at most with 1e-12. */
 #define PIVOT_TOL 1e-8
 #define RHO_SOFT 1e-12
 
