@@ -11,9 +11,11 @@ stream look replayed. `setup_signing` puts our check in its place on the protoco
 
 Our own timestamp follows the wall clock (10 us since 2015-01-01, as the spec asks of a system
 that knows the time): at least the clock's, one more for every packet sent, and at least the
-newest accepted from a peer. pymavlink alone only counts packets from the instant of set-up,
-so a peer that had kept our timestamps across its restart (below) would refuse us for as long
-as our packets take to count past them.
+newest accepted from a peer and the clock's reading when it was accepted (what pymavlink's
+check sets through the getter), so a clock stepped back (NTP, a board without a real-time
+clock) leaves a receive-only link's window for new streams where it was. pymavlink alone only
+counts packets from the instant of set-up, so a peer that had kept our timestamps across its
+restart (below) would refuse us for as long as our packets take to count past them.
 
 Replay across a restart: pymavlink accepts a new stream (link id, system, component) whose
 timestamp is at most a minute behind its own clock, so a packet captured before a restart
@@ -140,7 +142,7 @@ def check_signature(mav: mavlink.MAVLink, msgbuf: bytearray, src_system: int, sr
         log.info("signed packet with an old timestamp (a replay?): dropped")
         return False
     s.stream_timestamps[stream] = timestamp
-    s._timestamp = max(s._timestamp, timestamp)      # our own at least the newest accepted (the getter adds the clock)
+    s._timestamp = max(s._timestamp, _wall_timestamp(), timestamp)    # the clock's now kept: it may step back
     return True
 
 

@@ -146,6 +146,47 @@ def test_our_own_timestamp_survives_a_restart_whose_clock_is_behind(tmp_path, mo
     assert _timestamp(sink.packets[-1]) > last
 
 
+def _signed_at(timestamp: int, system: int) -> bytes:
+    """A setpoint signed with KEY by `system` at `timestamp` (pymavlink's own signing: no wall
+    clock)."""
+    sink = PacketSink()
+    tx = new_mav(sink, system, 191)
+    tx.signing.secret_key, tx.signing.sign_outgoing, tx.signing.timestamp = KEY, True, timestamp
+    tx.send(_setpoint())
+    return sink.packets[0]
+
+
+def _ours_and_pymavlinks():
+    """Two receivers with our signing state: one with our check, one with pymavlink's own
+    (MAVLink.check_signature: the same verdicts on good signatures, our timestamp set through
+    the getter)."""
+    ours, theirs = _receiver(), _receiver()
+    del theirs.check_signature
+    return ours, theirs
+
+
+def _judged_alike(ours, theirs, packet: bytes) -> str:
+    """The type both make of `packet`, once their signing states are seen to agree."""
+    got, expected = _types(ours, [packet]), _types(theirs, [packet])
+    assert got == expected
+    assert (ours.signing.timestamp, ours.signing.stream_timestamps) == \
+        (theirs.signing.timestamp, theirs.signing.stream_timestamps)
+    return got[0]
+
+
+def test_a_clock_stepped_back_leaves_the_new_stream_window_where_pymavlinks_check_leaves_it(monkeypatch):
+    """A receive-only link accepts a peer 50 s behind our clock, then the clock steps back an
+    hour (NTP, a board without a real-time clock): a new stream 100 s behind where the clock
+    was is still refused, as pymavlink's own check refuses it."""
+    now = signing._wall_timestamp()
+    clock = [now]
+    monkeypatch.setattr(signing, "_wall_timestamp", lambda: clock[0])
+    ours, theirs = _ours_and_pymavlinks()
+    assert _judged_alike(ours, theirs, _signed_at(now - 50 * 100_000, system=1)) == "M4_SETPOINT"
+    clock[0] = now - 3600 * 100_000
+    assert _judged_alike(ours, theirs, _signed_at(now - 100 * 100_000, system=2)) == "BAD_DATA"
+
+
 @pytest.mark.parametrize("key, tamper, reason", [
     (None, False, "unsigned"), (bytes(32), False, "bad signature"), (KEY, False, "replayed"), (KEY, True, "bad signature"),
 ], ids=["unsigned", "another key", "replayed", "tampered"])
