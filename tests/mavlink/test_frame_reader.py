@@ -35,8 +35,8 @@ _messages = st.one_of(
 )
 
 
-def _datagram(msgs, key=None) -> bytes:
-    return b"".join(packed(msgs, key=key))
+def _datagram(msgs, key=None, link_id=0) -> bytes:
+    return b"".join(packed(msgs, key=key, link_id=link_id))
 
 
 def _same_value(a, b) -> bool:
@@ -86,6 +86,21 @@ def test_signed_frames_are_judged_by_pymavlink():
     data = _datagram([mavlink.MAVLink_heartbeat_message(18, 8, 0, 0, 4, 3)], key=KEY)
     expected, got = _both(data, key=KEY)
     assert [m.get_type() for m in got] == ["HEARTBEAT"] and got[0].get_signed() and _same(got[0], expected[0])
+
+
+def test_a_signed_frames_link_id_is_its_messages_and_keys_its_streams_timestamp():
+    """Signed on link id 7: pymavlink's own decode and check give each message that link id and
+    keep the stream's timestamp under (7, system, component); so does the reader."""
+    data = _datagram([mavlink.MAVLink_heartbeat_message(18, 8, 0, 0, 4, 3),
+                      mavlink.MAVLink_attitude_message(20, 0.1, 0.2, 0.3, 0, 0, 0)], key=KEY, link_id=7)
+    theirs, ours = new_mav(None, 1, 191), new_mav(None, 1, 191)
+    setup_signing(theirs, KEY)
+    setup_signing(ours, KEY)
+    del theirs.check_signature                  # pymavlink's own (MAVLink.check_signature)
+    expected, got = theirs.parse_buffer(data), read_datagram(ours, data)
+    assert [m.get_link_id() for m in got] == [7, 7] and all(map(_same, got, expected))
+    assert list(ours.signing.stream_timestamps) == [(7, 1, 1)]
+    assert ours.signing.stream_timestamps == theirs.signing.stream_timestamps
 
 
 @given(st.lists(_messages, min_size=1, max_size=6), st.sampled_from([KEY, bytes(32)]), st.booleans())

@@ -16,12 +16,13 @@ class PacketSink:
         self.packets.append(bytes(packet))
 
 
-def packed(msgs, system: int = 1, component: int = 1, key: bytes | None = None) -> list[bytes]:
-    """Each of `msgs`, in order, packed by one sender `system/component` (signed with `key`)."""
+def packed(msgs, system: int = 1, component: int = 1, key: bytes | None = None, link_id: int = 0) -> list[bytes]:
+    """Each of `msgs`, in order, packed by one sender `system/component` (signed with `key` on
+    `link_id`)."""
     sink = PacketSink()
     mav = new_mav(sink, system, component)
     if key is not None:
-        setup_signing(mav, key)
+        setup_signing(mav, key, link_id)
     for msg in msgs:
         mav.send(msg)
     return sink.packets
