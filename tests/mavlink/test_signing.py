@@ -187,6 +187,17 @@ def test_a_clock_stepped_back_leaves_the_new_stream_window_where_pymavlinks_chec
     assert _judged_alike(ours, theirs, _signed_at(now - 100 * 100_000, system=2)) == "BAD_DATA"
 
 
+def test_a_packet_far_ahead_of_the_clock_raises_our_timestamp_and_refuses_a_new_stream_behind_it(monkeypatch):
+    """A good packet an hour ahead of our clock is a new stream we accept; our own timestamp
+    rises to it, and a new stream at the clock's time (an hour behind it) is then refused, as
+    pymavlink's own check refuses it."""
+    now = signing._wall_timestamp()
+    monkeypatch.setattr(signing, "_wall_timestamp", lambda: now)
+    ours, theirs = _ours_and_pymavlinks()
+    assert _judged_alike(ours, theirs, _signed_at(now + 3600 * 100_000, system=1)) == "M4_SETPOINT"
+    assert _judged_alike(ours, theirs, _signed_at(now, system=2)) == "BAD_DATA"
+
+
 @pytest.mark.parametrize("key, tamper, reason", [
     (None, False, "unsigned"), (bytes(32), False, "bad signature"), (KEY, False, "replayed"), (KEY, True, "bad signature"),
 ], ids=["unsigned", "another key", "replayed", "tampered"])
