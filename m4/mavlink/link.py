@@ -239,15 +239,15 @@ class UdpLink(MavlinkLink):
 
 
 def parse_bytes(mav: mavlink.MAVLink, data: bytes, tlog: TlogWriter | None) -> tuple[list, list]:
-    """(good messages, BAD_DATA of each rejected or garbled packet) in `data`; everything to the tlog."""
-    out, bad, packets = [], [], []
+    """(good messages, BAD_DATA of each rejected or garbled packet) in `data`; everything to the
+    tlog, when there is one (the packets are gathered only for it)."""
+    out, bad = [], []
+    packets = [] if tlog is not None else None
     for msg in read_datagram(mav, data):
-        if msg.get_type() == "BAD_DATA":
-            bad.append(msg)
-            packets.append(bytes(msg.data))
-        else:
-            out.append(msg)
-            packets.append(msg.get_msgbuf())
+        refused = msg.get_type() == "BAD_DATA"
+        (bad if refused else out).append(msg)
+        if packets is not None:
+            packets.append(bytes(msg.data) if refused else msg.get_msgbuf())
     if tlog is not None and packets:        # the datagram's packets at one time, as sent (TlogWriter.record_all)
         tlog.record_all(packets)
     return out, bad

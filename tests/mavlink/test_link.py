@@ -101,6 +101,20 @@ def test_every_packet_received_goes_to_the_tlog_refused_ones_too(tmp_path):
     assert records == [good, forged]
 
 
+def test_without_a_tlog_no_packet_is_gathered_for_one(monkeypatch):
+    """The packets of a datagram are gathered only for a tlog: a link without one never asks
+    a message for its buffer."""
+    asked = []
+    monkeypatch.setattr(mavlink.MAVLink_message, "get_msgbuf", lambda msg: asked.append(msg))
+    attitude = mavlink.MAVLink_attitude_message(20, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+        link = UdpLink("udpin:127.0.0.1:0", 1, 191)
+        tx.sendto(b"".join(packed([attitude] * 3)), ("127.0.0.1", link.local_port))
+        assert [m.get_type() for m in _receive(link, 3)] == ["ATTITUDE"] * 3
+        link.close()
+    assert asked == []
+
+
 def test_send_all_packs_messages_into_datagrams_below_the_mtu():
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rx:
         rx.bind(("127.0.0.1", 0))
