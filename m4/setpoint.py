@@ -51,9 +51,15 @@ class RateFeedback:
 
     def thrust_change_n(self, rates_frd_rad_s, in_force_s: float, period_s: float) -> np.ndarray:
         """(4,) the feedback after the setpoint has been in force in_force_s (planned rates
-        held after period_s), for the measured body rates; zeros when they are not finite."""
+        held after period_s), for the measured body rates; zeros when they are not finite.
+
+        No product code calls it (the FC restates the sums on floats, sitl/fc/fast_loop.py; the
+        prediction is one generated call, companion/core/prediction.py): it is the one executable
+        statement of the FC's law they are checked against, so it stays. Checked against it:
+        FastLoop (tests/sitl/fc/test_fast_loop.py) and the compiled prediction
+        (tests/core/test_prediction.py, loop_prediction)."""
         rates = np.asarray(rates_frd_rad_s, dtype=float)
-        if not all(map(math.isfinite, rates.tolist())):      # three floats, at every FC tick: cheaper than numpy's all
+        if not all(map(math.isfinite, rates.tolist())):      # three floats: cheaper than numpy's all
             return np.zeros(4)
         ref = self.rates_ref_frd_rad_s + self.rates_ref_change_frd_rad_s2 * min(max(in_force_s, 0.0), period_s)
         return self.gain_n_per_rad_s @ (ref - rates)
@@ -80,7 +86,12 @@ class ShortfallCover:
         return cls(gain, effectiveness if usable else None)
 
     def thrust_change_n(self, shortfall_n) -> np.ndarray:
-        """(4,) the other rotors' cover for the rotors' shortfalls (4,), N."""
+        """(4,) the other rotors' cover for the rotors' shortfalls (4,), N.
+
+        No product code calls it (as RateFeedback.thrust_change_n): the one executable statement
+        of the cover the FC adds, which stays. Checked against it: FastLoop
+        (tests/sitl/fc/test_fast_loop.py), the compiled prediction (tests/core/test_prediction.py,
+        loop_prediction) and the Lua applet (tests/sitl/ardupilot/test_m4_fc_applet.py)."""
         return self.gain @ np.asarray(shortfall_n, dtype=float)
 
 
