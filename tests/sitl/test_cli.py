@@ -85,12 +85,9 @@ def test_what_serve_built_is_frozen_out_of_the_garbage_collector_before_it_serve
     hover-rotor-loss's 5.5 s, a stall the companion's next answer met on cold caches."""
     from sitl.serve import Server
 
-    frozen = []
+    frozen = []                                # from none: tests/conftest.py unfreezes before each test
     monkeypatch.setattr(Server, "run", lambda self: frozen.append(gc.get_freeze_count()))
-    try:
-        code = main(["serve", "--scenario", "hover-rotor-loss", "--mavlink", "udpin:127.0.0.1:0"])
-    finally:
-        gc.unfreeze()
+    code = main(["serve", "--scenario", "hover-rotor-loss", "--mavlink", "udpin:127.0.0.1:0"])
     assert code == 0 and frozen and frozen[0] > 10_000
 
 
