@@ -114,6 +114,20 @@ class _Announcement(NamedTuple):
     text: str
 
 
+def collect_due() -> None:
+    """The garbage collection the interpreter would run at its next allocation, now (called with
+    the collector disabled, so that nothing starts one meanwhile): once the young generation's
+    count is past its threshold, the oldest generation whose count is. Young alone would leave the
+    older ones to an automatic collection that never comes while every poll ends with the young
+    count reset. Python does not expose the interpreter's guard that puts a full collection off
+    while few objects were promoted since the last: here it runs when due (about every 100 young
+    ones); after `m4-companion run`'s gc.freeze it walks only what was made since (0.01 ms, 10 ms
+    of a companion not frozen)."""
+    counts, thresholds = gc.get_count(), gc.get_threshold()
+    if counts[0] > thresholds[0]:
+        gc.collect(2 if counts[2] > thresholds[2] else 1 if counts[1] > thresholds[1] else 0)
+
+
 class CompanionApp:
     def __init__(self, config: CompanionConfig, fc: FcLink, controller: Controller, feed: Feed | None = None,
                  clock=time.monotonic, flight_log: FlightLog | None = None,
@@ -170,14 +184,16 @@ class CompanionApp:
 
     def poll(self) -> None:
         """Everything that has arrived, what it means, then the answer and the periodic messages.
-        No garbage collection runs in it: one due meanwhile runs after it, off the answer (a young
-        generation's took 0.1-1.3 ms, in the middle of whichever answer it fell on)."""
+        No garbage collection runs in it: one due meanwhile runs at its end (`collect_due`), off
+        the answer (a young generation's took 0.1-1.3 ms, in the middle of whichever answer it
+        fell on), not at the next allocation of a tracked object after it."""
         collecting = gc.isenabled()
         gc.disable()
         try:
             self._poll()
         finally:
             if collecting:
+                collect_due()
                 gc.enable()
 
     def _poll(self) -> None:

@@ -18,7 +18,7 @@ import pytest
 
 from m4.airframe import load_airframe
 from companion import flight_log
-from companion.app import CompanionApp
+from companion.app import collect_due, CompanionApp
 from companion.config import LogSettings, parse_config
 from companion.controller import Controller, ControllerSettings
 from companion.core.control_types import FaultState, FaultStatus
@@ -146,6 +146,52 @@ def test_no_garbage_collection_runs_between_a_frames_read_and_its_setpoint(rig, 
     order = re.sub("c+", "c", "".join({"read": "r", "sent": "s", "collected": "c"}[e] for e in events))
     assert re.fullmatch("c?(rsc)+", order), order      # read, sent, collected: each poll in turn
 
+
+
+def test_a_collection_due_in_a_poll_runs_by_its_end_though_nothing_allocates_after_it(rig, monkeypatch):
+    """Re-enabled, the collector waits for the next allocation of a tracked object: in the real
+    loop soon (its select), but by chance. The poll runs the one due itself, after its _poll."""
+    app, fc = rig[:2]
+    fc.join(app)
+    events = []
+    inner = app._poll
+    monkeypatch.setattr(app, "_poll", lambda: inner() or events.append("polled"))
+    collected = lambda phase, info: events.append("collected") if phase == "start" else None
+    threshold = gc.get_threshold()
+    gc.callbacks.append(collected)
+    gc.set_threshold(1)                      # due after the poll's first allocation
+    try:
+        fc.frame(0)
+        app.poll()
+        events.append("returned")            # a string appended: no tracked object allocated
+    finally:
+        gc.set_threshold(*threshold)
+        gc.callbacks.remove(collected)
+    assert events[events.index("polled"):events.index("returned")] == ["polled", "collected"], events
+
+
+def test_the_collection_due_is_of_the_oldest_generation_past_its_threshold():
+    """A young collection alone would leave the older generations to an automatic one that never
+    comes: every poll ends with the young count reset."""
+    generations = []
+    collected = lambda phase, info: generations.append(info["generation"]) if phase == "start" else None
+    threshold = gc.get_threshold()
+    gc.disable()                             # as in a poll
+    try:
+        gc.set_threshold(10**6, 1, 10**6)
+        gc.collect(0)
+        gc.collect(0)                        # the middle generation's count is 2: past its threshold
+        young = [SimpleNamespace() for _ in range(3)]          # tracked, and from no free list
+        gc.callbacks.append(collected)
+        collect_due()                        # the young one's is not yet
+        gc.set_threshold(1, 1, 10**6)
+        collect_due()
+        collect_due()                        # nothing due after it
+    finally:
+        gc.callbacks.remove(collected)
+        gc.set_threshold(*threshold)
+        gc.enable()
+    assert generations == [1] and young
 
 def test_each_frame_is_answered_with_its_instant_and_the_control_period(rig):
     app, fc, link, clock = rig
