@@ -36,7 +36,9 @@ give the lock up, and a writer on a timer of its own that packed its batch itsel
 there for 1-2 ms in the middle of an answer (25 control steps a batch in lockstep at 10x real
 time): most of the answer's slowest 1 % (docs/performance.md). While the loop packs nothing,
 the writer writes every `IDLE_FLUSH_S` on its own. If the folder cannot be written at start
-the companion says so and flies without a log (a flight without a log beats no flight).
+the companion says so and flies without a log (a flight without a log beats no flight); so
+too if packing fails (a defect: a value no record can hold): said once, the log queues nothing
+more for the rest of the process, what was packed before is still written.
 
 A write error later (a full disk: ENOSPC) pauses the log: what comes meanwhile is dropped,
 and every RETRY_S the writer tries again in a new file (one file per gap), so the log resumes
@@ -105,6 +107,7 @@ class FlightLog:
                                             COMPANION_COMPONENT_ID)
         self._seq = 0                                 # of the decision frames
         self._thread: threading.Thread | None = None
+        self._queueing = False                        # started, and no packing failed
 
     @classmethod
     def disabled(cls) -> FlightLog:
@@ -124,6 +127,7 @@ class FlightLog:
         self._open()                                  # fails here, at start, if the folder is not writable
         self._thread = threading.Thread(target=self._run, name="flight-log", daemon=True)
         self._thread.start()
+        self._queueing = True
         return self
 
     # -- the control loop's side: appends, and packs after its send ----------------------------
@@ -137,7 +141,7 @@ class FlightLog:
 
     def record_all(self, packets: list[bytes], unix_time_us: int | None = None) -> None:
         """A datagram's packets, sent or received, at one time (the link's tlog interface)."""
-        if self._thread is not None:
+        if self._queueing:
             t_us = self._clock_ns() // 1000 if unix_time_us is None else unix_time_us
             self._queue.extend((t_us, bytes(packet)) for packet in packets)
             self._appended += len(packets)
@@ -150,12 +154,12 @@ class FlightLog:
                 armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
                 fc_rebooted |= armed and self._armed is False
                 self._armed = armed
-        if fc_rebooted and self._thread is not None and (not self._flights or self._flights[-1] != since):
+        if fc_rebooted and self._queueing and (not self._flights or self._flights[-1] != since):
             self._flights.append(since)
 
     def decision(self, time_ms: int, step, latency_s: float) -> None:
         """What the controller decided for the telemetry instant `time_ms` (a ControlStep)."""
-        if self._thread is None:
+        if not self._queueing:
             return
         values = [(b"step_ms", latency_s * 1e3), (b"com_n", step.state[0]), (b"com_e", step.state[1]),
                   (b"com_d", step.state[2]), (b"dist_n", step.disturbance[0]), (b"dist_e", step.disturbance[1]),
@@ -173,7 +177,14 @@ class FlightLog:
     def pack(self) -> None:
         """What was queued since the last call made into tlog records for the writer, on the
         caller's thread (the control loop's, at the end of its poll); a new flight's first entry
-        starts a new batch. The writer is woken to write them at most every FLUSH_S."""
+        starts a new batch. The writer is woken to write them at most every FLUSH_S. A failure
+        stops the log, never the loop (`_stop_queueing`)."""
+        try:
+            self._pack()
+        except Exception as e:  # noqa: BLE001 - a defect in what was queued: a flight without a log beats no flight
+            self._stop_queueing(e)
+
+    def _pack(self) -> None:
         records: list[bytes] = []
         while self._queue:
             if self._flights and self._taken >= self._flights[0]:
@@ -191,6 +202,15 @@ class FlightLog:
         if self._packed and (now_s := time.monotonic()) >= self._wake_due_s:
             self._wake_due_s = now_s + FLUSH_S
             self._wake.set()
+
+    def _stop_queueing(self, error: Exception) -> None:
+        """Packing failed: said once, what is queued dropped, nothing queued from now on; the
+        records packed before are still written."""
+        log.error("flight log stopped for the rest of the process: cannot pack its records (%s: %s); the flight "
+                  "goes on", type(error).__name__, error)
+        self._queueing = False
+        self._queue.clear()
+        self._flights.clear()
 
     def _records(self, time_us: int, payload) -> list[bytes]:
         """The tlog records of one queue entry: a packet as it crossed the link, or a decision's

@@ -18,7 +18,7 @@ import pytest
 
 from m4.airframe import load_airframe
 from companion import flight_log
-from companion.app import collect_due, CompanionApp
+from companion.app import CompanionApp, collect_due
 from companion.config import LogSettings, parse_config
 from companion.controller import Controller, ControllerSettings
 from companion.core.control_types import FaultState, FaultStatus
@@ -602,6 +602,30 @@ def test_a_gap_in_the_flight_log_is_sent_as_a_statustext_warning_and_published(r
     link_payload = [p for t, p in published if t == "link"][-1]
     assert (link_payload["flight_log_paused"], link_payload["flight_log_gaps"]) == (False, 1)
 
+
+def test_a_record_the_flight_log_cannot_pack_stops_the_log_not_the_flight(rig, tmp_path, monkeypatch, caplog):
+    """The loop packs the log's records itself (after its send): a defect there used to end only
+    the writer's thread, and would now end the loop. Said once, the log stops; the flight goes on."""
+    app, fc, link, clock = rig
+    app.flight_log = link.tlog = FlightLog(LogSettings(dir=tmp_path)).start()
+
+    def unpackable(*args):
+        raise ValueError("could not convert string to float: 'nan?'")
+
+    monkeypatch.setattr(app.flight_log._decision_frames, "pack", unpackable)     # every decision's record
+    try:
+        with caplog.at_level(logging.INFO, logger="m4-companion"):
+            fc.join(app)
+            fly(app, fc, clock, 0, 3)
+            queued = app.flight_log.position()
+            fly(app, fc, clock, 60, 3)
+    finally:
+        app.flight_log.close()
+    assert setpoint_times(link) == list(range(0, 120, 20))
+    said = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert said == [("flight log stopped for the rest of the process: cannot pack its records (ValueError: could "
+                     "not convert string to float: 'nan?'); the flight goes on")]
+    assert app.flight_log.position() == queued and not app.flight_log._queue      # nothing queued since
 
 def test_overruns_are_sent_as_statustext_warnings_at_most_every_5_s_with_their_count_and_published(rig, monkeypatch):
     app, fc, link, clock = rig
