@@ -142,7 +142,7 @@ def check_signature(mav: mavlink.MAVLink, msgbuf: bytearray, src_system: int, sr
         log.info("signed packet with an old timestamp (a replay?): dropped")
         return False
     s.stream_timestamps[stream] = timestamp
-    s._timestamp = max(s._timestamp, _wall_timestamp(), timestamp)    # the clock's now kept: it may step back
+    s.timestamp = max(s.timestamp, timestamp)     # the clock's reading kept with it (the getter adds it): it may step back
     return True
 
 
