@@ -52,6 +52,16 @@ class StepTimes:
                          self.writer_batch_cpu_ms + other.writer_batch_cpu_ms)
 
 
+def _cpu_timed(fn, into: list[float]):
+    """fn, its calling thread's CPU time (ms) appended to `into` at each call."""
+    def timed(*args):
+        start_cpu = time.thread_time()
+        result = fn(*args)
+        into.append((time.thread_time() - start_cpu) * 1e3)
+        return result
+    return timed
+
+
 def step_times(scenario: str, seconds: float, log_dir: Path | None) -> StepTimes:
     config = parse_config({"link": {"fc_url": "udpin:127.0.0.1:0", "signing": False}}, "bench")   # as the SITL below
     config = dataclasses.replace(config, mission=scenarios.resolve(scenario).mission,
@@ -66,21 +76,8 @@ def step_times(scenario: str, seconds: float, log_dir: Path | None) -> StepTimes
         times.cpu_ms.append((time.thread_time() - start_cpu) * 1e3)
         times.wall_ms.append((time.perf_counter() - start) * 1e3)
     app._answer = timed
-    pack = app.flight_log.pack
-
-    def timed_pack():
-        start_cpu = time.thread_time()
-        pack()
-        times.pack_cpu_ms.append((time.thread_time() - start_cpu) * 1e3)
-    app.flight_log.pack = timed_pack
-    drain = app.flight_log._drain
-
-    def timed_drain():
-        start_cpu = time.thread_time()
-        ok = drain()
-        times.writer_batch_cpu_ms.append((time.thread_time() - start_cpu) * 1e3)
-        return ok
-    app.flight_log._drain = timed_drain
+    app.flight_log.pack = _cpu_timed(app.flight_log.pack, times.pack_cpu_ms)
+    app.flight_log._drain = _cpu_timed(app.flight_log._drain, times.writer_batch_cpu_ms)
     thread = threading.Thread(target=app.run, daemon=True)
     cpu_start = time.process_time()
     thread.start()
